@@ -1,0 +1,1 @@
+"""DOORS-style distributed blackboard over Eclipse Zenoh, with a recorded trace."""

@@ -1,0 +1,1 @@
+"""The knowledge sources (agents) of mapinterp, the command line and the pytest plugin."""

@@ -1,0 +1,77 @@
+"""The ``mapinterp`` command.
+
+Sub-commands live one per module in :mod:`knowledge_sources.commands` and are imported only
+when chosen. A :class:`~blackboard.errors.MapinterpError` (a user's mistake: a malformed
+scenario, a missing image, a dead agent) is printed as one sentence naming the culprit, with
+exit status 2, never as a traceback; ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+
+from blackboard.errors import MapinterpError
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+#: sub-command name -> module in knowledge_sources.commands
+COMMANDS: dict[str, str] = {
+    "render": "render",
+    "table": "table",
+    "run": "run",
+    "trace": "trace",
+    "report": "report",
+}
+
+_HELP: dict[str, str] = {
+    "render": "render a scenario's viewframes, their symbolic descriptions and an overview map",
+    "table": "print the error-variance table of camera images against stored viewframes",
+    "run": "localize the vehicle: run the agent ensemble on a scenario over the blackboard",
+    "trace": "inspect a blackboard trace file",
+    "report": "plot a results file: map, frames beside their viewframes, rankings, queries",
+}
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """Build the argument parser; only the chosen sub-command's module is imported."""
+    parser = argparse.ArgumentParser(prog="mapinterp", description=__doc__.splitlines()[0])
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    chosen = next((a for a in (argv or []) if a in COMMANDS), None)
+    for name in COMMANDS:
+        p = sub.add_parser(name, help=_HELP[name], description=_HELP[name])
+        if name == chosen:
+            _command_module(name).add_arguments(p)
+    return parser
+
+
+def _command_module(name: str):
+    return importlib.import_module(f"knowledge_sources.commands.{COMMANDS[name]}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``mapinterp`` console script; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(_command_module(args.command).main(args) or 0)
+    except MapinterpError as err:
+        if args.debug:
+            raise
+        print(f"mapinterp {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"mapinterp {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
