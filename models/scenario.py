@@ -1,0 +1,376 @@
+"""Scenario files: the map, the landmarks, the mission route, the camera and the sensor input.
+
+A scenario is a YAML file validated fully on load; every error names the file, the field path
+and what is wrong (``scenarios/x.yaml: landmarks[3].height: must be > 0``). Relative paths
+(DEM, contours, camera frames) resolve against the scenario file's folder. Example::
+
+    name: hills
+    seed: 7
+    terrain: {cell_size: 10.0, procedural: {size: 256, relief: 120.0, seed: 3}}
+    landmarks:
+      - {id: H1, kind: house, x: 812.0, y: 450.5, width: 20, depth: 12, height: 8, yaw_deg: 30}
+    route: [[100, 100], [250, 140], [400, 210]]
+    camera: {width: 160, height: 120, fov_y_deg: 45, eye_height: 2.0, near: 1.0, far: 5000.0}
+    sensor: {simulate: {per_point: 1}}
+
+World coordinates are metres, x east, y north, z up; see :mod:`models.terrain` for the DEM
+grid convention and :mod:`models.camera` for the pinhole convention.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from blackboard.errors import ScenarioError
+
+__all__ = [
+    "ProceduralSpec",
+    "TerrainSpec",
+    "LandmarkSpec",
+    "CameraSpec",
+    "TruthSpec",
+    "FrameSpec",
+    "SimulateSpec",
+    "SensorSpec",
+    "MemorySpec",
+    "SchedulerSpec",
+    "ExpectSpec",
+    "Scenario",
+    "load_scenario",
+    "scenario_from_dict",
+    "SAMPLE_DEMS",
+]
+
+log = logging.getLogger(__name__)
+
+#: names accepted by ``terrain.sample``
+SAMPLE_DEMS: tuple[str, ...] = ("jacksboro",)
+
+
+class _Spec(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _resolve_path(value: Path, info: ValidationInfo, *, must_exist: bool = True) -> Path:
+    """Resolve ``value`` against the scenario folder given in the validation context."""
+    base = (info.context or {}).get("base_dir")
+    path = Path(value).expanduser()
+    if not path.is_absolute():
+        path = (Path(base) if base is not None else Path.cwd()) / path
+    if must_exist and not path.is_file():
+        raise ValueError(f"file not found: {path}")
+    return path
+
+
+class ProceduralSpec(_Spec):
+    """Procedural hills: ``{size: 256, relief: 120.0, seed: 3}`` (seed None -> scenario seed)."""
+
+    size: int = Field(ge=8, le=4096)
+    relief: float = Field(gt=0)
+    seed: int | None = None
+
+
+class TerrainSpec(_Spec):
+    """``cell_size`` plus exactly one source: ``dem``, ``procedural``, ``contours`` or ``sample``."""
+
+    cell_size: float = Field(gt=0)
+    dem: Path | None = None
+    procedural: ProceduralSpec | None = None
+    contours: Path | None = None
+    sample: Literal["jacksboro"] | None = None
+
+    @field_validator("dem", "contours")
+    @classmethod
+    def _file(cls, value: Path | None, info: ValidationInfo) -> Path | None:
+        return None if value is None else _resolve_path(value, info)
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> TerrainSpec:
+        given = [k for k in ("dem", "procedural", "contours", "sample") if getattr(self, k) is not None]
+        if len(given) != 1:
+            got = ", ".join(given) if given else "none"
+            raise ValueError(f"needs exactly one of dem, procedural, contours, sample (got {got})")
+        return self
+
+
+class LandmarkSpec(_Spec):
+    """A box landmark: footprint centre (x, y), width along local x, depth along local y."""
+
+    id: str = Field(min_length=1)
+    kind: str = Field(min_length=1)
+    x: float
+    y: float
+    width: float = Field(gt=0)
+    depth: float = Field(gt=0)
+    height: float = Field(gt=0)
+    yaw_deg: float = 0.0
+
+
+class CameraSpec(_Spec):
+    """Pinhole camera: ``{width: 160, height: 120, fov_y_deg: 45, eye_height: 2.0, near: 1, far: 5000}``."""
+
+    width: int = Field(ge=8, le=4096)
+    height: int = Field(ge=8, le=4096)
+    fov_y_deg: float = Field(gt=0, lt=180)
+    eye_height: float = Field(ge=0)
+    pitch_deg: float = Field(default=0.0, gt=-90, lt=90)
+    near: float = Field(gt=0)
+    far: float = Field(gt=0)
+
+    @model_validator(mode="after")
+    def _near_far(self) -> CameraSpec:
+        if self.far <= self.near:
+            raise ValueError(f"far ({self.far}) must be > near ({self.near})")
+        return self
+
+
+class TruthSpec(_Spec):
+    """True pose of a camera frame (for evaluation only)."""
+
+    x: float
+    y: float
+    heading_deg: float
+
+
+class FrameSpec(_Spec):
+    """A camera image taken during the mission; ``image`` must exist."""
+
+    image: Path
+    truth: TruthSpec | None = None
+
+    @field_validator("image")
+    @classmethod
+    def _file(cls, value: Path, info: ValidationInfo) -> Path:
+        return _resolve_path(value, info)
+
+
+class SimulateSpec(_Spec):
+    """Simulated camera frames near the route points (see the end-to-end issue)."""
+
+    per_point: int = Field(default=1, ge=1)
+    jitter_m: float = Field(default=1.5, ge=0)
+    jitter_deg: float = Field(default=3.0, ge=0)
+    advance: float = Field(default=0.15, ge=0, lt=1)
+    lighting: float = Field(default=0.3, ge=0)
+    haze: float = Field(default=0.2, ge=0)
+    gain: float = Field(default=0.2, ge=0)
+    gamma: float = Field(default=0.2, ge=0)
+    noise: float = Field(default=4.0, ge=0)
+    blur: float = Field(default=0.7, ge=0)
+    texture: float = Field(default=0.3, ge=0)
+    seed: int | None = Field(default=None, ge=0)
+
+
+class SensorSpec(_Spec):
+    """Exactly one of ``frames`` (real images) or ``simulate``."""
+
+    frames: list[FrameSpec] | None = Field(default=None, min_length=1)
+    simulate: SimulateSpec | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> SensorSpec:
+        if (self.frames is None) == (self.simulate is None):
+            raise ValueError("needs exactly one of frames, simulate")
+        return self
+
+
+class MemorySpec(_Spec):
+    """Associative memory settings."""
+
+    size: int = 128
+    edge: Literal["canny", "sobel"] = "sobel"
+    blur_sigma: float = Field(default=2.0, gt=0)
+    bank_size: int = Field(default=512, ge=1)
+    key: str = "phase"
+
+    @field_validator("size")
+    @classmethod
+    def _power_of_two(cls, value: int) -> int:
+        if not 16 <= value <= 1024 or value & (value - 1):
+            raise ValueError("must be a power of two in 16..1024")
+        return value
+
+
+class SchedulerSpec(_Spec):
+    """Hypothesis scheduler settings."""
+
+    candidates: int = Field(default=8, ge=1)
+    accept: float = Field(default=0.75, ge=0, le=1)
+    detector_threshold: float = Field(default=0.5, ge=0, le=1)
+    query_timeout_s: float = Field(default=10.0, gt=0)
+    strategy: Literal["associative", "prior"] = "associative"
+
+
+class ExpectSpec(_Spec):
+    """Expected outcome of running the scenario (checked by the pytest plugin)."""
+
+    strategy: Literal["associative", "prior"] | None = None
+    top1_min: float | None = Field(default=None, ge=0, le=1)
+    mean_queries_max: float | None = Field(default=None, gt=0)
+    mean_error_m_max: float | None = Field(default=None, gt=0)
+    fewer_queries_than_prior: bool = False
+    processes: bool = False
+
+
+class Scenario(_Spec):
+    """A validated scenario. Build it with :func:`load_scenario` or :func:`scenario_from_dict`."""
+
+    name: str = Field(min_length=1)
+    seed: int = 0
+    terrain: TerrainSpec
+    landmarks: list[LandmarkSpec] = Field(default_factory=list)
+    route: list[tuple[float, float]] = Field(min_length=2)
+    camera: CameraSpec
+    sensor: SensorSpec | None = None
+    memory: MemorySpec = MemorySpec()
+    scheduler: SchedulerSpec = SchedulerSpec()
+    expect: ExpectSpec | None = None
+
+    _path: Path | None = PrivateAttr(default=None)
+
+    @field_validator("landmarks")
+    @classmethod
+    def _unique_ids(cls, value: list[LandmarkSpec]) -> list[LandmarkSpec]:
+        seen: set[str] = set()
+        for lm in value:
+            if lm.id in seen:
+                raise ValueError(f"duplicate landmark id {lm.id!r}")
+            seen.add(lm.id)
+        return value
+
+    @field_validator("route")
+    @classmethod
+    def _distinct(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for i, (a, b) in enumerate(zip(value, value[1:]), start=1):
+            if not all(math.isfinite(v) for v in (*a, *b)):
+                raise ValueError(f"point {i} is not finite")
+            if math.hypot(b[0] - a[0], b[1] - a[1]) < 1e-6:
+                raise ValueError(f"points {i - 1} and {i} coincide")
+        return value
+
+    @property
+    def path(self) -> Path | None:
+        """The scenario file, or None for a scenario built from a dict without a path."""
+        return self._path
+
+    @property
+    def base_dir(self) -> Path:
+        """Folder relative paths resolve against: the scenario file's folder (else the cwd)."""
+        return self._path.parent if self._path is not None else Path.cwd()
+
+
+_MESSAGES = {
+    "greater_than": "must be > {gt}",
+    "greater_than_equal": "must be >= {ge}",
+    "less_than": "must be < {lt}",
+    "less_than_equal": "must be <= {le}",
+    "missing": "is required",
+    "extra_forbidden": "unknown field",
+    "too_short": "needs at least {min_length} items",
+    "too_long": "allows at most {max_length} items",
+    "string_too_short": "must not be empty",
+    "int_parsing": "must be an integer",
+    "int_from_float": "must be an integer",
+    "int_type": "must be an integer",
+    "float_parsing": "must be a number",
+    "float_type": "must be a number",
+    "finite_number": "must be a finite number",
+    "string_type": "must be a string",
+    "bool_parsing": "must be true or false",
+    "bool_type": "must be true or false",
+    "list_type": "must be a list",
+    "tuple_type": "must be a list of two numbers",
+    "model_type": "must be a mapping",
+    "model_attributes_type": "must be a mapping",
+    "dict_type": "must be a mapping",
+    "literal_error": "must be one of {expected}",
+    "path_type": "must be a path",
+}
+
+
+def _field_path(loc: tuple[Any, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out += f".{part}" if out else str(part)
+    return out
+
+
+def _message(err: dict[str, Any]) -> str:
+    kind = err["type"]
+    if kind == "value_error":
+        msg = str(err.get("ctx", {}).get("error", err["msg"]))
+        return msg
+    template = _MESSAGES.get(kind)
+    if template is None:
+        return err["msg"]
+    ctx = {k: (f"{v:g}" if isinstance(v, float) else v) for k, v in err.get("ctx", {}).items()}
+    try:
+        return template.format(**ctx)
+    except (KeyError, IndexError):
+        return err["msg"]
+
+
+def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
+    errors = exc.errors()
+    # union members (e.g. route tuple) report the deepest location first; keep the first error
+    err = errors[0]
+    more = f" (and {len(errors) - 1} more error{'s' if len(errors) > 2 else ''})" if len(errors) > 1 else ""
+    return ScenarioError(path, _field_path(tuple(err["loc"])) or None, _message(err) + more)
+
+
+def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
+    """Validate ``data`` (the parsed YAML) into a :class:`Scenario`.
+
+    ``path`` is the file it came from: relative paths resolve against its folder and errors
+    name it. Raises :class:`ScenarioError` naming the field path on the first problem.
+    """
+    path = None if path is None else Path(path)
+    if not isinstance(data, dict):
+        raise ScenarioError(path, None, f"must be a mapping at the top level, not {type(data).__name__}")
+    if "path" in data:
+        raise ScenarioError(path, "path", "unknown field")
+    base_dir = path.parent if path is not None else Path.cwd()
+    try:
+        scenario = Scenario.model_validate(data, context={"base_dir": base_dir})
+    except ValidationError as exc:
+        raise _to_scenario_error(exc, path) from None
+    scenario._path = path
+    return scenario
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario YAML file; raises :class:`ScenarioError`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(path, None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(path, None, f"cannot read: {exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise ScenarioError(path, None, f"invalid YAML{where}: {problem}") from None
+    log.debug("loaded scenario %s", path)
+    return scenario_from_dict(data, path=path)
