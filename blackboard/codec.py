@@ -1,0 +1,153 @@
+"""msgpack payloads with numpy arrays, without pickle, with size limits.
+
+A numpy array travels as msgpack ExtType :data:`NDARRAY_EXT`; its data is a small msgpack
+header ``[dtype.str, shape]`` followed by the raw C-order bytes. Only plain dtypes
+(bool, integer, float, complex, fixed bytes/str) are accepted: never ``object``, so decoding
+cannot run code. numpy scalars become Python scalars, tuples become lists.
+
+Example::
+
+    >>> import numpy as np
+    >>> decode(encode({"a": np.arange(3, dtype=np.int16)}))["a"].dtype
+    dtype('int16')
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from blackboard.errors import CodecError
+
+__all__ = ["encode", "decode", "NDARRAY_EXT", "DEFAULT_MAX_BYTES", "MAX_DEPTH"]
+
+NDARRAY_EXT = 1
+#: default limit of one message (64 MiB)
+DEFAULT_MAX_BYTES = 64 * 1024 * 1024
+#: nesting limit of maps and lists
+MAX_DEPTH = 32
+_MAX_NDIM = 32
+_KINDS = frozenset("biufcSU")
+
+
+def _default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        if obj.dtype.kind not in _KINDS or obj.dtype.fields is not None:
+            raise TypeError(f"numpy dtype {obj.dtype} is not supported (plain numeric, bool, S, U only)")
+        arr = np.ascontiguousarray(obj)
+        header = msgpack.packb([arr.dtype.str, list(arr.shape)])
+        return msgpack.ExtType(NDARRAY_EXT, header + arr.tobytes())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"cannot encode {type(obj).__name__}")
+
+
+def _find_bad(obj: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
+    """The path of the first value that cannot be encoded, and why."""
+    if depth > MAX_DEPTH:
+        return path, f"nesting deeper than {MAX_DEPTH}"
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            if not isinstance(k, str):
+                return f"{path}.{k!r}" if path else repr(k), f"map key must be str, got {type(k).__name__}"
+            found = _find_bad(v, f"{path}.{k}" if path else k, depth + 1)
+            if found:
+                return found
+        return None
+    if isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            found = _find_bad(v, f"{path}[{i}]", depth + 1)
+            if found:
+                return found
+        return None
+    if obj is None or isinstance(obj, (bool, int, float, str, bytes, bytearray, np.generic)):
+        if isinstance(obj, int) and not isinstance(obj, bool) and not -(2**63) <= obj < 2**64:
+            return path, "integer out of the 64-bit range"
+        return None
+    if isinstance(obj, np.ndarray):
+        try:
+            _default(obj)
+        except TypeError as err:
+            return path, str(err)
+        return None
+    return path, f"cannot encode {type(obj).__name__}"
+
+
+def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
+    """Encode nested dicts/lists/scalars/bytes/numpy arrays to msgpack bytes.
+
+    Raises:
+        CodecError: an unsupported value (``.key`` is its path, e.g. ``body.image``), map keys
+            that are not str, nesting deeper than :data:`MAX_DEPTH`, or a result over ``max_bytes``.
+    """
+    try:
+        data = msgpack.packb(obj, default=_default, use_bin_type=True, strict_types=False)
+    except (TypeError, ValueError, OverflowError) as err:
+        found = _find_bad(obj, "")
+        key, why = found if found else (None, str(err))
+        raise CodecError(f"cannot encode: {why}", key=key or None) from None
+    found = _find_bad(obj, "") if _depth_exceeds(obj) else None
+    if found:
+        raise CodecError(f"cannot encode: {found[1]}", key=found[0] or None)
+    if len(data) > max_bytes:
+        raise CodecError(f"encoded size {len(data)} bytes exceeds the limit of {max_bytes} bytes")
+    return data
+
+
+def _depth_exceeds(obj: Any, depth: int = 0) -> bool:
+    if depth > MAX_DEPTH:
+        return True
+    if isinstance(obj, dict):
+        return any(_depth_exceeds(v, depth + 1) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return any(_depth_exceeds(v, depth + 1) for v in obj)
+    return False
+
+
+def _ext_hook(code: int, data: bytes) -> Any:
+    if code != NDARRAY_EXT:
+        raise ValueError(f"unknown msgpack extension type {code}")
+    unpacker = msgpack.Unpacker(max_buffer_size=len(data) + 1, raw=False, max_array_len=_MAX_NDIM + 2)
+    unpacker.feed(data)
+    header = unpacker.unpack()
+    offset = unpacker.tell()
+    if not (isinstance(header, list) and len(header) == 2 and isinstance(header[0], str) and isinstance(header[1], list)):
+        raise ValueError("malformed ndarray header")
+    dtype = np.dtype(header[0])
+    shape = header[1]
+    if dtype.kind not in _KINDS or dtype.fields is not None:
+        raise ValueError(f"ndarray dtype {dtype} is not allowed")
+    if len(shape) > _MAX_NDIM or not all(isinstance(n, int) and n >= 0 for n in shape):
+        raise ValueError(f"malformed ndarray shape {shape!r}")
+    raw = data[offset:]
+    if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != len(raw):
+        raise ValueError(f"ndarray data is {len(raw)} bytes, shape {shape} of {dtype} needs another size")
+    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+
+
+def decode(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, key: str | None = None) -> Any:
+    """Decode bytes made by :func:`encode`; arrays come back writable, C-order.
+
+    Raises:
+        CodecError: malformed bytes, an unknown extension, trailing bytes, nesting deeper than
+            :data:`MAX_DEPTH`, or more than ``max_bytes`` (``.key`` is ``key``).
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise CodecError(f"expected bytes, got {type(data).__name__}", key=key)
+    if len(data) > max_bytes:
+        raise CodecError(f"message of {len(data)} bytes exceeds the limit of {max_bytes} bytes", key=key)
+    try:
+        obj = msgpack.unpackb(
+            data,
+            raw=False,
+            ext_hook=_ext_hook,
+            strict_map_key=True,
+            use_list=True,
+        )
+    except Exception as err:  # msgpack raises many types (ExtraData, ValueError, UnpackValueError, ...)
+        raise CodecError(f"malformed message: {type(err).__name__}: {err}", key=key) from None
+    if _depth_exceeds(obj):
+        raise CodecError(f"message nested deeper than {MAX_DEPTH}", key=key)
+    return obj

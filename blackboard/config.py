@@ -1,0 +1,128 @@
+"""Zenoh configuration: loopback-only defaults, the shared command-line flags.
+
+Defaults: peer mode, multicast scouting off, listen on ``tcp/127.0.0.1`` only, reliable
+delivery; publications use :data:`zenoh.CongestionControl.BLOCK` so no hypothesis is dropped.
+``--zenoh-config FILE`` loads a user JSON5 config (TLS, access control) that the explicit
+``--listen`` / ``--connect`` flags then amend.
+
+Example::
+
+    >>> opts = ZenohOptions(connect=["tcp/127.0.0.1:7447"])
+    >>> cfg = zenoh_config(opts)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import socket
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import zenoh
+
+from blackboard.errors import TransportError
+
+__all__ = [
+    "ZenohOptions",
+    "zenoh_config",
+    "open_session",
+    "add_zenoh_arguments",
+    "zenoh_options_from_args",
+    "free_port",
+    "loopback_endpoint",
+]
+
+_ENDPOINT = re.compile(r"(tcp|tls|quic|udp)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+):\d{1,5}")
+
+
+def free_port() -> int:
+    """A currently free TCP port on 127.0.0.1 (bind to port 0, read, release)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def loopback_endpoint(port: int | None = None) -> str:
+    """``tcp/127.0.0.1:PORT`` (a free port when ``port`` is None)."""
+    return f"tcp/127.0.0.1:{free_port() if port is None else port}"
+
+
+@dataclass
+class ZenohOptions:
+    """Where the zenoh sessions of a run listen and connect.
+
+    Example::
+
+        ZenohOptions(listen=["tcp/127.0.0.1:7447"])          # others may --connect here
+        ZenohOptions(connect=["tcp/127.0.0.1:7447"])         # join that network
+        ZenohOptions(config_file=Path("zenoh.json5"))        # TLS, access control, ...
+    """
+
+    listen: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=list)
+    config_file: Path | None = None
+
+    def __post_init__(self) -> None:
+        for what, endpoints in (("listen", self.listen), ("connect", self.connect)):
+            for endpoint in endpoints:
+                if not isinstance(endpoint, str) or _ENDPOINT.fullmatch(endpoint) is None:
+                    raise TransportError(f"--{what} endpoint must look like tcp/127.0.0.1:7447, got {endpoint!r}")
+        if self.config_file is not None:
+            self.config_file = Path(self.config_file)
+
+
+def zenoh_config(
+    options: ZenohOptions | None = None, *, listen: list[str] | None = None, connect: list[str] | None = None
+) -> zenoh.Config:
+    """A :class:`zenoh.Config` for one session.
+
+    ``listen`` / ``connect`` (when given) add to the endpoints of ``options``. Without any listen
+    endpoint the session listens on an ephemeral ``tcp/127.0.0.1`` port (never on all
+    interfaces, zenoh's own default), so peers can mesh over loopback.
+
+    Raises:
+        TransportError: the config file is missing or invalid.
+    """
+    options = options or ZenohOptions()
+    if options.config_file is not None:
+        try:
+            config = zenoh.Config.from_file(str(options.config_file))
+        except (OSError, zenoh.ZError, ValueError) as err:
+            raise TransportError(f"{options.config_file}: cannot load zenoh config: {err}") from None
+    else:
+        config = zenoh.Config()
+        config.insert_json5("mode", '"peer"')
+        config.insert_json5("scouting/multicast/enabled", "false")
+    listen_eps = [*options.listen, *(listen or [])]
+    connect_eps = [*options.connect, *(connect or [])]
+    if options.config_file is None or listen_eps:
+        config.insert_json5("listen/endpoints", json.dumps(listen_eps or ["tcp/127.0.0.1:0"]))
+    if options.config_file is None or connect_eps:
+        config.insert_json5("connect/endpoints", json.dumps(connect_eps))
+    return config
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open`` with its errors as :class:`TransportError`."""
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as err:
+        raise TransportError(f"cannot open a zenoh session: {err}") from None
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--connect``, ``--listen`` and ``--zenoh-config`` (the one place they are defined)."""
+    group = parser.add_argument_group("zenoh")
+    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                       help="join an existing zenoh network, e.g. tcp/127.0.0.1:7447 (repeatable)")
+    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                       help="let other mapinterp processes connect here, e.g. tcp/127.0.0.1:7447")
+    group.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
+                       help="a zenoh JSON5 config file (TLS, access control); multicast stays your choice")
+
+
+def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
+    """The :class:`ZenohOptions` of parsed ``add_zenoh_arguments`` flags."""
+    return ZenohOptions(listen=list(args.listen), connect=list(args.connect), config_file=args.zenoh_config)
