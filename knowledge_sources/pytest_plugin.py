@@ -1,5 +1,123 @@
-"""pytest plugin: scenario files with an ``expect:`` block become test items.
+"""pytest plugin: scenario files with an ``expect:`` block are test items.
 
-Registered through the ``pytest11`` entry point. Implementation in progress (issue 5):
-until then it collects nothing.
+Registered through the ``pytest11`` entry point, so installing mapinterp is enough: any
+``*.yaml`` scenario that pytest walks past (``testpaths`` or a path on the command line) and that
+has a top-level ``expect:`` block runs end to end through the blackboard and must meet it::
+
+    expect:
+      strategy: associative        # which strategy to run (default: the scenario's)
+      top1_min: 0.9                # fraction of frames on the right route point
+      mean_queries_max: 3          # detector questions per frame
+      mean_error_m_max: 20         # metres
+      fewer_queries_than_prior: true   # also run 'prior' and ask fewer questions than it
+      processes: false             # run every agent in its own process
+
+A miss is reported as a table of expectation, wanted, got and by how much. A malformed scenario
+fails its item with the scenario error (file and field), not with a traceback.
 """
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+__all__ = ["ScenarioFile", "ScenarioItem", "ExpectationMissed", "check_expectations"]
+
+
+class ExpectationMissed(Exception):
+    """One or more expectations of a scenario were not met."""
+
+    def __init__(self, misses: list[tuple[str, str, str, str]]) -> None:
+        self.misses = misses
+        super().__init__(f"{len(misses)} expectation(s) missed")
+
+
+def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, Any] | None = None) -> list[tuple[str, str, str, str]]:
+    """Compare results with an ``ExpectSpec``; returns rows (name, wanted, got, by how much)."""
+    s = results["summary"]
+    misses = []
+    if expect.top1_min is not None:
+        got = s.get("top1")
+        if got is None:
+            misses.append(("top1_min", f">= {expect.top1_min:g}", "no truth poses", "-"))
+        elif got < expect.top1_min:
+            misses.append(("top1_min", f">= {expect.top1_min:g}", f"{got:.3f}", f"{expect.top1_min - got:.3f} short"))
+    if expect.mean_queries_max is not None and s["mean_queries"] > expect.mean_queries_max:
+        misses.append(("mean_queries_max", f"<= {expect.mean_queries_max:g}", f"{s['mean_queries']:.3f}",
+                       f"{s['mean_queries'] - expect.mean_queries_max:.3f} over"))
+    if expect.mean_error_m_max is not None:
+        got = s.get("mean_error_m")
+        if got is None or got > expect.mean_error_m_max:
+            misses.append(("mean_error_m_max", f"<= {expect.mean_error_m_max:g} m",
+                           "no truth poses" if got is None else f"{got:.2f} m",
+                           "-" if got is None else f"{got - expect.mean_error_m_max:.2f} m over"))
+    if expect.fewer_queries_than_prior and prior is not None:
+        a, p = s["mean_queries"], prior["summary"]["mean_queries"]
+        if not a < p:
+            misses.append(("fewer_queries_than_prior", f"< {p:.3f} (prior)", f"{a:.3f}", f"{a - p:.3f} over"))
+    return misses
+
+
+def pytest_collect_file(parent: pytest.Collector, file_path: Path):
+    if file_path.suffix not in (".yaml", ".yml"):
+        return None
+    try:
+        head = yaml.safe_load(file_path.read_text())
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return None
+    if isinstance(head, dict) and "expect" in head and "route" in head:
+        return ScenarioFile.from_parent(parent, path=file_path)
+    return None
+
+
+class ScenarioFile(pytest.File):
+    """A scenario YAML file with an ``expect:`` block."""
+
+    def collect(self):
+        yield ScenarioItem.from_parent(self, name="expect")
+
+
+class ScenarioItem(pytest.Item):
+    """Runs the scenario through the blackboard and checks its expectations."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.add_marker(pytest.mark.slow)
+        self.results: dict[str, Any] | None = None
+
+    def runtest(self) -> None:
+        from knowledge_sources.mission import run_mission
+        from models.scenario import load_scenario
+
+        scenario = load_scenario(self.path)
+        expect = scenario.expect
+        strategy = expect.strategy or scenario.scheduler.strategy
+        self.results = run_mission(scenario, strategy=strategy, processes=expect.processes)
+        prior = None
+        if expect.fewer_queries_than_prior:
+            prior = run_mission(scenario, strategy="prior", processes=expect.processes)
+        misses = check_expectations(expect, self.results, prior)
+        if misses:
+            raise ExpectationMissed(misses)
+
+    def repr_failure(self, excinfo, style=None):
+        from blackboard.errors import MapinterpError
+
+        if isinstance(excinfo.value, ExpectationMissed):
+            rows = [("expectation", "wanted", "got", "missed by"), *excinfo.value.misses]
+            widths = [max(len(r[i]) for r in rows) for i in range(4)]
+            lines = [f"scenario {self.path.name}: expectations missed"]
+            lines += ["  " + "  ".join(c.ljust(widths[i]) for i, c in enumerate(r)) for r in rows]
+            if self.results is not None:
+                s = self.results["summary"]
+                lines.append(f"  summary: {s}")
+            return "\n".join(lines)
+        if isinstance(excinfo.value, MapinterpError):
+            return f"scenario {self.path.name}: {excinfo.value}"
+        return super().repr_failure(excinfo, style=style)
+
+    def reportinfo(self):
+        return self.path, 0, f"scenario {self.path.name}"

@@ -1,0 +1,115 @@
+"""The results file of ``mapinterp run``: a contract other tools read.
+
+::
+
+    {"scenario": str, "strategy": str,
+     "frames": [{"frame": i, "viewframe": k | null, "position": [x, y] | null,
+                 "heading_deg": h | null, "confidence": c, "queries": q, "backtracks": b,
+                 "latency_ms": t, "ranking": [[k, variance], ...first 5],
+                 "truth_viewframe": k | null, "correct": bool | null, "reason": str}],
+     "summary": {"frames": n, "top1": a | null, "mean_queries": q, "mean_error_m": e | null,
+                 "latency_ms_p50": t}}
+
+A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
+``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
+A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from blackboard.errors import InputError
+
+__all__ = ["nearest_viewframe", "frame_record", "summarize", "write_results", "load_results"]
+
+
+def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
+    """Index of the route point nearest the world point ``(x, y)``."""
+    pts = np.asarray(route_xy, dtype=np.float64)
+    return int(np.argmin(np.hypot(pts[:, 0] - x, pts[:, 1] - y)))
+
+
+def frame_record(
+    *,
+    frame: int,
+    viewframe: int | None,
+    position: Sequence[float] | None,
+    heading_deg: float | None,
+    confidence: float,
+    queries: int,
+    backtracks: int,
+    latency_ms: float,
+    ranking: Sequence[Sequence[float]],
+    truth: Sequence[float] | None,
+    route_xy: Sequence[Sequence[float]],
+    reason: str = "",
+) -> dict[str, Any]:
+    """One frame's entry of the results file; ``truth`` is ``(x, y, heading_deg)`` or ``None``."""
+    truth_vf = None if truth is None else nearest_viewframe(truth[0], truth[1], route_xy)
+    error = None
+    if truth is not None and position is not None:
+        error = math.hypot(position[0] - truth[0], position[1] - truth[1])
+    return {
+        "frame": int(frame),
+        "viewframe": None if viewframe is None else int(viewframe),
+        "position": None if position is None else [float(position[0]), float(position[1])],
+        "heading_deg": None if heading_deg is None else float(heading_deg),
+        "confidence": float(confidence),
+        "queries": int(queries),
+        "backtracks": int(backtracks),
+        "latency_ms": float(latency_ms),
+        "ranking": [[int(k), float(v)] for k, v in list(ranking)[:5]],
+        "truth_viewframe": truth_vf,
+        "correct": None if truth_vf is None else (viewframe is not None and int(viewframe) == truth_vf),
+        "error_m": error,
+        "reason": reason,
+    }
+
+
+def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """The ``summary`` block of a results file."""
+    judged = [f for f in frames if f["correct"] is not None]
+    errors = [f["error_m"] for f in frames if f.get("error_m") is not None]
+    lat = [f["latency_ms"] for f in frames]
+    return {
+        "frames": len(frames),
+        "localized": sum(f["viewframe"] is not None for f in frames),
+        "top1": (sum(bool(f["correct"]) for f in judged) / len(judged)) if judged else None,
+        "mean_queries": float(np.mean([f["queries"] for f in frames])) if frames else 0.0,
+        "mean_backtracks": float(np.mean([f["backtracks"] for f in frames])) if frames else 0.0,
+        "mean_error_m": float(np.mean(errors)) if errors else None,
+        "latency_ms_p50": float(np.percentile(lat, 50)) if lat else 0.0,
+        "latency_ms_p99": float(np.percentile(lat, 99)) if lat else 0.0,
+    }
+
+
+def write_results(path: str | Path, results: dict[str, Any]) -> Path:
+    """Write a results dict as indented JSON, creating the folder; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(results, indent=1) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def load_results(path: str | Path) -> dict[str, Any]:
+    """Read a results file; :class:`~blackboard.errors.InputError` names the file and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "results file not found")
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(path, f"not a JSON results file ({err})") from None
+    for key in ("scenario", "strategy", "frames", "summary"):
+        if not isinstance(data, dict) or key not in data:
+            raise InputError(path, f"missing field {key!r}: not a mapinterp results file")
+    return data

@@ -1,0 +1,223 @@
+"""Sensor input: camera frames taken during the mission, from files or simulated.
+
+A real camera's image differs from the synthetic viewframe of the nearest route point in pose
+(the vehicle is between route points and off the exact heading) and in photometry (lighting,
+surface texture, haze, gain, gamma, sensor noise, optical blur). :func:`simulate_frames`
+produces such frames with the same camera emulator that renders the viewframes, then degrades
+them; everything is drawn from one seeded generator, so a scenario always yields the same frames.
+
+Images are ``(H, W, 3)`` uint8 RGB arrays indexed ``(row, col)``; poses are in world
+``(x, y, z)`` metres with heading counterclockwise from +x.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from blackboard.errors import InputError
+from models.scenario import Scenario, SimulateSpec
+
+__all__ = [
+    "SensorFrame",
+    "load_frame_image",
+    "frames_from_files",
+    "degrade",
+    "simulate_frames",
+    "sensor_frames",
+]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SensorFrame:
+    """One camera frame of the mission.
+
+    Attributes
+    ----------
+    index : int
+        Frame number, in mission order.
+    image : ndarray of shape (H, W, 3), uint8
+        RGB image at the scenario camera's size.
+    truth : tuple (x, y, heading_deg) or None
+        The true pose when known (world metres, degrees); never used to localize.
+    source : str
+        The image file, or ``"simulated"``.
+    """
+
+    index: int
+    image: np.ndarray
+    truth: tuple[float, float, float] | None
+    source: str
+
+
+def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray:
+    """Read a PNG/JPEG camera image, gray or colour, any size, as ``(height, width, 3)`` uint8 RGB.
+
+    Raises :class:`~blackboard.errors.InputError` naming the file when it is missing or unreadable.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "camera image not found")
+    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if data is None or data.size == 0:
+        raise InputError(path, "not a readable image (PNG or JPEG expected)")
+    if data.dtype != np.uint8:
+        data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    if data.ndim == 2:
+        rgb = cv2.cvtColor(data, cv2.COLOR_GRAY2RGB)
+    elif data.shape[2] == 4:
+        rgb = cv2.cvtColor(data, cv2.COLOR_BGRA2RGB)
+    else:
+        rgb = cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
+    if rgb.shape[:2] != (height, width):
+        shrinking = rgb.shape[0] > height
+        rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    return np.ascontiguousarray(rgb)
+
+
+def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
+    """The scenario's ``sensor.frames``, read and resized to the camera size."""
+    cam = scenario.camera
+    frames = []
+    for i, spec in enumerate(scenario.sensor.frames or []):
+        image = load_frame_image(spec.image, width=cam.width, height=cam.height)
+        truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
+        frames.append(SensorFrame(i, image, truth, str(spec.image)))
+    return frames
+
+
+def degrade(
+    image: np.ndarray,
+    *,
+    depth: np.ndarray | None = None,
+    spec: SimulateSpec,
+    rng: np.random.Generator | int | None = None,
+) -> np.ndarray:
+    """Apply a real camera's photometric differences to a rendered image.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W, 3), uint8
+    depth : ndarray of shape (H, W), optional
+        Metres along the view axis, 0 for sky; haze grows with it. Without it, haze is uniform.
+    spec : SimulateSpec
+        Strengths: ``texture`` (low-frequency multiplicative albedo noise), ``haze`` (blend to a
+        bright gray with distance), ``gain`` and ``gamma`` (drawn in ``1 ± strength`` and
+        ``exp(± strength)``), ``blur`` (Gaussian sigma, pixels), ``noise`` (gray levels sigma).
+    rng : Generator, int or None
+
+    Returns
+    -------
+    ndarray of shape (H, W, 3), uint8
+    """
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"image must have shape (H, W, 3), not {image.shape}")
+    rng = np.random.default_rng(rng)
+    h, w = image.shape[:2]
+    img = image.astype(np.float32) / 255.0
+    if spec.texture > 0:
+        field = rng.standard_normal((max(2, h // 8), max(2, w // 8))).astype(np.float32)
+        field = cv2.resize(field, (w, h), interpolation=cv2.INTER_CUBIC)
+        field = cv2.GaussianBlur(field, (0, 0), 2.0)
+        field /= max(float(field.std()), 1e-6)
+        img *= np.clip(1.0 + spec.texture * 0.5 * field, 0.2, 2.0)[..., None]
+    if spec.haze > 0:
+        if depth is None:
+            amount = np.full((h, w), spec.haze, np.float32)
+        else:
+            d = np.asarray(depth, np.float32)
+            amount = spec.haze * np.where(d > 0, 1.0 - np.exp(-d / 800.0), 1.0)
+        veil = np.float32(0.8 + 0.1 * rng.uniform(-1, 1))
+        img = img * (1.0 - amount[..., None]) + veil * amount[..., None]
+    gain = 1.0 + spec.gain * rng.uniform(-1, 1)
+    gamma = math.exp(spec.gamma * rng.uniform(-1, 1))
+    img = np.clip(img * gain, 0.0, 1.0) ** gamma
+    if spec.blur > 0:
+        img = cv2.GaussianBlur(img, (0, 0), spec.blur)
+    out = img * 255.0
+    if spec.noise > 0:
+        out = out + rng.normal(0.0, spec.noise, out.shape).astype(np.float32)
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def simulate_frames(
+    scenario: Scenario,
+    emulator,
+    poses: Sequence,
+    *,
+    spec: SimulateSpec | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> list[SensorFrame]:
+    """Simulated camera frames along the route.
+
+    For each route point ``i`` (pose ``poses[i]``), ``spec.per_point`` frames are taken at a
+    position advanced by a uniform fraction in ``[0, spec.advance)`` of the leg towards point
+    ``i + 1`` (the last point advances along its heading by the previous leg's length), displaced
+    by Gaussian jitter of ``spec.jitter_m`` metres per axis, with the heading off by Gaussian
+    ``spec.jitter_deg`` degrees; the emulator renders it under varied lighting, then
+    :func:`degrade` applies the photometric differences. ``truth`` holds the pose.
+    """
+    spec = spec or scenario.sensor.simulate
+    if spec is None:
+        raise ValueError("spec must be given when the scenario has no sensor.simulate block")
+    if rng is None:
+        rng = spec.seed if spec.seed is not None else scenario.seed
+    rng = np.random.default_rng(rng)
+    frames = []
+    n = len(poses)
+    for i, pose in enumerate(poses):
+        if i + 1 < n:
+            leg = np.array([poses[i + 1].x - pose.x, poses[i + 1].y - pose.y])
+        else:
+            back = math.hypot(pose.x - poses[i - 1].x, pose.y - poses[i - 1].y) if n > 1 else 0.0
+            th = math.radians(pose.heading_deg)
+            leg = back * np.array([math.cos(th), math.sin(th)])
+        for _ in range(spec.per_point):
+            u = rng.uniform(0.0, spec.advance) if spec.advance > 0 else 0.0
+            x, y = np.array([pose.x, pose.y]) + u * leg + rng.normal(0.0, spec.jitter_m, 2)
+            heading = pose.heading_deg + rng.normal(0.0, spec.jitter_deg)
+            true_pose = emulator.pose_at(float(x), float(y), float(heading))
+            intensity = 1.0 + spec.lighting * rng.uniform(-1, 1)
+            az = rng.uniform(0, 2 * math.pi)
+            el = math.radians(35.0 + 20.0 * spec.lighting * rng.uniform(-1, 1))
+            direction = (math.cos(az) * math.cos(el), math.sin(az) * math.cos(el), -math.sin(el))
+            view = emulator.render(true_pose, light_intensity=intensity, light_direction=direction)
+            image = degrade(view.image, depth=view.depth, spec=spec, rng=rng)
+            frames.append(SensorFrame(len(frames), image, (float(x), float(y), float(heading)), "simulated"))
+    log.info("simulated %d camera frames for scenario %s", len(frames), scenario.name)
+    return frames
+
+
+def sensor_frames(scenario: Scenario, *, emulator=None, poses: Sequence | None = None) -> list[SensorFrame]:
+    """The scenario's camera frames: read from ``sensor.frames`` or simulated by ``sensor.simulate``.
+
+    ``emulator`` and ``poses`` (the route poses) are needed only for simulation; when omitted they
+    are built from the scenario.
+    """
+    if scenario.sensor is None:
+        return []
+    if scenario.sensor.frames:
+        return frames_from_files(scenario)
+    from models.camera import CameraEmulator
+    from models.environment import build_environment
+    from models.viewframes import route_poses
+
+    own = emulator is None
+    if own:
+        emulator = CameraEmulator(build_environment(scenario), scenario.camera)
+    try:
+        if poses is None:
+            poses = route_poses(scenario, emulator.environment.terrain)
+        return simulate_frames(scenario, emulator, poses)
+    finally:
+        if own:
+            emulator.close()
+
