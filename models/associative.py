@@ -1,0 +1,426 @@
+"""Holographic (noise-like coding) associative memory: store viewframes, rank a camera image.
+
+Formulas (N x N patterns, ``*`` circular convolution, ``(x)`` circular correlation)::
+
+    write   M := M + K_h * P_h            K_h = make_key(P_h)
+    read    R := K_q (x) M                K_q = make_key(Q)
+    error   D_h = R^ - P_h,   v_h = var(D_h)
+
+The memory is kept in the frequency domain, ``FM = sum_h rfft2(K_h) rfft2(P_h)``, so a write
+is one complex multiply-add and a recall one complex multiply and one ``irfft2``; storage order
+does not matter (a sum). Because keys have a flat spectrum, ``K_q (x) K_h`` is a delta for the
+same pattern and noise for a different one (see :mod:`models.keys`), so R is the prototype of
+Q plus crosstalk from the others.
+
+**Error variance, comparable across banks.** Prototypes are zero mean and unit energy. The
+recall is normalised the same way, ``R^ = R / ||R||`` (R is zero mean because keys have no DC),
+so with c_h = <R^, P_h> (a cosine)::
+
+    v_h = var(R^ - P_h) = (2 - 2 c_h) / N**2
+
+Ranking every prototype is thus one (H, N*N) @ (N*N,) float32 matrix-vector product on the
+contiguous prototype matrix, and v_h is a bounded statistic (0 .. 4/N**2) that means the same
+in every bank, so rankings of several banks merge by sorting (:func:`merge_rankings`). Within
+one bank the order is that of the un-normalised error variance var(R - P_h).
+
+**Reliability** of a ranking: how many robust standard deviations the best stands below the
+others, ``(median(rest) - best) / (1.4826 * MAD(rest))`` with ``rest`` all variances but the
+best (the spread is floored at 1e-3 of the median, so two equal-looking candidates do not give
+infinity). It is scale-free, hence comparable across runs, sizes and bank layouts; about 0..3
+means "no clear winner", above ~5 a clear one. A ranking of fewer than two entries has
+reliability 0.
+
+**Capacity.** The crosstalk grows with the number H of stored patterns; the margin of the true
+prototype shrinks roughly as sqrt(N_eff / H). :class:`BankedMemory` splits the viewframes
+over banks of ``bank_size`` (default from ``bench/index.py``, see
+``/work/notes/bench_index.md``); each bank is a :class:`HolographicMemory` whose
+:meth:`~HolographicMemory.state` is plain arrays, so banks can live in other processes.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from blackboard.errors import AssociativeMemoryError
+from models.keys import KEY_METHODS, key_spectrum
+
+__all__ = [
+    "DEFAULT_BANK_SIZE",
+    "Ranking",
+    "reliability",
+    "HolographicMemory",
+    "BankedMemory",
+    "merge_rankings",
+]
+
+logger = logging.getLogger(__name__)
+
+#: default number of viewframes per bank (measured: see bench/index.py)
+DEFAULT_BANK_SIZE = 16
+
+_MAD_TO_STD = 1.4826
+
+
+def reliability(variances: ArrayLike) -> float:
+    """Robust z-score of the smallest variance against the others (see the module docstring)."""
+    v = np.sort(np.asarray(variances, dtype=np.float64).ravel())
+    if v.size < 2:
+        return 0.0
+    best, rest = v[0], v[1:]
+    med = float(np.median(rest))
+    spread = max(_MAD_TO_STD * float(np.median(np.abs(rest - med))), 1e-3 * abs(med), 1e-300)
+    return float((med - best) / spread)
+
+
+@dataclass(frozen=True)
+class Ranking:
+    """Stored viewframes ordered by error variance, best (smallest) first.
+
+    ``labels`` (H,) int64 viewframe indices; ``variances`` (H,) float64 in the same order;
+    ``reliability`` see :func:`reliability`.
+
+    Example::
+
+        >>> r = Ranking(np.array([2, 0]), np.array([1e-5, 1.2e-4]), 3.0)
+        >>> r.top(1)
+        [(2, 1e-05)]
+    """
+
+    labels: NDArray[np.int64]
+    variances: NDArray[np.float64]
+    reliability: float = field(default=0.0)
+
+    def __post_init__(self) -> None:
+        labels = np.asarray(self.labels, dtype=np.int64).ravel()
+        variances = np.asarray(self.variances, dtype=np.float64).ravel()
+        if labels.shape != variances.shape:
+            raise AssociativeMemoryError(
+                f"ranking: labels ({labels.size}) and variances ({variances.size}) differ in length"
+            )
+        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "variances", variances)
+        object.__setattr__(self, "reliability", float(self.reliability))
+
+    def __len__(self) -> int:
+        return int(self.labels.size)
+
+    @property
+    def best(self) -> int | None:
+        """Label of the best viewframe, or None for an empty ranking."""
+        return int(self.labels[0]) if self.labels.size else None
+
+    def top(self, k: int) -> list[tuple[int, float]]:
+        """The ``k`` best as ``[(label, variance), ...]``."""
+        if k < 0:
+            raise ValueError(f"k must be >= 0, got {k!r}")
+        return [(int(a), float(b)) for a, b in zip(self.labels[:k], self.variances[:k])]
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (lists, floats) for msgpack/JSON."""
+        return {
+            "labels": [int(x) for x in self.labels],
+            "variances": [float(x) for x in self.variances],
+            "reliability": float(self.reliability),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Ranking:
+        """Inverse of :meth:`to_dict`; raises AssociativeMemoryError on malformed data."""
+        try:
+            return cls(np.asarray(data["labels"]), np.asarray(data["variances"]), float(data["reliability"]))
+        except (KeyError, TypeError, ValueError) as err:
+            raise AssociativeMemoryError(f"ranking: malformed data: {err}") from err
+
+
+def _ranking(labels: NDArray[np.int64], variances: NDArray[np.float64]) -> Ranking:
+    # stable sort on (variance, label) so equal variances come in label order
+    order = np.lexsort((labels, variances))
+    return Ranking(labels[order], variances[order], reliability(variances))
+
+
+def _check_key_method(key_method: str) -> None:
+    if key_method not in KEY_METHODS:
+        raise AssociativeMemoryError(f"key_method must be one of {', '.join(KEY_METHODS)}, got {key_method!r}")
+
+
+class HolographicMemory:
+    """One memory bank of size N x N, stored in the frequency domain.
+
+    Parameters
+    ----------
+    size : int
+        Side N of the patterns and of the memory.
+    seed : int
+        Seed of the keys' random phase (see :func:`models.keys.make_key`).
+    key_method : str
+        K-GEN method, one of :data:`models.keys.KEY_METHODS`.
+    """
+
+    def __init__(self, size: int = 128, *, seed: int = 0, key_method: str = "phase") -> None:
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 4:
+            raise AssociativeMemoryError(f"size must be an integer >= 4, got {size!r}")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise AssociativeMemoryError(f"seed must be an integer >= 0, got {seed!r}")
+        _check_key_method(key_method)
+        self.size = int(size)
+        self.seed = int(seed)
+        self.key_method = key_method
+        n = self.size
+        self._spectrum = np.zeros((n, n // 2 + 1), dtype=np.complex128)
+        self._protos = np.zeros((0, n * n), dtype=np.float32)  # capacity buffer, first _count rows used
+        self._labels = np.zeros(0, dtype=np.int64)
+        self._count = 0
+
+    # ---------------------------------------------------------------- storage
+    def __len__(self) -> int:
+        return self._count
+
+    @property
+    def labels(self) -> NDArray[np.int64]:
+        """Labels in storage order, shape (H,)."""
+        return self._labels[: self._count]
+
+    @property
+    def prototypes(self) -> NDArray[np.float32]:
+        """The stored patterns as one C-contiguous float32 matrix of shape (H, N*N) (a view)."""
+        return self._protos[: self._count]
+
+    @property
+    def spectrum(self) -> NDArray[np.complex128]:
+        """The memory ``rfft2(M)``, shape (N, N // 2 + 1) (a view; do not modify)."""
+        return self._spectrum
+
+    def _pattern(self, pattern: ArrayLike, what: str) -> NDArray[np.float32]:
+        p = np.asarray(pattern)
+        n = self.size
+        if p.shape != (n, n):
+            raise AssociativeMemoryError(f"{what}: pattern must have shape ({n}, {n}), got {p.shape}")
+        if not np.issubdtype(p.dtype, np.number) or not np.all(np.isfinite(p)):
+            raise AssociativeMemoryError(f"{what}: pattern must hold finite numbers")
+        p = p.astype(np.float64)
+        p -= p.mean()
+        energy = float(np.sqrt(np.sum(p * p)))
+        if energy <= 1e-12:
+            return np.zeros((n, n), dtype=np.float32)
+        return (p / energy).astype(np.float32)
+
+    def _grow(self, extra: int) -> None:
+        need = self._count + extra
+        if need > self._protos.shape[0]:
+            cap = max(need, 2 * self._protos.shape[0], 16)
+            protos = np.empty((cap, self._protos.shape[1]), dtype=np.float32)
+            protos[: self._count] = self._protos[: self._count]
+            labels = np.empty(cap, dtype=np.int64)
+            labels[: self._count] = self._labels[: self._count]
+            self._protos, self._labels = protos, labels
+
+    def write(self, pattern: ArrayLike, label: int) -> None:
+        """Store a pattern of shape (N, N) under ``label``: ``M := M + K(P) * P``.
+
+        The pattern is normalised (zero mean, unit energy) if it is not already; a featureless
+        pattern or a label already stored raises :class:`AssociativeMemoryError`.
+        """
+        self.write_many([pattern], [label])
+
+    def write_many(self, patterns: Iterable[ArrayLike], labels: Iterable[int]) -> None:
+        """Store several patterns at once (same result as :meth:`write` in a loop)."""
+        pats = [self._pattern(p, "write") for p in patterns]
+        labs = [int(x) for x in labels]
+        if len(pats) != len(labs):
+            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(labs)} labels")
+        existing = set(self.labels.tolist())
+        for p, lab in zip(pats, labs):
+            if not p.any():
+                raise AssociativeMemoryError(f"write: pattern of label {lab} is featureless (constant)")
+            if lab in existing:
+                raise AssociativeMemoryError(f"write: label {lab} is already stored")
+            existing.add(lab)
+        if not pats:
+            return
+        self._grow(len(pats))
+        n = self.size
+        for p, lab in zip(pats, labs):
+            fk = key_spectrum(p, seed=self.seed, method=self.key_method)
+            self._spectrum += fk * np.fft.rfft2(p.astype(np.float64))
+            self._protos[self._count] = p.reshape(n * n)
+            self._labels[self._count] = lab
+            self._count += 1
+
+    # ---------------------------------------------------------------- recall
+    def query_key(self, pattern: ArrayLike) -> NDArray[np.complex128]:
+        """Key spectrum of a query pattern (shape (N, N // 2 + 1)), reusable across banks."""
+        return key_spectrum(self._pattern(pattern, "query"), seed=self.seed, method=self.key_method)
+
+    def recall(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
+        """``R = K(pattern) (x) M``, shape (N, N), float64 (not normalised).
+
+        ``key`` may pass a precomputed :meth:`query_key` (then ``pattern`` is not used).
+        """
+        fk = self.query_key(pattern) if key is None else key
+        n = self.size
+        return np.fft.irfft2(np.conj(fk) * self._spectrum, s=(n, n))
+
+    def similarities(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
+        """Cosines ``c_h = <R / ||R||, P_h>`` in storage order, shape (H,)."""
+        r = self.recall(pattern, key=key)
+        energy = float(np.sqrt(np.sum(r * r)))
+        if self._count == 0 or energy <= 1e-12:
+            return np.zeros(self._count, dtype=np.float64)
+        rv = (r / energy).astype(np.float32).reshape(-1)
+        return (self.prototypes @ rv).astype(np.float64)
+
+    def error_variances(
+        self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+        """``(labels, variances)`` in storage order: ``var(R^ - P_h)`` for every stored P_h."""
+        c = self.similarities(pattern, key=key)
+        n2 = float(self.size * self.size)
+        return self.labels.copy(), np.maximum(2.0 - 2.0 * c, 0.0) / n2
+
+    def rank(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> Ranking:
+        """All stored labels ordered by error variance, best first."""
+        labels, variances = self.error_variances(pattern, key=key)
+        return _ranking(labels, variances)
+
+    # ---------------------------------------------------------------- transport
+    def state(self) -> dict[str, Any]:
+        """Plain data (ints, str, numpy arrays) from which :meth:`from_state` rebuilds the bank."""
+        return {
+            "size": self.size,
+            "seed": self.seed,
+            "key_method": self.key_method,
+            "labels": self.labels.copy(),
+            "prototypes": self.prototypes.copy(),
+            "spectrum": np.stack([self._spectrum.real, self._spectrum.imag], axis=-1),
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> HolographicMemory:
+        """Rebuild a bank from :meth:`state`; raises AssociativeMemoryError on malformed data."""
+        try:
+            mem = cls(int(state["size"]), seed=int(state["seed"]), key_method=str(state["key_method"]))
+            n = mem.size
+            labels = np.asarray(state["labels"], dtype=np.int64).ravel()
+            protos = np.ascontiguousarray(state["prototypes"], dtype=np.float32).reshape(labels.size, n * n)
+            spec = np.asarray(state["spectrum"], dtype=np.float64)
+            if spec.shape != (n, n // 2 + 1, 2):
+                raise ValueError(f"spectrum has shape {spec.shape}, expected {(n, n // 2 + 1, 2)}")
+        except (KeyError, TypeError, ValueError) as err:
+            raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
+        if np.unique(labels).size != labels.size:
+            raise AssociativeMemoryError("memory state: duplicate labels")
+        mem._protos, mem._labels, mem._count = protos, labels, labels.size
+        mem._spectrum = spec[..., 0] + 1j * spec[..., 1]
+        return mem
+
+
+def merge_rankings(rankings: Sequence[Ranking]) -> Ranking:
+    """Merge the rankings of several banks into one.
+
+    The variances are of the unit-energy recall, so they are comparable across banks and the
+    merge is a sort; the reliability is recomputed over the merged variances. Labels must be
+    distinct across the rankings.
+    """
+    if not rankings:
+        return Ranking(np.zeros(0, np.int64), np.zeros(0, np.float64), 0.0)
+    labels = np.concatenate([r.labels for r in rankings])
+    variances = np.concatenate([r.variances for r in rankings])
+    if np.unique(labels).size != labels.size:
+        raise AssociativeMemoryError("merge_rankings: a label appears in more than one ranking")
+    return _ranking(labels, variances)
+
+
+class BankedMemory:
+    """Viewframes split over :class:`HolographicMemory` banks of at most ``bank_size`` each.
+
+    All banks share ``seed`` and ``key_method``, so a query's key is computed once. ``banks``
+    is the list of banks (fill order); :meth:`rank` merges their rankings.
+    """
+
+    def __init__(
+        self,
+        size: int = 128,
+        *,
+        bank_size: int = DEFAULT_BANK_SIZE,
+        seed: int = 0,
+        key_method: str = "phase",
+    ) -> None:
+        if isinstance(bank_size, bool) or not isinstance(bank_size, (int, np.integer)) or bank_size < 1:
+            raise AssociativeMemoryError(f"bank_size must be an integer >= 1, got {bank_size!r}")
+        self._template = HolographicMemory(size, seed=seed, key_method=key_method)  # validates
+        self.size = int(size)
+        self.seed = int(seed)
+        self.key_method = key_method
+        self.bank_size = int(bank_size)
+        self.banks: list[HolographicMemory] = []
+        self._labels: set[int] = set()
+
+    def __len__(self) -> int:
+        return sum(len(b) for b in self.banks)
+
+    def write(self, pattern: ArrayLike, label: int) -> None:
+        """Store one pattern in the last bank, opening a new bank when it is full."""
+        self.write_many([pattern], [label])
+
+    def write_many(self, patterns: Iterable[ArrayLike], labels: Iterable[int]) -> None:
+        """Store several patterns, filling banks in order."""
+        pats, labs = list(patterns), [int(x) for x in labels]
+        if len(pats) != len(labs):
+            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(labs)} labels")
+        dup = self._labels.intersection(labs)
+        if dup or len(set(labs)) != len(labs):
+            raise AssociativeMemoryError(f"write: label {min(dup) if dup else labs} is already stored")
+        i = 0
+        while i < len(pats):
+            if not self.banks or len(self.banks[-1]) >= self.bank_size:
+                self.banks.append(HolographicMemory(self.size, seed=self.seed, key_method=self.key_method))
+            bank = self.banks[-1]
+            take = min(self.bank_size - len(bank), len(pats) - i)
+            bank.write_many(pats[i : i + take], labs[i : i + take])
+            self._labels.update(labs[i : i + take])
+            i += take
+
+    def rank(self, pattern: ArrayLike) -> Ranking:
+        """Merged ranking of all banks, best first."""
+        if not self.banks:
+            return merge_rankings([])
+        key = self.banks[0].query_key(pattern)
+        return merge_rankings([b.rank(pattern, key=key) for b in self.banks])
+
+    def state(self) -> dict[str, Any]:
+        """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
+        return {
+            "size": self.size,
+            "seed": self.seed,
+            "key_method": self.key_method,
+            "bank_size": self.bank_size,
+            "banks": [b.state() for b in self.banks],
+        }
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any]) -> BankedMemory:
+        """Rebuild from :meth:`state`."""
+        try:
+            mem = cls(
+                int(state["size"]),
+                bank_size=int(state["bank_size"]),
+                seed=int(state["seed"]),
+                key_method=str(state["key_method"]),
+            )
+            banks = [HolographicMemory.from_state(b) for b in state["banks"]]
+        except (KeyError, TypeError, ValueError) as err:
+            raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
+        for b in banks:
+            if (b.size, b.seed, b.key_method) != (mem.size, mem.seed, mem.key_method):
+                raise AssociativeMemoryError("memory state: a bank differs in size, seed or key_method")
+            mem._labels.update(b.labels.tolist())
+        mem.banks = banks
+        if len(mem._labels) != len(mem):
+            raise AssociativeMemoryError("memory state: duplicate labels across banks")
+        return mem
