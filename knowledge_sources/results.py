@@ -45,7 +45,7 @@ def frame_record(
     confidence: float,
     queries: int,
     backtracks: int,
-    latency_ms: float,
+    latency_ms: float | None,
     ranking: Sequence[Sequence[float]],
     truth: Sequence[float] | None,
     route_xy: Sequence[Sequence[float]],
@@ -64,7 +64,7 @@ def frame_record(
         "confidence": float(confidence),
         "queries": int(queries),
         "backtracks": int(backtracks),
-        "latency_ms": float(latency_ms),
+        "latency_ms": None if latency_ms is None else float(latency_ms),
         "ranking": [[int(k), float(v)] for k, v in list(ranking)[:5]],
         "truth_viewframe": truth_vf,
         "correct": None if truth_vf is None else (viewframe is not None and int(viewframe) == truth_vf),
@@ -77,7 +77,7 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The ``summary`` block of a results file."""
     judged = [f for f in frames if f["correct"] is not None]
     errors = [f["error_m"] for f in frames if f.get("error_m") is not None]
-    lat = [f["latency_ms"] for f in frames]
+    lat = [f["latency_ms"] for f in frames if f["latency_ms"] is not None]
     return {
         "frames": len(frames),
         "localized": sum(f["viewframe"] is not None for f in frames),

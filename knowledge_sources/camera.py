@@ -1,0 +1,42 @@
+"""The camera: posts the mission's camera frames once the map is complete."""
+
+from __future__ import annotations
+
+import logging
+from typing import ClassVar
+
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["Camera"]
+
+log = logging.getLogger(__name__)
+
+
+class Camera(KnowledgeSource):
+    """Reads the scenario's camera images, or simulates them along the route, and posts each on
+    ``sensor_frame``. The true pose, when known, goes to the separate ``truth`` level, which no
+    agent consumes: it is there for evaluation only.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP,)
+    produces: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
+
+    def precondition(self, event: Event) -> float | None:
+        return 1.0 if event.kind is EventKind.POSTED else None
+
+    def act(self, event: Event, board: Board) -> None:
+        from models.scenario import load_scenario
+        from models.sensor import sensor_frames
+
+        scenario = load_scenario(event.hypothesis.body["path"])
+        frames = sensor_frames(scenario)
+        for f in frames:
+            fid = levels.frame_id(f.index)
+            board.post(levels.SENSOR_FRAME, {"frame": f.index, "image": f.image, "source": f.source},
+                       id=fid, links=(event.hypothesis.id,))
+            if f.truth is not None:
+                board.post(levels.TRUTH, {"frame": f.index, "pose": list(f.truth)}, id=f"truth-{f.index:06d}",
+                           links=(fid,))
+        log.info("%s: posted %d camera frames", self.name, len(frames))

@@ -1,0 +1,88 @@
+"""``mapinterp run SCENARIO``: localize the vehicle with the agent ensemble on the blackboard."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+from blackboard.config import add_zenoh_arguments, zenoh_options_from_args
+
+HELP = "localize the vehicle: run the agent ensemble on a scenario over the blackboard"
+
+__all__ = ["HELP", "add_arguments", "main", "render_summary"]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scenario", type=Path, help="scenario YAML file")
+    parser.add_argument("--out", type=Path, default=None, help="write the results JSON here")
+    parser.add_argument("--trace", type=Path, default=None, help="record the blackboard trace here")
+    parser.add_argument("--strategy", choices=["associative", "prior"], default=None,
+                        help="scheduler strategy (default: the scenario's, normally associative)")
+    parser.add_argument("--processes", action="store_true", help="run each agent in its own OS process")
+    parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+                        help="give up (with an error naming the busy agents) after this long")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_zenoh_arguments(parser)
+
+
+def render_summary(results: dict[str, Any]) -> "Any":
+    """A rich table of a results dict: one row per frame, then the summary."""
+    from rich.table import Table
+
+    table = Table(title=f"{results['scenario']} — strategy {results['strategy']} ({results.get('mode', '')})")
+    for col in ("frame", "viewframe", "truth", "ok", "conf", "queries", "backtracks", "ms"):
+        table.add_column(col, justify="right")
+    for f in results["frames"]:
+        ok = {True: "[green]yes[/]", False: "[red]no[/]", None: "-"}[f["correct"]]
+        table.add_row(
+            str(f["frame"]),
+            "-" if f["viewframe"] is None else str(f["viewframe"]),
+            "-" if f["truth_viewframe"] is None else str(f["truth_viewframe"]),
+            ok,
+            f"{f['confidence']:.2f}",
+            str(f["queries"]),
+            str(f["backtracks"]),
+            "-" if f["latency_ms"] is None else f"{f['latency_ms']:.0f}",
+        )
+    s = results["summary"]
+    top1 = "n/a" if s["top1"] is None else f"{s['top1']:.1%}"
+    err = "n/a" if s["mean_error_m"] is None else f"{s['mean_error_m']:.1f} m"
+    table.caption = (f"frames {s['frames']}, localized {s['localized']}, top-1 {top1}, mean error {err}, "
+                     f"mean queries {s['mean_queries']:.2f}, latency p50 {s['latency_ms_p50']:.0f} ms, "
+                     f"{s.get('frames_per_s') or 0:.1f} frames/s")
+    return table
+
+
+def main(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from knowledge_sources.mission import run_mission
+    from knowledge_sources.results import write_results
+    from models.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    console = Console(stderr=True)
+    show = not args.no_progress and sys.stderr.isatty()
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, disable=not show, transient=True) as bar:
+        task = bar.add_task(f"localizing {scenario.name}", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
+                              zenoh=zenoh_options_from_args(args), trace_path=args.trace,
+                              timeout_s=args.timeout, progress=progress)
+    Console().print(render_summary(results))
+    if args.out is not None:
+        write_results(args.out, results)
+        console.print(f"results written to {args.out}")
+    if args.trace is not None:
+        console.print(f"blackboard trace written to {args.trace} (inspect with: mapinterp trace {args.trace})")
+    dead = {k: v for k, v in results["agents"].items() if v != "ok"}
+    if dead:
+        console.print(f"[yellow]degraded run: agents not ok: {dead}[/]")
+    return 0

@@ -1,0 +1,83 @@
+"""Landmark detector agents: answer the scheduler's yes/no questions from the camera image."""
+
+from __future__ import annotations
+
+import logging
+from collections import OrderedDict
+from typing import Any, ClassVar
+
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["LandmarkDetectorAgent"]
+
+log = logging.getLogger(__name__)
+
+
+class LandmarkDetectorAgent(KnowledgeSource):
+    """Answers queries addressed to it: "is landmark L present in camera frame F, as seen from
+    viewframe V?". It reads the camera frame and the candidate viewframe (image and landmark mask)
+    from the blackboard and runs the detector registered for L's kind
+    (:func:`models.detectors.default_registry`). It never reads the ``truth`` level.
+
+    Options: ``threshold`` (correlation for "present", default 0.5), ``cache`` (frames and
+    viewframes kept, default 64).
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.QUERY,)
+    produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
+
+    def __init__(self, name: str, *, threshold: float = 0.5, cache: int = 64, **options: Any) -> None:
+        super().__init__(name, **options)
+        self.threshold = float(threshold)
+        self.cache = int(cache)
+        self._registry = None
+        self._store: OrderedDict[str, Any] = OrderedDict()
+
+    def setup(self, board: Board) -> None:
+        from models.detectors import default_registry
+
+        self._registry = default_registry(threshold=self.threshold)
+
+    def precondition(self, event: Event) -> float | None:
+        h = event.hypothesis
+        if event.kind is not EventKind.POSTED or h.addressed_to != self.name:
+            return None
+        return 1.0
+
+    def _get(self, board: Board, hid: str):
+        if hid in self._store:
+            self._store.move_to_end(hid)
+            return self._store[hid]
+        h = board.get(hid)
+        if h is None:
+            raise LookupError(f"hypothesis {hid!r} is not on the blackboard")
+        self._store[hid] = h
+        while len(self._store) > self.cache:
+            self._store.popitem(last=False)
+        return h
+
+    def act(self, event: Event, board: Board) -> None:
+        from models.detectors import CandidateView
+
+        q = event.hypothesis.body
+        frame = self._get(board, levels.frame_id(int(q["frame"])))
+        vf = self._get(board, levels.viewframe_id(int(q["viewframe"])))
+        detector = self._registry.for_kind(q["kind"])
+        view = CandidateView.from_mask(vf.body["image"], vf.body["mask"], int(q["landmark_index"]))
+        det = detector.detect(frame.body["image"], view=view)
+        board.post(
+            levels.ANSWER,
+            {
+                "frame": int(q["frame"]),
+                "landmark": q["landmark"],
+                "viewframe": int(q["viewframe"]),
+                "present": det.present,
+                "score": det.score,
+                "location": None if det.location is None else list(det.location),
+                "detector": detector.name,
+                "reason": det.reason,
+            },
+            links=(event.hypothesis.id, frame.id, vf.id),
+            credibility=float(min(1.0, max(0.0, det.score))),
+        )

@@ -1,0 +1,107 @@
+"""The associative indexer: one memory bank of viewframes, ranking every camera frame."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, ClassVar
+
+import numpy as np
+
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["AssociativeIndexer"]
+
+log = logging.getLogger(__name__)
+
+
+class AssociativeIndexer(KnowledgeSource):
+    """Stores the viewframes of its bank (``index % banks == bank``) in a holographic memory and
+    posts, for each camera frame, the ranking of those viewframes by error variance.
+
+    Options: ``bank`` (int, default 0), ``banks`` (int, default 1). Memory parameters (size, edge
+    method, blur) come from the scenario through the ``map`` hypothesis. Camera frames that
+    arrive before the bank is complete wait; viewframes missed as events are read back from the
+    blackboard, so an indexer that joins late or restarts still indexes everything.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
+    produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
+
+    def __init__(self, name: str, *, bank: int = 0, banks: int = 1, **options: Any) -> None:
+        super().__init__(name, **options)
+        if banks < 1 or not 0 <= bank < banks:
+            raise ValueError(f"bank must be in [0, banks), got bank={bank}, banks={banks}")
+        self.bank = bank
+        self.banks = banks
+        self._images: dict[int, np.ndarray] = {}
+        self._memory = None
+        self._spec: dict[str, Any] | None = None
+        self._waiting: list[Any] = []
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        h = event.hypothesis
+        if h.level == levels.VIEWFRAME and h.body["index"] % self.banks != self.bank:
+            return None
+        return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        if h.level == levels.VIEWFRAME:
+            if self._memory is None:
+                self._images[int(h.body["index"])] = h.body["image"]
+        elif h.level == levels.MAP:
+            self._build(h.body, board)
+            waiting, self._waiting = self._waiting, []
+            for frame in waiting:
+                self._rank(frame, board)
+        elif h.level == levels.SENSOR_FRAME:
+            if self._memory is None:
+                self._waiting.append(h)
+            else:
+                self._rank(h, board)
+
+    def _build(self, body: dict[str, Any], board: Board) -> None:
+        from models.associative import HolographicMemory
+        from models.preprocess import preprocess
+
+        spec = body["memory"]
+        self._spec = spec
+        mine = [k for k in range(int(body["viewframes"])) if k % self.banks == self.bank]
+        for k in mine:
+            if k not in self._images:
+                got = board.get(levels.viewframe_id(k))
+                if got is None:
+                    raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
+                self._images[k] = got.body["image"]
+        memory = HolographicMemory(int(spec["size"]), seed=self.bank, key_method=str(spec["key"]))
+        memory.write_many(
+            (preprocess(self._images[k], size=spec["size"], edge=spec["edge"], blur_sigma=spec["blur_sigma"])
+             for k in mine),
+            mine,
+        )
+        self._memory = memory
+        self._images.clear()
+        log.info("%s: bank %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
+
+    def _rank(self, frame, board: Board) -> None:
+        from models.preprocess import preprocess
+
+        spec = self._spec
+        pattern = preprocess(frame.body["image"], size=spec["size"], edge=spec["edge"], blur_sigma=spec["blur_sigma"])
+        ranking = self._memory.rank(pattern)
+        board.post(
+            levels.RANKING,
+            {
+                "frame": int(frame.body["frame"]),
+                "frame_time": frame.timestamp,
+                "bank": self.bank,
+                "banks": self.banks,
+                **ranking.to_dict(),
+            },
+            id=f"rk-{int(frame.body['frame']):06d}-{self.bank}",
+            links=(frame.id,),
+            credibility=float(min(1.0, max(0.0, ranking.reliability / (1.0 + ranking.reliability)))),
+        )

@@ -1,0 +1,73 @@
+"""The map renderer: from a scenario to the a-priori viewframes on the blackboard."""
+
+from __future__ import annotations
+
+import logging
+from typing import ClassVar
+
+import numpy as np
+
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["MapRenderer"]
+
+log = logging.getLogger(__name__)
+
+
+class MapRenderer(KnowledgeSource):
+    """Builds the environment model F*, renders a viewframe at every route point and posts each
+    with its symbolic description, then posts the ``map`` hypothesis (count, priors P(L),
+    landmarks, route, visible landmarks per viewframe) that tells the others the map is complete.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.SCENARIO,)
+    produces: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP)
+
+    def precondition(self, event: Event) -> float | None:
+        return 1.0 if event.kind is EventKind.POSTED else None
+
+    def act(self, event: Event, board: Board) -> None:
+        from models.scenario import load_scenario
+        from models.symbolic import landmark_priors
+        from models.viewframes import build_viewframes
+
+        source = event.hypothesis
+        scenario = load_scenario(source.body["path"])
+        viewframes = build_viewframes(scenario)
+        for vf in viewframes:
+            p = vf.pose
+            board.post(
+                levels.VIEWFRAME,
+                {
+                    "index": vf.index,
+                    "pose": [p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+                    "image": np.ascontiguousarray(vf.image),
+                    "mask": vf.mask.astype(np.int16),
+                    "description": vf.description.to_dict(),
+                },
+                id=levels.viewframe_id(vf.index),
+                links=(source.id,),
+            )
+        ids = [lm.id for lm in scenario.landmarks]
+        priors = landmark_priors([vf.description for vf in viewframes], landmark_ids=ids)
+        board.post(
+            levels.MAP,
+            {
+                "scenario": scenario.name,
+                "path": source.body["path"],
+                "viewframes": len(viewframes),
+                "priors": {k: float(v) for k, v in priors.items()},
+                "landmarks": [
+                    {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
+                    for i, lm in enumerate(scenario.landmarks)
+                ],
+                "route": [[float(x), float(y)] for x, y in scenario.route],
+                "visible": {str(vf.index): list(vf.description.visible) for vf in viewframes},
+                "memory": scenario.memory.model_dump(),
+            },
+            id="map",
+            links=(source.id,),
+        )
+        log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)

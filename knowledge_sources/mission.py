@@ -1,0 +1,161 @@
+"""A mission: the whole agent ensemble localizing a scenario's camera frames on the blackboard.
+
+:func:`run_mission` is what ``mapinterp run``, the scenario pytest plugin and the end-to-end
+benchmark call. It starts the knowledge sources
+
+* ``map-renderer`` (:class:`~knowledge_sources.map_renderer.MapRenderer`),
+* ``camera`` (:class:`~knowledge_sources.camera.Camera`),
+* ``indexer-<b>``, one :class:`~knowledge_sources.indexer.AssociativeIndexer` per memory bank
+  (``ceil(route points / memory.bank_size)`` banks),
+* ``detector-<kind>``, one :class:`~knowledge_sources.detector.LandmarkDetectorAgent` per
+  landmark kind of the scenario,
+* ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`),
+
+posts the scenario, runs until the blackboard is quiescent and turns the ``position``
+hypotheses into the results of :mod:`knowledge_sources.results`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from blackboard.config import ZenohOptions
+from blackboard.errors import ScenarioError
+from blackboard.knowledge_source import Event
+from blackboard.runtime import Runtime
+from knowledge_sources import levels
+from knowledge_sources.results import frame_record, summarize
+from knowledge_sources.scheduler import detector_name
+from models.scenario import Scenario, load_scenario
+
+__all__ = ["run_mission", "agent_plan"]
+
+log = logging.getLogger(__name__)
+
+
+def agent_plan(scenario: Scenario, *, strategy: str | None = None) -> list[tuple[str, str, dict[str, Any]]]:
+    """The agents of a mission: ``(factory, name, options)`` triples, options being plain data."""
+    sched = scenario.scheduler
+    banks = max(1, math.ceil(len(scenario.route) / scenario.memory.bank_size))
+    plan: list[tuple[str, str, dict[str, Any]]] = [
+        ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
+        ("knowledge_sources.camera:Camera", "camera", {}),
+    ]
+    for b in range(banks):
+        plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{b}", {"bank": b, "banks": banks}))
+    for kind in sorted({lm.kind for lm in scenario.landmarks}):
+        plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
+                     {"threshold": sched.detector_threshold}))
+    plan.append((
+        "knowledge_sources.scheduler:Scheduler",
+        "scheduler",
+        {
+            "strategy": strategy or sched.strategy,
+            "candidates": sched.candidates,
+            "accept": sched.accept,
+            "query_timeout_s": sched.query_timeout_s,
+        },
+    ))
+    return plan
+
+
+def run_mission(
+    scenario: Scenario | str | Path,
+    *,
+    strategy: str | None = None,
+    processes: bool = False,
+    zenoh: ZenohOptions | None = None,
+    trace_path: str | Path | None = None,
+    timeout_s: float | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    kill_after: tuple[str, int] | None = None,
+) -> dict[str, Any]:
+    """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
+
+    Parameters
+    ----------
+    scenario : Scenario or path
+        Must come from a file (agents in other processes load it by path).
+    strategy : "associative" or "prior", optional
+        Default: the scenario's ``scheduler.strategy``.
+    processes : bool
+        Each agent in its own OS process (default: one process, one zenoh session per agent).
+    zenoh : ZenohOptions, optional
+        ``connect``/``listen`` endpoints or a user config (default: loopback only).
+    trace_path : path, optional
+        Where the blackboard trace is written.
+    timeout_s : float, optional
+        Upper bound on the whole run; default scales with the route and frame counts.
+    progress : callable(done, total), optional
+        Called as positions are posted.
+    kill_after : (agent, n), optional
+        Fault injection for tests and demos: kill ``agent`` once ``n`` positions are posted.
+    """
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if scenario.path is None:
+        raise ScenarioError(None, None, "the scenario must come from a file to run on the blackboard")
+    if scenario.sensor is None:
+        raise ScenarioError(scenario.path, "sensor", "a mission needs camera frames: give sensor.frames or sensor.simulate")
+    strategy = strategy or scenario.scheduler.strategy
+    n_frames = len(scenario.sensor.frames or []) or len(scenario.route) * scenario.sensor.simulate.per_point
+    if timeout_s is None:
+        timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
+    done = 0
+    killed = False
+
+    def on_event(event: Event) -> None:
+        nonlocal done, killed
+        if event.hypothesis.level == levels.POSITION and event.hypothesis.version == 1:
+            done += 1
+            if progress is not None:
+                progress(done, n_frames)
+            if kill_after is not None and not killed and done >= kill_after[1]:
+                killed = True
+                runtime.kill(kill_after[0])
+
+    started = time.perf_counter()
+    with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path) as runtime:
+        for factory, name, options in agent_plan(scenario, strategy=strategy):
+            runtime.add(factory, name=name, options=options)
+        runtime.post(levels.SCENARIO, {"path": str(Path(scenario.path).resolve()), "strategy": strategy})
+        outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
+        positions = {int(h.body["frame"]): h.body for h in outcome.hypotheses if h.level == levels.POSITION}
+        truths = {int(h.body["frame"]): h.body["pose"] for h in outcome.hypotheses if h.level == levels.TRUTH}
+        frames_seen = sorted(int(h.body["frame"]) for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME)
+        agents = dict(outcome.agents)
+    elapsed = time.perf_counter() - started
+    dead = {name: status for name, status in agents.items() if status != "ok"}
+    route_xy = [[float(x), float(y)] for x, y in scenario.route]
+    records = []
+    for f in frames_seen:
+        p = positions.get(f)
+        if p is None:
+            why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
+            records.append(frame_record(frame=f, viewframe=None, position=None, heading_deg=None, confidence=0.0,
+                                        queries=0, backtracks=0, latency_ms=None, ranking=[],
+                                        truth=truths.get(f), route_xy=route_xy, reason=why))
+            continue
+        rec = frame_record(frame=f, viewframe=p["viewframe"], position=p["position"], heading_deg=p["heading_deg"],
+                           confidence=p["confidence"], queries=p["queries"], backtracks=p["backtracks"],
+                           latency_ms=p["latency_ms"], ranking=p["ranking"], truth=truths.get(f),
+                           route_xy=route_xy, reason=p["reason"])
+        rec["degraded"] = p.get("degraded", [])
+        rec["steps"] = p.get("steps", [])
+        records.append(rec)
+    summary = summarize(records)
+    summary["wall_s"] = elapsed
+    summary["frames_per_s"] = (len(records) / elapsed) if elapsed > 0 else None
+    return {
+        "scenario": scenario.name,
+        "strategy": strategy,
+        "mode": "processes" if processes else "inprocess",
+        "agents": agents,
+        "frames": records,
+        "summary": summary,
+    }

@@ -1,0 +1,206 @@
+"""The scene-analysis scheduler: verifies the associative ranking by asking landmark detectors.
+
+For each camera frame it waits for the rankings of every memory bank, merges them, and runs a
+:class:`~knowledge_sources.scene_analysis.SceneAnalysis` (the decision rule is documented
+there): each question becomes a ``query`` hypothesis addressed to the detector agent of the
+landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
+(detector dead or late) counts as no answer, and the frame's result says it was degraded. When
+the analysis decides, the scheduler posts the ``position`` hypothesis.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+from knowledge_sources.scene_analysis import Question, SceneAnalysis
+
+__all__ = ["Scheduler", "detector_name"]
+
+log = logging.getLogger(__name__)
+
+
+def detector_name(kind: str) -> str:
+    """The agent name of the detector for landmark ``kind`` (``detector-<kind>``)."""
+    return "detector-" + (re.sub(r"[^A-Za-z0-9_-]+", "_", kind) or "_")
+
+
+@dataclass
+class _Frame:
+    frame: int
+    frame_time: float
+    rankings: dict[int, Any] = field(default_factory=dict)
+    banks: int = 1
+    analysis: SceneAnalysis | None = None
+    question: Question | None = None
+    query_id: str | None = None
+    links: list[str] = field(default_factory=list)
+    degraded: list[str] = field(default_factory=list)
+    ranking: list[tuple[int, float]] = field(default_factory=list)
+    done: bool = False
+
+
+class Scheduler(KnowledgeSource):
+    """Options: ``strategy`` ("associative" or "prior"), ``candidates``, ``accept``,
+    ``reliability`` (assumed detector reliability), ``query_timeout_s``.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER)
+    produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        strategy: str = "associative",
+        candidates: int = 8,
+        accept: float = 0.75,
+        reliability: float = 0.9,
+        query_timeout_s: float = 10.0,
+        **options: Any,
+    ) -> None:
+        super().__init__(name, **options)
+        if strategy not in ("associative", "prior"):
+            raise ValueError(f"strategy must be 'associative' or 'prior', not {strategy!r}")
+        self.strategy = strategy
+        self.candidates = int(candidates)
+        self.accept = float(accept)
+        self.reliability = float(reliability)
+        self.query_timeout_s = float(query_timeout_s)
+        self._map: dict[str, Any] | None = None
+        self._frames: dict[int, _Frame] = {}
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        # answers first: they finish frames already under way (focus of attention)
+        return {levels.ANSWER: 3.0, levels.MAP: 2.0}.get(event.hypothesis.level, 1.0)
+
+    # -- events ----------------------------------------------------------------------------
+    def act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        if h.level == levels.MAP:
+            self._map = h.body
+        elif h.level == levels.RANKING:
+            self._on_ranking(h, board)
+        elif h.level == levels.ANSWER:
+            self._on_answer(h, board)
+
+    def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
+        if hypothesis.level != levels.QUERY:
+            return
+        st = self._frames.get(int(hypothesis.body["frame"]))
+        if st is None or st.done or st.query_id != hypothesis.id:
+            return
+        log.warning("%s: frame %d: query %s unanswered: %s", self.name, st.frame, hypothesis.id, reason)
+        st.degraded.append(f"{hypothesis.body['landmark']}: {reason}")
+        question, st.question, st.query_id = st.question, None, None
+        st.analysis.answer(question, None)
+        self._advance(st, board)
+
+    def _ensure_map(self, board: Board) -> dict[str, Any]:
+        if self._map is None:
+            got = board.get("map")
+            if got is None:
+                raise RuntimeError("a ranking arrived but the map is not on the blackboard")
+            self._map = got.body
+        return self._map
+
+    def _on_ranking(self, h: Hypothesis, board: Board) -> None:
+        from models.associative import Ranking, merge_rankings
+
+        frame = int(h.body["frame"])
+        st = self._frames.setdefault(frame, _Frame(frame, float(h.body["frame_time"])))
+        if st.analysis is not None:
+            return
+        st.banks = int(h.body["banks"])
+        st.rankings[int(h.body["bank"])] = Ranking.from_dict(h.body)
+        st.links.append(h.id)
+        if len(st.rankings) < st.banks:
+            return
+        mp = self._ensure_map(board)
+        merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
+        st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
+        visible = {int(k): frozenset(v) for k, v in mp["visible"].items()}
+        st.analysis = SceneAnalysis(
+            st.ranking,
+            visible,
+            strategy=self.strategy,
+            candidates=self.candidates,
+            accept=self.accept,
+            reliability=self.reliability,
+            priors=mp["priors"],
+        )
+        self._advance(st, board)
+
+    def _on_answer(self, h: Hypothesis, board: Board) -> None:
+        st = self._frames.get(int(h.body["frame"]))
+        if st is None or st.done or st.query_id is None or st.query_id not in h.links:
+            return  # a late answer to a query already timed out
+        question, st.question, st.query_id = st.question, None, None
+        present = h.body["present"]
+        st.links.append(h.id)
+        st.analysis.answer(question, None if present is None else bool(present), score=h.body.get("score"))
+        if present is None:
+            # the detector could not tell: no evidence either way, and not counted as a query
+            st.degraded.append(f"{question.landmark}: undecided ({h.body.get('reason', '')})")
+        self._advance(st, board)
+
+    # -- the loop --------------------------------------------------------------------------
+    def _advance(self, st: _Frame, board: Board) -> None:
+        mp = self._map
+        question = st.analysis.next_question()
+        if question is not None:
+            landmarks = {lm["id"]: lm for lm in mp["landmarks"]}
+            lm = landmarks[question.landmark]
+            q = board.post(
+                levels.QUERY,
+                {
+                    "frame": st.frame,
+                    "landmark": question.landmark,
+                    "landmark_index": int(lm["index"]),
+                    "kind": lm["kind"],
+                    "viewframe": question.viewframe,
+                    "p": question.probability,
+                },
+                links=(levels.frame_id(st.frame), levels.viewframe_id(question.viewframe)),
+                addressed_to=detector_name(lm["kind"]),
+                deadline_s=self.query_timeout_s,
+                credibility=float(min(1.0, max(0.0, question.probability))),
+            )
+            st.question, st.query_id = question, q.id
+            return
+        d = st.analysis.decision
+        st.done = True
+        route = mp["route"]
+        body: dict[str, Any] = {
+            "frame": st.frame,
+            "viewframe": d.viewframe,
+            "position": None if d.viewframe is None else list(route[d.viewframe]),
+            "heading_deg": None,
+            "confidence": d.confidence,
+            "queries": d.queries,
+            "backtracks": d.backtracks,
+            "latency_ms": (time.time() - st.frame_time) * 1000.0,
+            "ranking": [[k, v] for k, v in st.ranking[:5]],
+            "reason": d.reason + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
+            "degraded": list(st.degraded),
+            "steps": [dict(s) for s in d.steps],
+            "strategy": self.strategy,
+        }
+        if d.viewframe is not None:
+            vf = board.get(levels.viewframe_id(d.viewframe))
+            if vf is not None:
+                pose = vf.body["pose"]
+                body["position"] = [float(pose[0]), float(pose[1])]
+                body["heading_deg"] = float(pose[3])
+        board.post(levels.POSITION, body, id=f"pos-{st.frame:06d}",
+                   links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
+                   credibility=float(min(1.0, max(0.0, d.confidence))))
