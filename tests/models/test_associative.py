@@ -1,0 +1,231 @@
+"""Holographic memory: formulas, order independence, recall, ranking, banks, transport."""
+
+from __future__ import annotations
+
+import cv2
+import msgpack
+import numpy as np
+import pytest
+
+from blackboard.errors import AssociativeMemoryError
+from models.associative import BankedMemory, HolographicMemory, Ranking, merge_rankings, reliability
+from models.keys import make_key
+from models.preprocess import normalise, preprocess
+
+
+def _scene(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -> np.ndarray:
+    """A synthetic edge-rich gray image: random rectangles, discs and lines."""
+    h, w = shape
+    img = np.full(shape, rng.uniform(60, 190), np.float32)
+    for _ in range(int(rng.integers(6, 12))):
+        c = float(rng.uniform(0, 255))
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        kind = int(rng.integers(3))
+        if kind == 0:
+            cv2.rectangle(img, (x, y), (x + int(rng.integers(8, 60)), y + int(rng.integers(8, 50))), c, -1)
+        elif kind == 1:
+            cv2.line(img, (x, y), (int(rng.integers(0, w)), int(rng.integers(0, h))), c, int(rng.integers(1, 4)))
+        else:
+            cv2.circle(img, (x, y), int(rng.integers(4, 25)), c, -1)
+    return img
+
+
+def _perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float, gain: float) -> np.ndarray:
+    h, w = img.shape
+    dx, dy = rng.uniform(-shift, shift, 2) if shift else (0.0, 0.0)
+    out = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REPLICATE)
+    out = out * gain + 20.0 + rng.normal(0.0, noise, out.shape)
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def _conv(k: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Direct circular convolution: out(x) = sum_y k(y) p(x - y)."""
+    n = k.shape[0]
+    out = np.zeros((n, n))
+    for r in range(n):
+        for c in range(n):
+            out += k[r, c] * np.roll(p, (r, c), axis=(0, 1))
+    return out
+
+
+def _corr(k: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Direct circular correlation: out(x) = sum_y k(y) m(x + y)."""
+    n = k.shape[0]
+    out = np.zeros((n, n))
+    for r in range(n):
+        for c in range(n):
+            out += k[r, c] * np.roll(m, (-r, -c), axis=(0, 1))
+    return out
+
+
+def _random_patterns(n: int, count: int, seed: int) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return [normalise(rng.standard_normal((n, n))) for _ in range(count)]
+
+
+def test_fft_write_and_read_equal_the_direct_sums() -> None:
+    n = 8
+    pats = _random_patterns(n, 3, seed=0)
+    mem = HolographicMemory(n, seed=4)
+    for i, p in enumerate(pats):
+        mem.write(p, i)
+    keys = [make_key(p, seed=4).astype(np.float64) for p in pats]
+    m_direct = sum(_conv(k, p.astype(np.float64)) for k, p in zip(keys, pats))
+    assert np.allclose(np.fft.irfft2(mem.spectrum, s=(n, n)), m_direct, atol=1e-9)
+    q = pats[1]
+    assert np.allclose(mem.recall(q), _corr(keys[1], m_direct), atol=1e-6)
+
+
+def test_storage_order_does_not_matter() -> None:
+    pats = _random_patterns(16, 6, seed=1)
+    a, b = HolographicMemory(16), HolographicMemory(16)
+    a.write_many(pats, range(6))
+    order = [4, 1, 5, 0, 3, 2]
+    for i in order:
+        b.write(pats[i], i)
+    assert np.allclose(a.spectrum, b.spectrum, atol=1e-12)
+    for q in pats:
+        ra, rb = a.rank(q), b.rank(q)
+        assert ra.labels.tolist() == rb.labels.tolist()
+        assert np.allclose(ra.variances, rb.variances, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [16, 32])
+def test_single_pattern_recalls_itself_exactly(n: int) -> None:
+    p = _random_patterns(n, 1, seed=2)[0]
+    mem = HolographicMemory(n)
+    mem.write(p, 7)
+    r = mem.recall(p)
+    assert np.allclose(r / np.linalg.norm(r), p, atol=1e-6)
+    assert mem.rank(p).top(1)[0][1] == pytest.approx(0.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("key_method", ["phase", "quantized"])
+def test_every_stored_pattern_is_recalled_from_its_own_key(key_method: str) -> None:
+    pats = _random_patterns(32, 12, seed=3)
+    mem = HolographicMemory(32, key_method=key_method)
+    mem.write_many(pats, range(100, 112))
+    for i, p in enumerate(pats):
+        r = mem.rank(p)
+        assert r.best == 100 + i
+        assert r.reliability > 3.0
+
+
+def test_error_variance_is_the_variance_of_the_error_matrix() -> None:
+    pats = _random_patterns(16, 5, seed=4)
+    mem = HolographicMemory(16)
+    mem.write_many(pats, range(5))
+    q = pats[2]
+    r = mem.recall(q)
+    r_hat = r / np.linalg.norm(r)
+    labels, variances = mem.error_variances(q)
+    direct = [np.var(r_hat - p) for p in pats]
+    assert labels.tolist() == list(range(5))
+    assert np.allclose(variances, direct, rtol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("case", "shift", "noise", "gain"),
+    [("brightness", 0.0, 0.0, 0.6), ("noise", 0.0, 10.0, 1.0), ("shift", 3.0, 0.0, 1.0), ("all", 2.0, 8.0, 1.3)],
+)
+def test_top1_under_perturbation(case: str, shift: float, noise: float, gain: float) -> None:
+    rng = np.random.default_rng(5)
+    images = [_scene(rng) for _ in range(12)]
+    mem = BankedMemory(128)
+    mem.write_many([preprocess(im) for im in images], range(12))
+    hits = [mem.rank(preprocess(_perturb(im, rng, shift=shift, noise=noise, gain=gain))).best == i for i, im in enumerate(images)]
+    assert all(hits), f"{case}: top-1 failed for {[i for i, h in enumerate(hits) if not h]}"
+
+
+def test_banked_and_single_memory_agree_on_small_sets() -> None:
+    rng = np.random.default_rng(6)
+    images = [_scene(rng) for _ in range(10)]
+    pats = [preprocess(im, size=64) for im in images]
+    single = HolographicMemory(64)
+    single.write_many(pats, range(10))
+    banked = BankedMemory(64, bank_size=4)
+    banked.write_many(pats, range(10))
+    assert [len(b) for b in banked.banks] == [4, 4, 2] and len(banked) == 10
+    full = BankedMemory(64, bank_size=10)
+    full.write_many(pats, range(10))
+    for i, im in enumerate(images):
+        q = preprocess(_perturb(im, rng, shift=1.0, noise=4.0, gain=0.9), size=64)
+        assert single.rank(q).best == banked.rank(q).best == i
+        a, b = single.rank(q), full.rank(q)
+        assert a.labels.tolist() == b.labels.tolist() and np.allclose(a.variances, b.variances)
+
+
+def test_state_round_trips_through_msgpack() -> None:
+    pats = _random_patterns(16, 5, seed=7)
+    mem = BankedMemory(16, bank_size=2, seed=3)
+    mem.write_many(pats, [10, 11, 12, 13, 14])
+
+    def pack(obj):
+        if isinstance(obj, np.ndarray):
+            return {"__nd__": True, "dtype": obj.dtype.str, "shape": list(obj.shape), "data": obj.tobytes()}
+        return obj
+
+    def unpack(d):
+        if d.get("__nd__"):
+            return np.frombuffer(d["data"], dtype=d["dtype"]).reshape(d["shape"])
+        return d
+
+    blob = msgpack.packb(mem.state(), default=pack)
+    back = BankedMemory.from_state(msgpack.unpackb(blob, object_hook=unpack))
+    for q in pats:
+        assert back.rank(q).to_dict() == mem.rank(q).to_dict()
+    with pytest.raises(AssociativeMemoryError, match="already stored"):
+        back.write(pats[0], 12)
+
+
+def test_ranking_plain_data_and_merge() -> None:
+    a = Ranking(np.array([3, 1]), np.array([1e-5, 2e-5]), 1.0)
+    b = Ranking(np.array([2]), np.array([1.5e-5]), 0.0)
+    merged = merge_rankings([a, b])
+    assert merged.labels.tolist() == [3, 2, 1]
+    assert merged.top(2) == [(3, 1e-5), (2, 1.5e-5)]
+    assert Ranking.from_dict(merged.to_dict()).to_dict() == merged.to_dict()
+    with pytest.raises(AssociativeMemoryError, match="more than one"):
+        merge_rankings([a, a])
+    with pytest.raises(AssociativeMemoryError, match="malformed"):
+        Ranking.from_dict({"labels": [1]})
+    assert len(merge_rankings([])) == 0
+
+
+@pytest.mark.parametrize(
+    ("variances", "expected"),
+    [([1.0], 0.0), ([1.0, 1.0, 1.0, 1.0], 0.0), ([0.0, 1.0, 1.1, 0.9, 1.0, 1.05, 0.95], 10.0)],
+)
+def test_reliability(variances: list[float], expected: float) -> None:
+    assert reliability(variances) == pytest.approx(expected, rel=0.5, abs=1e-9)
+
+
+def test_featureless_query_ranks_with_zero_reliability() -> None:
+    mem = HolographicMemory(16)
+    mem.write_many(_random_patterns(16, 4, seed=8), range(4))
+    r = mem.rank(np.zeros((16, 16)))
+    assert len(r) == 4 and r.reliability == 0.0
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda m: m.write(np.ones((8, 8)), 0), "featureless"),
+        (lambda m: m.write(np.zeros((4, 4)), 0), "shape"),
+        (lambda m: m.write(np.full((8, 8), np.nan), 0), "finite"),
+        (lambda m: m.rank(np.zeros((9, 9))), "shape"),
+        (lambda m: (m.write(np.eye(8), 1), m.write(np.eye(8)[::-1], 1)), "already stored"),
+    ],
+)
+def test_bad_input_raises_memory_errors(call, match: str) -> None:
+    with pytest.raises(AssociativeMemoryError, match=match):
+        call(HolographicMemory(8))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [({"size": 2}, "size"), ({"seed": -3}, "seed"), ({"key_method": "linear"}, "key_method"), ({"bank_size": 0}, "bank_size")],
+)
+def test_bad_configuration(kwargs: dict, match: str) -> None:
+    with pytest.raises(AssociativeMemoryError, match=match):
+        BankedMemory(**kwargs)
