@@ -9,7 +9,8 @@ pipeline, identical for both sides, is::
   then work in *memory pixels*, whatever the camera resolution, and the cost does not grow
   with the camera size. The aspect ratio is not kept (both sides are squeezed the same way).
 * **edges**: gradient magnitude (``"sobel"``, ``"scharr"``), absolute Laplacian
-  (``"laplacian"``) or none (``"none"``, the gray levels themselves). Borders are reflected, so
+  (``"laplacian"``), binary Canny edges (``"canny"``, thresholds relative to the image's own
+  gradients, see :func:`_canny`) or none (``"none"``, the gray levels themselves). Borders are reflected, so
   the image frame itself produces no edge.
 * **whiten** (default on): the edge image's spectrum is set to unit magnitude (its phase is
   kept). Edge maps are non-negative lines whose energy sits in a few low frequencies, so
@@ -41,7 +42,7 @@ __all__ = ["EDGE_METHODS", "preprocess", "normalise"]
 logger = logging.getLogger(__name__)
 
 #: accepted values of ``edge``
-EDGE_METHODS: tuple[str, ...] = ("sobel", "scharr", "laplacian", "none")
+EDGE_METHODS: tuple[str, ...] = ("sobel", "scharr", "laplacian", "canny", "none")
 
 
 def _gray(image: NDArray) -> NDArray[np.float32]:
@@ -53,6 +54,25 @@ def _gray(image: NDArray) -> NDArray[np.float32]:
         # ITU-R 601 luma, RGB order (pyrender renders RGB)
         return (image[:, :, 0] * 0.299 + image[:, :, 1] * 0.587 + image[:, :, 2] * 0.114).astype(np.float32)
     return image.astype(np.float32, copy=False)
+
+
+def _canny(gray: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Binary Canny edges (0/1) with thresholds relative to the image's own gradients.
+
+    The high threshold is the 90th percentile of the Sobel gradient magnitude, the low one half
+    of it, so a brightness gain does not change the result.
+    """
+    border = cv2.BORDER_REFLECT_101
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3, borderType=border)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3, borderType=border)
+    mag = cv2.magnitude(gx, gy)
+    peak = float(mag.max(initial=0.0))
+    if peak == 0.0:
+        return np.zeros_like(gray)
+    scale = 32000.0 / peak  # int16 derivatives for cv2.Canny, full range
+    hi = max(float(np.percentile(mag, 90)) * scale, 1.0)
+    dx, dy = (np.round(g * scale).astype(np.int16) for g in (gx, gy))
+    return (cv2.Canny(dx, dy, 0.5 * hi, hi, L2gradient=True) > 0).astype(np.float32)
 
 
 def _whiten_blur(edges: NDArray[np.float32], sigma: float) -> NDArray[np.float64]:
@@ -138,6 +158,8 @@ def preprocess(
         gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=ksize, borderType=border)
         gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=ksize, borderType=border)
         edges = cv2.magnitude(gx, gy)
+    elif edge == "canny":
+        edges = _canny(gray)
     elif edge == "laplacian":
         edges = np.abs(cv2.Laplacian(gray, cv2.CV_32F, ksize=3, borderType=border))
     else:
