@@ -1,7 +1,8 @@
 """Zenoh configuration: loopback-only defaults, the shared command-line flags.
 
-Defaults: peer mode, multicast scouting off, listen on ``tcp/127.0.0.1`` only, reliable
-delivery; publications use :data:`zenoh.CongestionControl.BLOCK` so no hypothesis is dropped.
+Defaults: multicast scouting off, listen on ``tcp/127.0.0.1`` only, reliable delivery (TCP);
+the blackboard node is a zenoh router and every agent a client of it (so a post reaches every
+subscriber as soon as the subscriber has joined, with no peer mesh to form first); publications use :data:`zenoh.CongestionControl.BLOCK` so no hypothesis is dropped.
 ``--zenoh-config FILE`` loads a user JSON5 config (TLS, access control) that the explicit
 ``--listen`` / ``--connect`` flags then amend.
 
@@ -74,17 +75,23 @@ class ZenohOptions:
 
 
 def zenoh_config(
-    options: ZenohOptions | None = None, *, listen: list[str] | None = None, connect: list[str] | None = None
+    options: ZenohOptions | None = None,
+    *,
+    mode: str = "peer",
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
 ) -> zenoh.Config:
-    """A :class:`zenoh.Config` for one session.
+    """A :class:`zenoh.Config` for one session in ``mode`` ("router", "peer" or "client").
 
-    ``listen`` / ``connect`` (when given) add to the endpoints of ``options``. Without any listen
-    endpoint the session listens on an ephemeral ``tcp/127.0.0.1`` port (never on all
-    interfaces, zenoh's own default), so peers can mesh over loopback.
+    ``listen`` / ``connect`` (when given) add to the endpoints of ``options``. A router or peer
+    without a listen endpoint listens on an ephemeral ``tcp/127.0.0.1`` port (never on all
+    interfaces, zenoh's own default); a client never listens.
 
     Raises:
-        TransportError: the config file is missing or invalid.
+        TransportError: the config file is missing or invalid, or ``mode`` is unknown.
     """
+    if mode not in ("router", "peer", "client"):
+        raise TransportError(f"zenoh mode must be router, peer or client, got {mode!r}")
     options = options or ZenohOptions()
     if options.config_file is not None:
         try:
@@ -93,12 +100,14 @@ def zenoh_config(
             raise TransportError(f"{options.config_file}: cannot load zenoh config: {err}") from None
     else:
         config = zenoh.Config()
-        config.insert_json5("mode", '"peer"')
         config.insert_json5("scouting/multicast/enabled", "false")
-    listen_eps = [*options.listen, *(listen or [])]
+    config.insert_json5("mode", json.dumps(mode))
+    listen_eps = [*options.listen, *(listen or [])] if mode != "client" else []
     connect_eps = [*options.connect, *(connect or [])]
-    if options.config_file is None or listen_eps:
-        config.insert_json5("listen/endpoints", json.dumps(listen_eps or ["tcp/127.0.0.1:0"]))
+    if mode != "client" and not listen_eps and options.config_file is None:
+        listen_eps = ["tcp/127.0.0.1:0"]
+    if options.config_file is None or listen_eps or mode == "client":
+        config.insert_json5("listen/endpoints", json.dumps(listen_eps))
     if options.config_file is None or connect_eps:
         config.insert_json5("connect/endpoints", json.dumps(connect_eps))
     return config

@@ -1,0 +1,286 @@
+"""Running one knowledge source: its zenoh session, its agenda and its worker thread.
+
+Zenoh callbacks only enqueue what arrives (they never call zenoh or block); the worker
+thread turns hypothesis samples into :class:`Event` objects, rates them with the
+knowledge source's precondition, keeps them on the agenda (a heap: highest rating first,
+FIFO among equals), drops obviated activations (the triggering hypothesis was retracted or
+superseded before the activation ran) and runs ``act``. Whenever the inbox and the agenda
+are empty it reports ``idle`` to the node with its counters (samples received per level,
+posts sent, timeouts received), which is what global quiescence is decided from.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import os
+import queue
+import threading
+import time
+import traceback
+from typing import Any
+
+import zenoh
+
+from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
+from blackboard.config import ZenohOptions, open_session, zenoh_config
+from blackboard.errors import AgentError, BlackboardError, CodecError, DeclarationError
+from blackboard.hypothesis import Hypothesis
+from blackboard.keys import RunKeys
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+
+__all__ = ["AgentRunner"]
+
+logger = logging.getLogger(__name__)
+
+_OPS = {"post": EventKind.POSTED, "update": EventKind.UPDATED, "retract": EventKind.RETRACTED}
+#: activity records are sent to the node in batches of at most this many (and when idle)
+_ACTIVITY_BATCH = 64
+
+
+class AgentRunner:
+    """One knowledge source connected to the blackboard of run ``run_id``.
+
+    ``connect`` are the endpoints of the blackboard node (a zenoh router); the session is a
+    zenoh client of it. :meth:`start` joins (raises :class:`DeclarationError` if refused) and
+    runs ``setup``; :meth:`stop` shuts down cleanly; :meth:`kill` drops the session abruptly.
+    """
+
+    def __init__(
+        self,
+        source: KnowledgeSource,
+        *,
+        run_id: str,
+        connect: list[str],
+        zenoh_options: ZenohOptions | None = None,
+        max_message_bytes: int = DEFAULT_MAX_BYTES,
+    ) -> None:
+        self.source = source
+        self.name = source.name
+        self.keys = RunKeys(run_id)
+        self._config = zenoh_config(zenoh_options, mode="client", connect=connect)
+        self._max = max_message_bytes
+        self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
+        self._agenda: list[tuple[float, int, Event]] = []
+        self._order = itertools.count()
+        self._latest: dict[str, int] = {}  # id -> newest version seen
+        self._retracted: set[str] = set()
+        self._recv: dict[str, int] = {}
+        self._timeouts = 0
+        self._failures = 0
+        self._activity: list[dict] = []
+        self._probe: int | None = None
+        self._dead: str | None = None
+        self._session: zenoh.Session | None = None
+        self._thread: threading.Thread | None = None
+        self._entities: list[Any] = []
+        self.board: Board | None = None
+        self.done = threading.Event()
+
+    # -- lifecycle ---------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Open the session, subscribe, join the node, declare liveliness, run ``setup``, start working.
+
+        Raises:
+            TransportError: the node cannot be reached.
+            DeclarationError: the node refused the declaration (e.g. a second exclusive writer).
+            AgentError: ``setup`` raised (the agent is reported dead).
+        """
+        self._session = session = open_session(self._config)
+        put = self._inbox.put
+        for level in self.source.consumes:
+            self._entities.append(session.declare_subscriber(self.keys.level(level), lambda s: put(("hyp", s))))
+        self._entities.append(session.declare_subscriber(self.keys.inbox(self.name), lambda s: put(("ctl", s))))
+        self._entities.append(session.declare_subscriber(self.keys.probe, lambda s: put(("probe", s))))
+        self.board = Board(session, self.keys, self.name, produces=self.source.produces, max_message_bytes=self._max)
+        try:
+            self.board._request({
+                "op": "join",
+                "consumes": list(self.source.consumes),
+                "produces": list(self.source.produces),
+                "exclusive": list(self.source.exclusive),
+                "pid": os.getpid(),
+            })
+        except BlackboardError:
+            self._close_session()
+            raise
+        self._entities.append(session.liveliness().declare_token(self.keys.liveliness(self.name)))
+        try:
+            self.source.setup(self.board)
+        except Exception as err:  # an agent's own code: report, do not crash the runtime
+            reason = f"setup failed: {type(err).__name__}: {err}"
+            self._report_dead(reason)
+            self._close_session()
+            raise AgentError(self.name, reason) from err
+        self._thread = threading.Thread(target=self._work, name=f"agent-{self.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        """Finish the current activation, run ``shutdown``, leave, close the session."""
+        if self._thread is not None:
+            self._inbox.put(("stop", None))
+            self._thread.join(timeout_s)
+            self._thread = None
+        if self._session is not None and not self._session.is_closed():
+            try:
+                self.source.shutdown()
+            except Exception:  # the agent's own code
+                logger.exception("agent %s: shutdown raised", self.name)
+            self._flush(state="stopped")
+        self._close_session()
+        self.done.set()
+
+    def kill(self) -> None:
+        """Drop the session abruptly (tests: an agent that dies); no shutdown, no goodbye."""
+        self._inbox.put(("kill", None))
+        if self._thread is not None:
+            self._thread.join(10.0)
+            self._thread = None
+        self._close_session()
+        self.done.set()
+
+    def _close_session(self) -> None:
+        if self._session is not None and not self._session.is_closed():
+            self._session.close()
+        self._entities.clear()
+
+    # -- worker ------------------------------------------------------------------------------------
+
+    def _work(self) -> None:
+        while True:
+            if self._dead is not None:
+                item = self._inbox.get()
+                if item[0] in ("stop", "kill"):
+                    return
+                continue
+            try:
+                item = self._inbox.get_nowait()
+            except queue.Empty:
+                if self._agenda:
+                    self._run_one()
+                    continue
+                self._flush(state="idle")
+                item = self._inbox.get()
+            kind, payload = item
+            if kind in ("stop", "kill"):
+                return
+            if kind == "hyp":
+                self._on_sample(payload)
+            elif kind == "ctl":
+                self._on_control(payload)
+            elif kind == "probe":
+                self._on_probe(payload)
+            if len(self._activity) >= _ACTIVITY_BATCH:
+                self._flush(state="busy")
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        split = self.keys.split(key)
+        level = split[0] if split else "?"
+        self._recv[level] = self._recv.get(level, 0) + 1
+        try:
+            message = decode(sample.payload.to_bytes(), max_bytes=self._max, key=key)
+            if not isinstance(message, dict) or message.get("op") not in _OPS:
+                raise CodecError("not a blackboard message (no op)", key=key)
+            hyp = Hypothesis.from_record(message.get("hyp"), key=key)
+        except CodecError as err:
+            logger.warning("agent %s: ignored a malformed message: %s", self.name, err)
+            return
+        kind = _OPS[message["op"]]
+        if kind is EventKind.RETRACTED:
+            self._retracted.add(hyp.id)
+        elif hyp.version > self._latest.get(hyp.id, 0):
+            self._latest[hyp.id] = hyp.version
+        self._enqueue(Event(kind, hyp))
+
+    def _on_control(self, sample: zenoh.Sample) -> None:
+        try:
+            message = decode(sample.payload.to_bytes(), max_bytes=self._max)
+            if message.get("op") != "timeout":
+                return
+            hyp = Hypothesis.from_record(message.get("hyp"))
+        except (CodecError, AttributeError) as err:
+            logger.warning("agent %s: ignored a malformed control message: %s", self.name, err)
+            return
+        self._timeouts += 1
+        heapq.heappush(self._agenda, (-float("inf"), next(self._order),
+                                      Event(EventKind.TIMEOUT, hyp, str(message.get("reason", "")))))
+
+    def _on_probe(self, sample: zenoh.Sample) -> None:
+        try:
+            self._probe = int(decode(sample.payload.to_bytes())["probe"])
+        except (CodecError, KeyError, TypeError, ValueError):
+            logger.warning("agent %s: ignored a malformed probe", self.name)
+
+    def _enqueue(self, event: Event) -> None:
+        try:
+            rating = self.source.precondition(event)
+        except Exception as err:  # the agent's own code
+            self._failed(event, "precondition", err)
+            return
+        if rating is None:
+            return
+        heapq.heappush(self._agenda, (-float(rating), next(self._order), event))
+
+    def _obviated(self, event: Event) -> str | None:
+        hyp = event.hypothesis
+        if event.kind in (EventKind.RETRACTED, EventKind.TIMEOUT):
+            return None
+        if hyp.id in self._retracted:
+            return "retracted before the activation ran"
+        if self._latest.get(hyp.id, 0) > hyp.version:
+            return f"superseded by version {self._latest[hyp.id]}"
+        return None
+
+    def _run_one(self) -> None:
+        neg_rating, _, event = heapq.heappop(self._agenda)
+        hyp = event.hypothesis
+        record = {"level": hyp.level, "id": hyp.id, "version": hyp.version, "event": event.kind.value,
+                  "rating": -neg_rating if neg_rating != -float("inf") else None, "t": time.time()}
+        why = self._obviated(event)
+        if why is not None:
+            self._activity.append({**record, "kind": "activation_obviated", "reason": why})
+            return
+        self._activity.append({**record, "kind": "activation_start"})
+        started = time.perf_counter()
+        try:
+            if event.kind is EventKind.TIMEOUT:
+                self.source.on_timeout(hyp, event.reason, self.board)
+            else:
+                self.source.act(event, self.board)
+        except Exception as err:  # the agent's own code: trace it, keep going
+            self._failed(event, "act", err, started=started)
+            return
+        self._activity.append({**record, "kind": "activation_finish", "t": time.time(),
+                               "duration_s": time.perf_counter() - started})
+
+    def _failed(self, event: Event, where: str, err: Exception, *, started: float | None = None) -> None:
+        self._failures += 1
+        hyp = event.hypothesis
+        message = f"{where} raised {type(err).__name__}: {err}"
+        logger.warning("agent %s: %s on %s %s", self.name, message, event.kind.value, hyp.id)
+        self._activity.append({"kind": "activation_error", "t": time.time(), "level": hyp.level, "id": hyp.id,
+                               "version": hyp.version, "event": event.kind.value, "message": message,
+                               "traceback": traceback.format_exc(limit=8),
+                               "duration_s": None if started is None else time.perf_counter() - started})
+        if self._failures >= self.source.max_failures:
+            self._report_dead(f"{self._failures} failures, the last: {message}")
+
+    def _report_dead(self, reason: str) -> None:
+        self._dead = reason
+        self._agenda.clear()
+        self._flush(state="dead", reason=reason)
+
+    def _flush(self, *, state: str, reason: str | None = None) -> None:
+        """Send the activity records and the counters to the node (status key)."""
+        if self._session is None or self._session.is_closed() or self.board is None:
+            return
+        message = {"agent": self.name, "state": state, "recv": self._recv, "sent": self.board.sent,
+                   "timeouts": self._timeouts, "probe": self._probe, "activity": self._activity, "reason": reason}
+        try:
+            self._session.put(self.keys.status, encode(message), congestion_control=zenoh.CongestionControl.BLOCK)
+        except (zenoh.ZError, CodecError) as err:
+            logger.error("agent %s: cannot report status: %s", self.name, err)
+        self._activity = []

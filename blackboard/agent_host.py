@@ -1,0 +1,49 @@
+"""``python -m blackboard.agent_host SPEC``: run one knowledge source in this process.
+
+``SPEC`` is JSON: ``{"factory": "module:Class", "name", "options", "run_id", "connect",
+"zenoh_config", "max_message_bytes"}``. Prints ``ready`` (or ``error: <message>``) on stdout
+once joined and set up, then works until stdin reaches EOF: the parent closed it, or died.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from collections.abc import Sequence
+
+from blackboard.agent import AgentRunner
+from blackboard.config import ZenohOptions
+from blackboard.errors import MapinterpError
+
+__all__ = ["main"]
+
+logger = logging.getLogger(__name__)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point; returns the exit status (2: could not start)."""
+    from blackboard.runtime import resolve_factory
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        spec = json.loads(argv[0])
+        source = resolve_factory(spec["factory"])(spec["name"], **spec.get("options", {}))
+        options = ZenohOptions(config_file=spec.get("zenoh_config"))
+        runner = AgentRunner(source, run_id=spec["run_id"], connect=list(spec["connect"]), zenoh_options=options,
+                             max_message_bytes=int(spec["max_message_bytes"]))
+        runner.start()
+    except (MapinterpError, ValueError, KeyError, IndexError, TypeError) as err:
+        print(f"error: {err}", flush=True)
+        return 2
+    print("ready", flush=True)
+    try:
+        sys.stdin.buffer.read()  # the watchdog: returns at EOF (parent closed the pipe or died)
+    finally:
+        runner.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,243 @@
+"""Knowledge sources, the :class:`Board` they see, and the :class:`Event` that triggers them.
+
+Lifecycle (as py_trees behaviours): ``__init__`` configures (pure, no middleware);
+:meth:`KnowledgeSource.setup` runs once after connecting and may read the board;
+:meth:`~KnowledgeSource.precondition` rates each triggering event (None: do not activate);
+:meth:`~KnowledgeSource.act` does the work; :meth:`~KnowledgeSource.shutdown` releases resources.
+Each knowledge source declares the levels it ``consumes``, ``produces`` and writes
+``exclusive``-ly; the runtime refuses anything else with a :class:`DeclarationError`.
+
+Example::
+
+    class Doubler(KnowledgeSource):
+        consumes = ("number",)
+        produces = ("doubled",)
+
+        def act(self, event, board):
+            x = event.hypothesis.body["x"]
+            board.post("doubled", {"x": 2 * x}, links=(event.hypothesis.id,))
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import threading
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import zenoh
+
+from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
+from blackboard.errors import BlackboardError, CodecError, DeclarationError, TransportError
+from blackboard.hypothesis import Hypothesis, validate_name
+from blackboard.keys import RunKeys
+
+if TYPE_CHECKING:
+    from collections.abc import Iterable
+
+__all__ = ["KnowledgeSource", "Board", "Event", "EventKind"]
+
+logger = logging.getLogger(__name__)
+
+#: how long a request to the blackboard node may take before TransportError
+REQUEST_TIMEOUT_S = 10.0
+
+
+class EventKind(str, enum.Enum):
+    """What happened to the hypothesis of an :class:`Event`."""
+
+    POSTED = "posted"
+    UPDATED = "updated"
+    RETRACTED = "retracted"
+    TIMEOUT = "timeout"
+
+
+@dataclass(frozen=True)
+class Event:
+    """A change on the blackboard delivered to a knowledge source.
+
+    ``reason`` explains a TIMEOUT (``"agent 'detector-house' left"``).
+    """
+
+    kind: EventKind
+    hypothesis: Hypothesis
+    reason: str = ""
+
+
+class KnowledgeSource:
+    """Base class of knowledge sources; subclasses set the class declarations and override
+    :meth:`act` (and :meth:`precondition`, :meth:`setup`, :meth:`on_timeout`, :meth:`shutdown`).
+
+    ``options`` are plain data (they cross process boundaries in ``processes`` mode).
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = ()
+    produces: ClassVar[tuple[str, ...]] = ()
+    exclusive: ClassVar[tuple[str, ...]] = ()
+    #: failures of act() after which the agent is reported dead
+    max_failures: ClassVar[int] = 3
+
+    def __init__(self, name: str, **options: Any) -> None:
+        self.name = validate_name(name, "agent name")
+        self.options = options
+        for level in (*self.consumes, *self.produces, *self.exclusive):
+            validate_name(level, f"level declared by {type(self).__name__}")
+        if not set(self.exclusive) <= set(self.produces):
+            raise DeclarationError(name, ",".join(sorted(set(self.exclusive) - set(self.produces))),
+                                   "exclusive levels must also be in produces")
+
+    def setup(self, board: Board) -> None:
+        """Once, after connecting; may read existing state."""
+
+    def precondition(self, event: Event) -> float | None:
+        """Activation rating of ``event`` (higher runs first), or None not to activate."""
+        return 0.0
+
+    def act(self, event: Event, board: Board) -> None:
+        """React to ``event``: read, post, update, retract."""
+
+    def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
+        """An addressed post of this agent got no answer: the addressee left or the deadline passed."""
+        logger.warning("%s: addressed post %s timed out: %s", self.name, hypothesis.id, reason)
+
+    def shutdown(self) -> None:
+        """Release resources; called once, at the end of the run."""
+
+
+class Board:
+    """What an agent sees of the blackboard, bound to its zenoh session (no global state).
+
+    A new post travels one hop: it is published on ``mapinterp/<run>/<level>/<id>``, which the
+    node (store, trace) and the consumers receive at once. Updates and retractions go to the
+    node, which assigns versions serially, so concurrent updates never lose a write.
+    Reads come from the node's store and see this agent's own earlier posts.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        keys: RunKeys,
+        agent: str,
+        *,
+        produces: Iterable[str] | None,
+        max_message_bytes: int = DEFAULT_MAX_BYTES,
+    ) -> None:
+        self._session = session
+        self._keys = keys
+        self.agent = agent
+        self._produces = None if produces is None else frozenset(produces)
+        self._max = max_message_bytes
+        self._lock = threading.Lock()
+        self.sent = 0  # one-hop posts published so far (quiescence accounting)
+
+    def _check_level(self, level: str) -> None:
+        validate_name(level, "level")
+        if self._produces is not None and level not in self._produces:
+            raise DeclarationError(self.agent, level, f"not declared in produces {sorted(self._produces)}")
+
+    def post(
+        self,
+        level: str,
+        body: dict,
+        *,
+        links: Iterable[str] = (),
+        credibility: float = 1.0,
+        id: str | None = None,
+        addressed_to: str | None = None,
+        deadline_s: float | None = None,
+    ) -> Hypothesis:
+        """Post a new hypothesis (version 1) on ``level``; returns it.
+
+        With ``addressed_to``, the addressee is expected to post a hypothesis linking to this one
+        (within ``deadline_s`` if given); otherwise this agent's ``on_timeout`` is called.
+
+        Raises:
+            DeclarationError: ``level`` is not in this agent's ``produces``.
+            CodecError: ``body`` cannot be encoded or is larger than the message limit.
+            ValueError: a bad id, link, credibility or deadline.
+        """
+        self._check_level(level)
+        hyp = Hypothesis.new(level, body, source=self.agent, links=tuple(links), credibility=credibility,
+                             id=id, addressed_to=addressed_to, deadline_s=deadline_s)
+        key = self._keys.hypothesis(level, hyp.id)
+        with self._lock:
+            data = encode({"op": "post", "hyp": hyp.to_record(), "sender": self.agent, "n": self.sent + 1},
+                          max_bytes=self._max)
+            try:
+                self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
+            except zenoh.ZError as err:
+                raise TransportError(f"agent {self.agent!r}: cannot publish on {key}: {err}") from None
+            self.sent += 1
+        return hyp
+
+    def update(self, hypothesis_id: str, *, body: dict | None = None, credibility: float | None = None) -> Hypothesis:
+        """Merge ``body`` into the hypothesis' body (top-level keys) and/or set its credibility;
+        the node assigns the next version. Returns the new version.
+
+        Raises:
+            DeclarationError: its level is not in this agent's ``produces``.
+            BlackboardError: no such hypothesis (never posted, or retracted).
+        """
+        reply = self._request({"op": "update", "id": hypothesis_id, "body": body, "credibility": credibility})
+        return Hypothesis.from_record(reply["hyp"])
+
+    def retract(self, hypothesis_id: str) -> None:
+        """Remove a hypothesis from the board (consumers get a RETRACTED event).
+
+        Raises:
+            DeclarationError: its level is not in this agent's ``produces``.
+            BlackboardError: no such hypothesis.
+        """
+        self._request({"op": "retract", "id": hypothesis_id})
+
+    def get(self, hypothesis_id: str) -> Hypothesis | None:
+        """The current version of a hypothesis from the node's store, or None."""
+        validate_name(hypothesis_id, "hypothesis id")
+        found = self._read(f"{self._keys.root}/*/{hypothesis_id}")
+        return found[0] if found else None
+
+    def query(self, level: str) -> list[Hypothesis]:
+        """All hypotheses on ``level`` in the node's store, oldest first."""
+        validate_name(level, "level")
+        return self._read(self._keys.level(level))
+
+    # -- transport ---------------------------------------------------------------------------------
+
+    def _read(self, key: str) -> list[Hypothesis]:
+        selector = f"{key}?agent={self.agent};sent={self.sent}"
+        out = []
+        for reply in self._get(selector, None):
+            record = decode(reply, max_bytes=self._max, key=key)
+            out.append(Hypothesis.from_record(record.get("hyp") if isinstance(record, dict) else None, key=key))
+        out.sort(key=lambda h: (h.timestamp, h.id))
+        return out
+
+    def _request(self, request: dict) -> dict:
+        request = {**request, "agent": self.agent, "sent": self.sent}
+        replies = self._get(self._keys.request, encode(request, max_bytes=self._max))
+        if not replies:
+            raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")
+        reply = decode(replies[0], key=self._keys.request)
+        if not isinstance(reply, dict):
+            raise CodecError("malformed reply from the blackboard node", key=self._keys.request)
+        if reply.get("ok"):
+            return reply
+        if reply.get("error") == "declaration":
+            raise DeclarationError(self.agent, str(reply.get("level")), str(reply.get("message")))
+        raise BlackboardError(f"agent {self.agent!r}: {reply.get('message')}")
+
+    def _get(self, selector: str, payload: bytes | None) -> list[bytes]:
+        try:
+            replies = self._session.get(selector, payload=payload, timeout=REQUEST_TIMEOUT_S,
+                                        congestion_control=zenoh.CongestionControl.BLOCK)
+            out = []
+            for reply in replies:
+                if reply.ok is not None:
+                    out.append(reply.ok.payload.to_bytes())
+                else:
+                    logger.warning("agent %s: error reply to %s: %s", self.agent, selector,
+                                   reply.err.payload.to_string())
+            return out
+        except zenoh.ZError as err:
+            raise TransportError(f"agent {self.agent!r}: query {selector} failed: {err}") from None

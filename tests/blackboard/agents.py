@@ -1,0 +1,110 @@
+"""Tiny knowledge sources for the blackboard tests; importable, so processes mode can spawn them."""
+
+from __future__ import annotations
+
+import time
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+
+__all__ = ["Doubler", "Echo", "Asker", "Silent", "Failing", "Updater", "Recorder", "Exclusive", "BadSetup"]
+
+
+class Doubler(KnowledgeSource):
+    """number {x} -> doubled {x: 2x}, linked to its input."""
+
+    consumes = ("number",)
+    produces = ("doubled",)
+
+    def act(self, event: Event, board: Board) -> None:
+        if event.kind is EventKind.POSTED:
+            h = event.hypothesis
+            board.post("doubled", {"x": 2 * h.body["x"], "frame": h.body.get("frame")}, links=(h.id,))
+
+
+class Echo(KnowledgeSource):
+    """doubled -> echo (same body), and answers queries addressed to it."""
+
+    consumes = ("doubled", "query")
+    produces = ("echo", "answer")
+
+    def act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        if event.kind is not EventKind.POSTED:
+            return
+        if h.level == "query":
+            if h.addressed_to == self.name:
+                time.sleep(float(self.options.get("delay_s", 0.0)))
+                board.post("answer", {"q": h.body.get("q")}, links=(h.id,))
+        else:
+            board.post("echo", dict(h.body), links=(h.id,))
+
+
+class Asker(KnowledgeSource):
+    """ask {to, q, deadline_s} -> an addressed query; records timeouts as 'timeout' hypotheses."""
+
+    consumes = ("ask",)
+    produces = ("query", "timeout")
+
+    def act(self, event: Event, board: Board) -> None:
+        body = event.hypothesis.body
+        board.post("query", {"q": body["q"]}, addressed_to=body["to"], deadline_s=body.get("deadline_s"),
+                   links=(event.hypothesis.id,))
+
+    def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
+        board.post("timeout", {"reason": reason, "q": hypothesis.body["q"]}, links=(hypothesis.id,))
+
+
+class Silent(KnowledgeSource):
+    """Consumes queries and never answers."""
+
+    consumes = ("query",)
+
+
+class Failing(KnowledgeSource):
+    """Raises in act on every number."""
+
+    consumes = ("number",)
+    max_failures = 3
+
+    def act(self, event: Event, board: Board) -> None:
+        raise RuntimeError(f"cannot handle {event.hypothesis.body['x']}")
+
+
+class Updater(KnowledgeSource):
+    """On 'target' hypotheses: options['n'] updates, each adding key '<name>-<i>' to the body."""
+
+    consumes = ("target",)
+    produces = ("target",)
+
+    def act(self, event: Event, board: Board) -> None:
+        if event.kind is EventKind.POSTED:
+            for i in range(int(self.options.get("n", 10))):
+                board.update(event.hypothesis.id, body={f"{self.name}-{i}": i})
+
+
+class Recorder(KnowledgeSource):
+    """Records the order of its activations in a 'seen' list (precondition rating = body['rating'])."""
+
+    consumes = ("number",)
+
+    def setup(self, board: Board) -> None:
+        self.seen: list[tuple[str, int]] = []
+        self.existing = [h.body.get("x") for h in board.query("number")]
+
+    def precondition(self, event: Event) -> float | None:
+        return event.hypothesis.body.get("rating", 0.0)
+
+    def act(self, event: Event, board: Board) -> None:
+        self.seen.append((event.kind.value, event.hypothesis.body.get("x")))
+        time.sleep(float(self.options.get("delay_s", 0.0)))
+
+
+class Exclusive(KnowledgeSource):
+    produces = ("position",)
+    exclusive = ("position",)
+
+
+class BadSetup(KnowledgeSource):
+    def setup(self, board: Board) -> None:
+        raise OSError("model file missing")
