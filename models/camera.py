@@ -1,0 +1,355 @@
+"""Camera emulator C((x0, y0), heading, P): renders viewframes of the environment model.
+
+Pinhole convention (a contract): the camera stands at world (x, y, z) (metres, x east, y north,
+z up), looks along ``heading_deg`` (counterclockwise from +x) tilted by ``pitch_deg`` (positive
+upwards), no roll. Vertical field of view ``fov_y_deg``, square pixels, principal point at the
+image centre, image row 0 at the top. Image coordinates are (row, col) with pixel centres at
+integers, so ``fx = fy = (H / 2) / tan(fov_y / 2)``, ``cx = (W - 1) / 2``, ``cy = (H - 1) / 2``
+and a camera-frame point (right, up, forward) = (xc, yc, zc) lands at
+``col = cx + fx * xc / zc``, ``row = cy - fy * yc / zc``.
+
+Rendering is offscreen through pyrender; ``PYOPENGL_PLATFORM`` defaults to ``egl`` (Mesa).
+One renderer and one scene are reused across views; per view only the terrain tiles' levels of
+detail, the camera pose and the light change. Each view takes two passes: a lit colour pass
+(image and depth) and a flat segmentation pass (landmark mask).
+
+Shading is Lambertian (``albedo * (ambient + intensity * max(n . l, 0))``), done by a small
+fragment shader that replaces pyrender's physically based ``mesh.frag``: on Mesa's software
+rasteriser the PBR shader cost about 3x more per pixel, and the terrain fills most pixels.
+The replacement goes through pyrender's shader cache (``Renderer._program_cache``, pyrender
+0.1.x); if that attribute ever disappears the emulator logs a warning and keeps PBR.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+
+import atexit  # noqa: E402
+import logging  # noqa: E402
+import math  # noqa: E402
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import TYPE_CHECKING  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pyrender  # noqa: E402
+from pyrender.shader_program import ShaderProgramCache  # noqa: E402
+import trimesh  # noqa: E402
+
+from blackboard.errors import RenderError  # noqa: E402
+from models.environment import KIND_COLORS, EnvironmentModel  # noqa: E402
+
+if TYPE_CHECKING:
+    from models.scenario import CameraSpec
+
+__all__ = ["Pose", "View", "CameraEmulator", "SKY_RGB"]
+
+log = logging.getLogger(__name__)
+
+#: background (sky) colour, RGB in [0, 1]
+SKY_RGB = (0.70, 0.80, 0.92)
+_DEFAULT_LIGHT_DIRECTION = (-0.45, 0.35, -0.82)  # light travels from the south-east, high sun
+_DEFAULT_LIGHT_INTENSITY = 0.75
+_AMBIENT = (0.48, 0.48, 0.52)
+
+_LAMBERT_FRAG = """#version 330 core
+struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
+struct Material {
+    vec3 emissive_factor;
+#ifdef USE_METALLIC_MATERIAL
+    vec4 base_color_factor;
+    float metallic_factor;
+    float roughness_factor;
+#endif
+#ifdef USE_GLOSSY_MATERIAL
+    vec4 diffuse_factor;
+    vec3 specular_factor;
+    float glossiness_factor;
+#endif
+};
+uniform Material material;
+uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
+uniform int n_directional_lights;
+uniform vec3 ambient_light;
+in vec3 frag_position;
+#ifdef NORMAL_LOC
+in vec3 frag_normal;
+#endif
+#ifdef COLOR_0_LOC
+in vec4 color_multiplier;
+#endif
+out vec4 frag_color;
+void main()
+{
+#ifdef USE_METALLIC_MATERIAL
+    vec4 base = material.base_color_factor;
+#else
+    vec4 base = material.diffuse_factor;
+#endif
+#ifdef COLOR_0_LOC
+    base *= color_multiplier;
+#endif
+    vec3 light = ambient_light;
+#ifdef NORMAL_LOC
+    vec3 n = normalize(frag_normal);
+    for (int i = 0; i < n_directional_lights; i++) {
+        vec3 l = -normalize(directional_lights[i].direction);
+        light += directional_lights[i].color * directional_lights[i].intensity * max(dot(n, l), 0.0);
+    }
+#endif
+    frag_color = clamp(vec4(base.rgb * light, base.a), 0.0, 1.0);
+}
+"""
+
+
+def _lambert_shader_dir() -> str:
+    """A shader folder: pyrender's shaders with ``mesh.frag`` replaced by the Lambert shader."""
+    global _SHADER_DIR
+    if _SHADER_DIR is None:
+        src = Path(pyrender.__file__).parent / "shaders"
+        tmp = Path(tempfile.mkdtemp(prefix="mapinterp-shaders-"))
+        for f in src.iterdir():
+            if f.name != "mesh.frag":
+                shutil.copyfile(f, tmp / f.name)
+        (tmp / "mesh.frag").write_text(_LAMBERT_FRAG)
+        atexit.register(shutil.rmtree, tmp, True)
+        _SHADER_DIR = str(tmp)
+    return _SHADER_DIR
+
+
+_SHADER_DIR: str | None = None
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Camera pose: world position (x, y, z) metres, heading ccw from +x, pitch up (degrees)."""
+
+    x: float
+    y: float
+    z: float
+    heading_deg: float
+    pitch_deg: float = 0.0
+
+    def rotation(self) -> np.ndarray:
+        """(3, 3) matrix whose rows are the camera's right, up and forward axes in world (x, y, z)."""
+        h, p = math.radians(self.heading_deg), math.radians(self.pitch_deg)
+        forward = np.array([math.cos(h) * math.cos(p), math.sin(h) * math.cos(p), math.sin(p)])
+        right = np.array([math.sin(h), -math.cos(h), 0.0])
+        up = np.cross(right, forward)
+        return np.stack([right, up, forward])
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) world (x, y, z)."""
+        return np.array([self.x, self.y, self.z], dtype=np.float64)
+
+
+@dataclass
+class View:
+    """A rendered viewframe.
+
+    image: uint8 (H, W, 3) RGB; depth: float32 (H, W) metres along the view axis, 0 for sky;
+    mask: int32 (H, W), -1 where no landmark, else the index into ``environment.landmarks``.
+    """
+
+    image: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    pose: Pose
+
+
+def _box_mesh(lm) -> trimesh.Trimesh:
+    transform = np.eye(4)
+    a = math.radians(lm.yaw_deg)
+    transform[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+    transform[:3, 3] = lm.centre
+    return trimesh.creation.box(extents=(lm.width, lm.depth, lm.height), transform=transform)
+
+
+class CameraEmulator:
+    """Renders :class:`View` objects of an :class:`EnvironmentModel` with one offscreen renderer.
+
+    Use as a context manager or call :meth:`close`. Example::
+
+        with CameraEmulator(env, scenario.camera) as cam:
+            view = cam.render(cam.pose_at(100.0, 100.0, heading_deg=30.0))
+    """
+
+    def __init__(self, environment: EnvironmentModel, camera: CameraSpec) -> None:
+        self.environment = environment
+        self.camera = camera
+        self.width, self.height = int(camera.width), int(camera.height)
+        self._tan_y = math.tan(math.radians(camera.fov_y_deg) / 2)
+        self._tan_x = self._tan_y * self.width / self.height
+        self.scene = pyrender.Scene(bg_color=(*SKY_RGB, 1.0), ambient_light=_AMBIENT)
+        self._terrain_nodes: list[list[pyrender.Node]] = []
+        self._seg_map: dict[pyrender.Node, np.ndarray] = {}
+        for tile in environment.tiles:
+            nodes = []
+            for lod in tile.levels:
+                prim = pyrender.Primitive(
+                    positions=lod.positions,
+                    normals=lod.normals,
+                    color_0=lod.colors,
+                    indices=lod.indices,
+                    material=pyrender.MetallicRoughnessMaterial(
+                        baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0, roughnessFactor=1.0,
+                        doubleSided=True,
+                    ),
+                )
+                mesh = pyrender.Mesh([prim])
+                mesh.is_visible = False
+                node = self.scene.add(mesh)
+                self._seg_map[node] = np.zeros(3)
+                nodes.append(node)
+            self._terrain_nodes.append(nodes)
+        self._landmark_nodes = []
+        for i, lm in enumerate(environment.landmarks):
+            rgb = KIND_COLORS.get(lm.kind, KIND_COLORS["default"])
+            material = pyrender.MetallicRoughnessMaterial(
+                baseColorFactor=(*rgb, 1.0), metallicFactor=0.0, roughnessFactor=0.9
+            )
+            node = self.scene.add(pyrender.Mesh.from_trimesh(_box_mesh(lm), material=material, smooth=False))
+            code = i + 1
+            self._seg_map[node] = np.array([code & 255, (code >> 8) & 255, (code >> 16) & 255], dtype=np.float64)
+            self._landmark_nodes.append(node)
+        self._cam_node = self.scene.add(
+            pyrender.PerspectiveCamera(
+                yfov=math.radians(camera.fov_y_deg), znear=camera.near, zfar=camera.far,
+                aspectRatio=self.width / self.height,
+            )
+        )
+        self._light = pyrender.DirectionalLight(color=np.ones(3), intensity=_DEFAULT_LIGHT_INTENSITY)
+        self._light_node = self.scene.add(self._light, pose=_light_pose(_DEFAULT_LIGHT_DIRECTION))
+        self._current_levels = np.full(len(environment.tiles), -1)
+        try:
+            self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
+        except Exception as exc:  # pyrender/PyOpenGL raise many kinds
+            platform = os.environ.get("PYOPENGL_PLATFORM")
+            raise RenderError(f"cannot create an offscreen renderer (PYOPENGL_PLATFORM={platform}): {exc}") from exc
+        inner = getattr(self._renderer, "_renderer", None)
+        if inner is not None and hasattr(inner, "_program_cache"):
+            inner._program_cache = ShaderProgramCache(shader_dir=_lambert_shader_dir())
+        else:  # pragma: no cover - other pyrender versions
+            log.warning("pyrender has no shader cache to replace: keeping its PBR shader (slower)")
+        self.triangles_last = 0
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels, (row, col) pixel centres at integers (module docstring)."""
+        f = (self.height / 2) / self._tan_y
+        return f, f, (self.width - 1) / 2, (self.height - 1) / 2
+
+    def pose_at(self, x: float, y: float, heading_deg: float, *, pitch_deg: float | None = None) -> Pose:
+        """The pose at ground point (x, y): z = F(x, y) + eye_height; pitch defaults to the camera's."""
+        z = float(self.environment.terrain.height_at(x, y)) + self.camera.eye_height
+        pitch = self.camera.pitch_deg if pitch_deg is None else pitch_deg
+        return Pose(float(x), float(y), z, float(heading_deg), float(pitch))
+
+    def project(self, points_xyz: np.ndarray, pose: Pose) -> np.ndarray:
+        """Project world points, ndarray (n, 3) (x, y, z), to image (row, col), ndarray (n, 2).
+
+        Points at or behind the camera plane (forward distance <= 0) give NaN.
+        """
+        pts = np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3)
+        cam = (pts - pose.position) @ pose.rotation().T
+        fx, fy, cx, cy = self.intrinsics
+        with np.errstate(divide="ignore", invalid="ignore"):
+            col = cx + fx * cam[:, 0] / cam[:, 2]
+            row = cy - fy * cam[:, 1] / cam[:, 2]
+        out = np.stack([row, col], 1)
+        out[cam[:, 2] <= 0] = np.nan
+        return out
+
+    def camera_frame(self, points_xyz: np.ndarray, pose: Pose) -> np.ndarray:
+        """World points (n, 3) in camera coordinates (n, 3): (right, up, forward) metres."""
+        return (np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3) - pose.position) @ pose.rotation().T
+
+    # -- rendering ------------------------------------------------------------------------
+    def _set_levels(self, pose: Pose) -> None:
+        levels = self.environment.tile_levels(
+            pose.position, pose.rotation(), tan_half_fov=(self._tan_x, self._tan_y), far=self.camera.far
+        )
+        changed = np.nonzero(levels != self._current_levels)[0]
+        for t in changed:
+            old, new = self._current_levels[t], levels[t]
+            if old >= 0:
+                self._terrain_nodes[t][old].mesh.is_visible = False
+            if new >= 0:
+                self._terrain_nodes[t][new].mesh.is_visible = True
+        self._current_levels = levels
+        self.triangles_last = sum(
+            len(self.environment.tiles[t].levels[lv].indices) for t, lv in enumerate(levels) if lv >= 0
+        )
+
+    def render(
+        self,
+        pose: Pose,
+        *,
+        light_intensity: float | None = None,
+        light_direction: tuple[float, float, float] | None = None,
+    ) -> View:
+        """Render the view from ``pose``: image, depth and landmark mask (see :class:`View`).
+
+        ``light_intensity`` (default 3.0) and ``light_direction`` (world (x, y, z) direction the
+        sunlight travels, default from the south-east and high) change the lighting of this view only.
+        """
+        if self._renderer is None:
+            raise RenderError("the camera emulator is closed")
+        self._set_levels(pose)
+        m = np.eye(4)
+        rot = pose.rotation()
+        m[:3, 0], m[:3, 1], m[:3, 2] = rot[0], rot[1], -rot[2]
+        m[:3, 3] = pose.position
+        self.scene.set_pose(self._cam_node, m)
+        self._light.intensity = _DEFAULT_LIGHT_INTENSITY if light_intensity is None else float(light_intensity)
+        self.scene.set_pose(self._light_node, _light_pose(light_direction or _DEFAULT_LIGHT_DIRECTION))
+        try:
+            color, depth = self._renderer.render(self.scene)
+            seg, _ = self._renderer.render(
+                self.scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._seg_map
+            )
+        except Exception as exc:
+            raise RenderError(f"rendering failed: {exc}") from exc
+        seg = seg.astype(np.int32)
+        mask = (seg[..., 0] | (seg[..., 1] << 8) | (seg[..., 2] << 16)) - 1
+        mask[mask >= len(self.environment.landmarks)] = -1
+        return View(
+            image=np.ascontiguousarray(color[..., :3], dtype=np.uint8),
+            depth=np.asarray(depth, dtype=np.float32),
+            mask=mask.astype(np.int32),
+            pose=pose,
+        )
+
+    def close(self) -> None:
+        """Release the GL context (idempotent)."""
+        if self._renderer is not None:
+            self._renderer.delete()
+            self._renderer = None
+
+    def __enter__(self) -> CameraEmulator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def _light_pose(direction) -> np.ndarray:
+    """Node pose of a directional light shining along ``direction`` (world (x, y, z))."""
+    d = np.asarray(direction, dtype=np.float64)
+    n = np.linalg.norm(d)
+    if not n > 0:
+        raise ValueError("light_direction must be a non-zero 3-vector")
+    z = -d / n  # pyrender lights shine along the node's -z
+    helper = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
+    return m
