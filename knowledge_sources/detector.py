@@ -20,16 +20,19 @@ class LandmarkDetectorAgent(KnowledgeSource):
     from the blackboard and runs the detector registered for L's kind
     (:func:`models.detectors.default_registry`). It never reads the ``truth`` level.
 
-    Options: ``threshold`` (correlation for "present", default 0.5), ``cache`` (frames and
-    viewframes kept, default 64).
+    Options: ``threshold`` (score for "present", default 0.55), ``absent_threshold`` (below it,
+    "absent", default 0.35; in between the answer is undecided), ``cache`` (frames and viewframes
+    kept, default 64).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.QUERY,)
     produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
 
-    def __init__(self, name: str, *, threshold: float = 0.5, cache: int = 64, **options: Any) -> None:
+    def __init__(self, name: str, *, threshold: float = 0.55, absent_threshold: float = 0.35, cache: int = 64,
+                 **options: Any) -> None:
         super().__init__(name, **options)
         self.threshold = float(threshold)
+        self.absent_threshold = float(absent_threshold)
         self.cache = int(cache)
         self._registry = None
         self._store: OrderedDict[str, Any] = OrderedDict()
@@ -37,7 +40,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
     def setup(self, board: Board) -> None:
         from models.detectors import default_registry
 
-        self._registry = default_registry(threshold=self.threshold)
+        self._registry = default_registry(threshold=self.threshold, absent_threshold=self.absent_threshold)
 
     def precondition(self, event: Event) -> float | None:
         h = event.hypothesis

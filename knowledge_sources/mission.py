@@ -153,6 +153,7 @@ def run_mission(
     summary["frames_per_s"] = (len(records) / elapsed) if elapsed > 0 else None
     return {
         "scenario": scenario.name,
+        "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
         "mode": "processes" if processes else "inprocess",
         "agents": agents,

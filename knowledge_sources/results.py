@@ -2,11 +2,12 @@
 
 ::
 
-    {"scenario": str, "strategy": str,
+    {"scenario": str, "strategy": str, "scenario_path": str,
      "frames": [{"frame": i, "viewframe": k | null, "position": [x, y] | null,
                  "heading_deg": h | null, "confidence": c, "queries": q, "backtracks": b,
                  "latency_ms": t, "ranking": [[k, variance], ...first 5],
-                 "truth_viewframe": k | null, "correct": bool | null, "reason": str}],
+                 "truth_viewframe": k | null, "correct": bool | null, "reason": str,
+                 "truth": [x, y, heading_deg] | null, "error_m": e | null}],
      "summary": {"frames": n, "top1": a | null, "mean_queries": q, "mean_error_m": e | null,
                  "latency_ms_p50": t}}
 
@@ -66,6 +67,7 @@ def frame_record(
         "backtracks": int(backtracks),
         "latency_ms": None if latency_ms is None else float(latency_ms),
         "ranking": [[int(k), float(v)] for k, v in list(ranking)[:5]],
+        "truth": None if truth is None else [float(t) for t in truth],
         "truth_viewframe": truth_vf,
         "correct": None if truth_vf is None else (viewframe is not None and int(viewframe) == truth_vf),
         "error_m": error,

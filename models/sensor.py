@@ -109,7 +109,7 @@ def degrade(
     depth : ndarray of shape (H, W), optional
         Metres along the view axis, 0 for sky; haze grows with it. Without it, haze is uniform.
     spec : SimulateSpec
-        Strengths: ``texture`` (low-frequency multiplicative albedo noise), ``haze`` (blend to a
+        Strengths: ``texture`` (fine multiplicative albedo noise on surfaces, not on the sky), ``haze`` (blend to a
         bright gray with distance), ``gain`` and ``gamma`` (drawn in ``1 ± strength`` and
         ``exp(± strength)``), ``blur`` (Gaussian sigma, pixels), ``noise`` (gray levels sigma).
     rng : Generator, int or None
@@ -124,11 +124,13 @@ def degrade(
     h, w = image.shape[:2]
     img = image.astype(np.float32) / 255.0
     if spec.texture > 0:
-        field = rng.standard_normal((max(2, h // 8), max(2, w // 8))).astype(np.float32)
+        # surface albedo variation (grass, soil, walls): fine-grained, on surfaces only, not the sky
+        field = rng.standard_normal((max(2, h // 4), max(2, w // 4))).astype(np.float32)
         field = cv2.resize(field, (w, h), interpolation=cv2.INTER_CUBIC)
-        field = cv2.GaussianBlur(field, (0, 0), 2.0)
+        field = cv2.GaussianBlur(field, (0, 0), 1.0)
         field /= max(float(field.std()), 1e-6)
-        img *= np.clip(1.0 + spec.texture * 0.5 * field, 0.2, 2.0)[..., None]
+        surface = np.ones((h, w), np.float32) if depth is None else (np.asarray(depth) > 0).astype(np.float32)
+        img *= np.clip(1.0 + spec.texture * 0.25 * field * surface, 0.5, 1.5)[..., None]
     if spec.haze > 0:
         if depth is None:
             amount = np.full((h, w), spec.haze, np.float32)

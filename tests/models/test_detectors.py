@@ -1,0 +1,140 @@
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.detectors import (
+    CandidateView,
+    DetectorRegistry,
+    EdgeTemplateDetector,
+    LandmarkDetector,
+    default_registry,
+    edge_image,
+)
+
+H, W = 120, 160
+
+
+def _scene(rng: np.random.Generator, *, box: tuple[int, int, int, int] | None, noise: float = 3.0,
+           sky: float = 180.0, wall: float = 90.0, shift: tuple[int, int] = (0, 0)) -> np.ndarray:
+    """A gray sky over ground with an optional dark box (row0, col0, row1, col1), as RGB uint8."""
+    img = np.full((H, W), sky, np.float32)
+    img[80:, :] = 120.0
+    if box is not None:
+        r0, c0, r1, c1 = box
+        img[r0 + shift[0]:r1 + shift[0], c0 + shift[1]:c1 + shift[1]] = wall
+    img += rng.normal(0.0, noise, img.shape)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+BOX = (50, 60, 80, 90)
+
+
+def _view(rng) -> CandidateView:
+    sil = np.zeros((H, W), bool)
+    sil[BOX[0]:BOX[2], BOX[1]:BOX[3]] = True
+    return CandidateView(_scene(rng, box=BOX, noise=0.0), sil)
+
+
+@pytest.mark.parametrize(
+    "case, expected",
+    [
+        ({"box": BOX}, True),
+        ({"box": BOX, "shift": (3, -5)}, True),  # a few pixels off the expected place
+        ({"box": BOX, "sky": 150.0, "wall": 110.0, "noise": 6.0}, True),  # other lighting, more noise
+        ({"box": None}, False),  # only sky and ground where the box should be
+        ({"box": None, "noise": 12.0}, False),  # noisy empty sky must not look like the outline
+    ],
+)
+def test_edge_template_present_and_absent(case, expected):
+    rng = np.random.default_rng(4)
+    det = EdgeTemplateDetector()
+    result = det.detect(_scene(rng, **case), view=_view(rng))
+    assert result.present is expected, result
+    assert -1.0 <= result.score <= 1.0
+
+
+def test_found_location_follows_the_shift():
+    rng = np.random.default_rng(5)
+    det = EdgeTemplateDetector()
+    at = det.detect(_scene(rng, box=BOX), view=_view(rng)).location
+    moved = det.detect(_scene(rng, box=BOX, shift=(2, 6)), view=_view(rng)).location
+    assert (moved[0] - at[0], moved[1] - at[1]) == (2, 6)
+
+
+def test_tiny_silhouette_is_undecided():
+    rng = np.random.default_rng(6)
+    sil = np.zeros((H, W), bool)
+    sil[60:63, 70:72] = True
+    result = EdgeTemplateDetector(min_pixels=24).detect(_scene(rng, box=BOX), view=CandidateView(_scene(rng, box=BOX), sil))
+    assert result.present is None
+    assert "pixels" in result.reason
+
+
+def test_shape_mismatch_names_the_problem():
+    rng = np.random.default_rng(7)
+    with pytest.raises(ValueError, match="must equal the viewframe"):
+        EdgeTemplateDetector().detect(np.zeros((60, 80, 3), np.uint8), view=_view(rng))
+
+
+@pytest.mark.parametrize("axis", ["both", "x", "y"])
+def test_edge_image_range_and_orientation(axis):
+    img = np.zeros((40, 40), np.uint8)
+    img[:, 20:] = 200  # one vertical edge
+    e = edge_image(img, axis=axis)
+    assert e.shape == (40, 40) and e.dtype == np.float32
+    assert 0.0 <= e.min() and e.max() <= 1.0
+    col_energy, row_energy = e[:, 18:22].sum(), e[18:22, :].sum()
+    if axis == "y":
+        assert e.max() < 1e-6  # a vertical edge has no vertical gradient
+    else:
+        assert col_energy > 0.9 * e.sum() > 0 and row_energy < col_energy
+
+
+def test_registry_protocol_and_fallback():
+    reg = default_registry()
+    assert {"house", "tower"} <= set(reg.kinds)
+    assert isinstance(reg.for_kind("house"), LandmarkDetector)
+    assert reg.for_kind("silo").name == "box-outline"  # no own detector: the box fallback
+    with pytest.raises(KeyError, match="silo"):
+        DetectorRegistry().for_kind("silo")
+    with pytest.raises(TypeError, match="LandmarkDetector"):
+        reg.register("barn", object())
+
+
+@pytest.mark.slow
+def test_rendered_house_found_from_its_viewframe_and_not_elsewhere():
+    """Real pyrender views: the camera near the viewframe sees the house; far past it, not."""
+    from models.camera import CameraEmulator
+    from models.environment import build_environment
+    from models.scenario import scenario_from_dict
+    from models.sensor import degrade
+
+    data = {
+        "name": "detector-test", "seed": 1,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
+        "landmarks": [{"id": "H1", "kind": "house", "x": 300, "y": 300, "width": 20, "depth": 12, "height": 8}],
+        "route": [[240, 300], [300, 240]],
+        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+        "sensor": {"simulate": {}},
+    }
+    scenario = scenario_from_dict(data, path=Path("/nonexistent/detector-test.yaml"))
+    env = build_environment(scenario)
+    with CameraEmulator(env, scenario.camera) as cam:
+        vf = cam.render(cam.pose_at(240, 300, 0.0))  # looking east at the house, 60 m away
+        assert (vf.mask == 0).sum() > 100
+        near = cam.render(cam.pose_at(242, 301, 2.0), light_intensity=2.2)  # a camera frame near it
+        away = cam.render(cam.pose_at(240, 300, 180.0))  # looking west: the house is behind
+    rng = np.random.default_rng(2)
+    spec = scenario.sensor.simulate
+    det = default_registry().for_kind("house")
+    view = CandidateView.from_mask(vf.image, vf.mask, 0)
+    found = det.detect(degrade(near.image, depth=near.depth, spec=spec, rng=rng), view=view)
+    missed = det.detect(degrade(away.image, depth=away.depth, spec=spec, rng=rng), view=view)
+    assert found.present is True, found
+    assert missed.present is False, missed
+    assert not math.isclose(found.score, missed.score)
