@@ -1,0 +1,142 @@
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from blackboard.errors import InputError
+from models.scenario import SimulateSpec, scenario_from_dict
+from models.sensor import degrade, load_frame_image, sensor_frames, simulate_frames
+
+CAMERA = {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0}
+
+
+def _scenario(tmp_path: Path, sensor: dict, **extra):
+    data = {
+        "name": "sensor-test", "seed": 5,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
+        "landmarks": [{"id": "H1", "kind": "house", "x": 330, "y": 300, "width": 20, "depth": 12, "height": 8}],
+        "route": [[200, 300], [250, 300], [300, 320]],
+        "camera": CAMERA,
+        "sensor": sensor,
+        **extra,
+    }
+    return scenario_from_dict(data, path=tmp_path / "s.yaml")
+
+
+@pytest.mark.parametrize(
+    "make, ext",
+    [
+        (lambda rng: rng.integers(0, 256, (60, 80), dtype=np.uint8), ".png"),  # gray, smaller
+        (lambda rng: rng.integers(0, 256, (240, 320, 3), dtype=np.uint8), ".png"),  # colour, larger
+        (lambda rng: rng.integers(0, 256, (120, 160, 4), dtype=np.uint8), ".png"),  # with alpha
+        (lambda rng: rng.integers(0, 256, (120, 160, 3), dtype=np.uint8), ".jpg"),
+        (lambda rng: (rng.integers(0, 65535, (120, 160))).astype(np.uint16), ".png"),  # 16-bit
+    ],
+)
+def test_load_frame_image_any_format_to_camera_size(tmp_path, make, ext):
+    data = make(np.random.default_rng(1))
+    path = tmp_path / f"f{ext}"
+    assert cv2.imwrite(str(path), data)
+    img = load_frame_image(path, width=160, height=120)
+    assert img.shape == (120, 160, 3) and img.dtype == np.uint8
+
+
+def test_load_frame_image_keeps_colour_order(tmp_path):
+    rgb = np.zeros((120, 160, 3), np.uint8)
+    rgb[..., 0] = 200  # red
+    cv2.imwrite(str(tmp_path / "red.png"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    img = load_frame_image(tmp_path / "red.png", width=160, height=120)
+    assert img[..., 0].mean() == 200 and img[..., 2].mean() == 0
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [(None, "not found"), (b"this is not a png", "not a readable image")],
+)
+def test_load_frame_image_errors_name_the_file(tmp_path, content, message):
+    path = tmp_path / "frame.png"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(InputError, match=message) as err:
+        load_frame_image(path, width=160, height=120)
+    assert err.value.path == path
+    assert "frame.png" in str(err.value)
+
+
+def test_degrade_is_seeded_and_changes_the_image():
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    spec = SimulateSpec()
+    a = degrade(image, spec=spec, rng=11)
+    b = degrade(image, spec=spec, rng=11)
+    c = degrade(image, spec=spec, rng=12)
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert np.abs(a.astype(int) - image).mean() > 2
+
+
+def test_degrade_with_zero_strengths_is_identity():
+    image = np.random.default_rng(3).integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    spec = SimulateSpec(lighting=0, haze=0, gain=0, gamma=0, noise=0, blur=0, texture=0)
+    assert np.array_equal(degrade(image, spec=spec, rng=1), image)
+
+
+def test_haze_brightens_distant_pixels_more():
+    image = np.full((20, 20, 3), 40, np.uint8)
+    depth = np.full((20, 20), 10.0, np.float32)
+    depth[:, 10:] = 3000.0
+    spec = SimulateSpec(haze=0.6, gain=0, gamma=0, noise=0, blur=0, texture=0)
+    out = degrade(image, depth=depth, spec=spec, rng=1)
+    assert out[:, 10:].mean() > out[:, :10].mean() + 20
+
+
+def test_degrade_rejects_gray_input():
+    with pytest.raises(ValueError, match="image must have shape"):
+        degrade(np.zeros((10, 10), np.uint8), spec=SimulateSpec())
+
+
+@pytest.mark.slow
+def test_simulated_frames_near_route_points_and_reproducible(tmp_path):
+    from models.camera import CameraEmulator
+    from models.environment import build_environment
+    from models.viewframes import route_poses
+
+    sim = {"per_point": 2, "jitter_m": 1.0, "jitter_deg": 2.0, "advance": 0.2}
+    scenario = _scenario(tmp_path, {"simulate": sim})
+    env = build_environment(scenario)
+    with CameraEmulator(env, scenario.camera) as cam:
+        poses = route_poses(scenario, env.terrain)
+        first = simulate_frames(scenario, cam, poses)
+        second = simulate_frames(scenario, cam, poses)
+        exact = cam.render(poses[0]).image
+    assert len(first) == 2 * len(scenario.route)
+    for f, g in zip(first, second):
+        assert np.array_equal(f.image, g.image) and f.truth == g.truth
+    for f in first:
+        i = f.index // 2
+        x, y, heading = f.truth
+        leg = math.dist(scenario.route[min(i + 1, 2)], scenario.route[i]) or 50.0
+        assert math.dist((x, y), scenario.route[i]) <= 0.2 * leg + 5 * 1.0
+        assert abs((heading - poses[i].heading_deg + 180) % 360 - 180) <= 5 * 2.0
+        assert f.image.shape == (120, 160, 3)
+    # like the viewframe, but not the same picture
+    diff = np.abs(first[0].image.astype(int) - exact).mean()
+    assert 1.0 < diff < 60.0
+
+
+def test_sensor_frames_from_files_with_truth(tmp_path):
+    (tmp_path / "frames").mkdir()
+    for i in range(2):
+        cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), np.full((60, 80), 100 + i, np.uint8))
+    scenario = _scenario(tmp_path, {"frames": [
+        {"image": "frames/f0.png", "truth": {"x": 1.0, "y": 2.0, "heading_deg": 3.0}},
+        {"image": "frames/f1.png"},
+    ]})
+    frames = sensor_frames(scenario)
+    assert [f.index for f in frames] == [0, 1]
+    assert frames[0].truth == (1.0, 2.0, 3.0) and frames[1].truth is None
+    assert frames[1].image.shape == (120, 160, 3) and frames[1].image.mean() == 101
