@@ -88,7 +88,7 @@ def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
         found = _find_bad(obj, "")
         key, why = found if found else (None, str(err))
         raise CodecError(f"cannot encode: {why}", key=key or None) from None
-    found = _find_bad(obj, "") if _depth_exceeds(obj) else None
+    found = _find_bad(obj, "")  # non-str map keys, too deep: msgpack itself would accept them
     if found:
         raise CodecError(f"cannot encode: {found[1]}", key=found[0] or None)
     if len(data) > max_bytes:
@@ -124,7 +124,7 @@ def _ext_hook(code: int, data: bytes) -> Any:
     raw = data[offset:]
     if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != len(raw):
         raise ValueError(f"ndarray data is {len(raw)} bytes, shape {shape} of {dtype} needs another size")
-    return np.frombuffer(raw, dtype=dtype).reshape(shape).copy()
+    return np.frombuffer(raw, dtype=dtype).reshape(tuple(shape)).copy()
 
 
 def decode(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, key: str | None = None) -> Any:

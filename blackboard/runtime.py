@@ -179,6 +179,16 @@ class Runtime:
             raise AgentError(name, line.removeprefix("error: ") if line else
                              f"agent process did not start within {START_TIMEOUT_S} s")
 
+    def source(self, name: str) -> KnowledgeSource:
+        """The knowledge source object of an in-process agent (for tests and tools).
+
+        Raises:
+            AgentError: no such in-process agent (processes mode keeps them in the children).
+        """
+        if name not in self._runners:
+            raise AgentError(name, "no such in-process agent")
+        return self._runners[name].source
+
     def kill(self, name: str) -> None:
         """For tests: kill -9 an agent process (processes mode) or drop its session (in-process)."""
         if name in self._children:

@@ -7,7 +7,10 @@ import time
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
-__all__ = ["Doubler", "Echo", "Asker", "Silent", "Failing", "Updater", "Recorder", "Exclusive", "BadSetup"]
+__all__ = [
+    "Doubler", "Echo", "Asker", "Silent", "Failing", "Updater", "Recorder", "Exclusive", "BadSetup",
+    "LateCounter", "Burster", "Tally", "Bumper", "Rogue", "Slow",
+]
 
 
 class Doubler(KnowledgeSource):
@@ -108,3 +111,69 @@ class Exclusive(KnowledgeSource):
 class BadSetup(KnowledgeSource):
     def setup(self, board: Board) -> None:
         raise OSError("model file missing")
+
+
+class LateCounter(KnowledgeSource):
+    """Joins late: in setup, reads the numbers already on the board and posts their sum."""
+
+    produces = ("count",)
+
+    def setup(self, board: Board) -> None:
+        existing = board.query("number")
+        board.post("count", {"n": len(existing), "sum": sum(h.body["x"] for h in existing)})
+
+
+class Burster(KnowledgeSource):
+    """On 'go' {n, size}: posts n 'item' hypotheses with a payload of size bytes."""
+
+    consumes = ("go",)
+    produces = ("item",)
+
+    def act(self, event: Event, board: Board) -> None:
+        n, size = int(event.hypothesis.body["n"]), int(event.hypothesis.body.get("size", 16))
+        for i in range(n):
+            board.post("item", {"i": i, "data": bytes(size)})
+
+
+class Tally(KnowledgeSource):
+    """Counts the items it is activated for (distinct indices) in self.seen."""
+
+    consumes = ("item",)
+
+    def setup(self, board: Board) -> None:
+        self.seen: set[int] = set()
+        self.activations = 0
+
+    def act(self, event: Event, board: Board) -> None:
+        self.activations += 1
+        self.seen.add(int(event.hypothesis.body["i"]))
+
+
+class Bumper(KnowledgeSource):
+    """On 'bump': posts a number and at once updates it (the first version becomes obsolete)."""
+
+    consumes = ("bump",)
+    produces = ("number",)
+
+    def act(self, event: Event, board: Board) -> None:
+        h = board.post("number", {"x": 1, "rating": 0.0})
+        board.update(h.id, body={"x": 2})
+
+
+class Rogue(KnowledgeSource):
+    """Posts on a level it did not declare."""
+
+    consumes = ("number",)
+    produces = ("doubled",)
+
+    def act(self, event: Event, board: Board) -> None:
+        board.post("position", {"x": 0})
+
+
+class Slow(KnowledgeSource):
+    """Takes options['delay_s'] per number."""
+
+    consumes = ("number",)
+
+    def act(self, event: Event, board: Board) -> None:
+        time.sleep(float(self.options.get("delay_s", 1.0)))
