@@ -36,9 +36,8 @@ def _default(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         if obj.dtype.kind not in _KINDS or obj.dtype.fields is not None:
             raise TypeError(f"numpy dtype {obj.dtype} is not supported (plain numeric, bool, S, U only)")
-        arr = np.ascontiguousarray(obj)
-        header = msgpack.packb([arr.dtype.str, list(arr.shape)])
-        return msgpack.ExtType(NDARRAY_EXT, header + arr.tobytes())
+        header = msgpack.packb([obj.dtype.str, list(obj.shape)])
+        return msgpack.ExtType(NDARRAY_EXT, header + obj.tobytes(order="C"))
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"cannot encode {type(obj).__name__}")
