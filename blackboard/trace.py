@@ -133,7 +133,7 @@ def read_trace(path: str | Path) -> list[TraceRecord]:
         data = path.read_bytes()
     except OSError as err:
         raise TraceError(path, f"cannot read trace: {err.strerror}") from None
-    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False, max_buffer_size=max(len(data), 1))
+    unpacker = msgpack.Unpacker(raw=False, strict_map_key=False, max_buffer_size=max(len(data), 1 << 20))
     unpacker.feed(data)
     records: list[TraceRecord] = []
     while True:
