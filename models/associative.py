@@ -18,8 +18,9 @@ so with c_h = <R^, P_h> (a cosine)::
 
     v_h = var(R^ - P_h) = (2 - 2 c_h) / N**2
 
-Ranking every prototype is thus one (H, N*N) @ (N*N,) float32 matrix-vector product on the
-contiguous prototype matrix, and v_h is a bounded statistic (0 .. 4/N**2) that means the same
+Ranking every prototype is thus one (H, N*N) @ (N*N,) float32 matrix-vector product; it is
+done on the prototypes' half spectra (Parseval, :attr:`HolographicMemory.ranking_matrix`), so a
+ranking needs one complex multiply per bank and no inverse FFT at all, and v_h is a bounded statistic (0 .. 4/N**2) that means the same
 in every bank, so rankings of several banks merge by sorting (:func:`merge_rankings`). Within
 one bank the order is that of the un-normalised error variance var(R - P_h).
 
@@ -62,7 +63,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 #: default number of viewframes per bank (measured: see bench/index.py)
-DEFAULT_BANK_SIZE = 16
+DEFAULT_BANK_SIZE = 8
 
 _MAD_TO_STD = 1.4826
 
@@ -173,7 +174,13 @@ class HolographicMemory:
         self.key_method = key_method
         n = self.size
         self._spectrum = np.zeros((n, n // 2 + 1), dtype=np.complex128)
-        self._protos = np.zeros((0, n * n), dtype=np.float32)  # capacity buffer, first _count rows used
+        # ranking matrix: row h = weighted rfft2 of P_h, float32 (re, im) interleaved, so that
+        # row . view(rfft2(R)) = <R, P_h>; a capacity buffer whose first _count rows are used
+        self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
+        self._weights = np.full((n, n // 2 + 1), 2.0 / (n * n))  # Parseval weights of rfft bins
+        self._weights[:, 0] /= 2.0
+        if n % 2 == 0:
+            self._weights[:, n // 2] /= 2.0
         self._labels = np.zeros(0, dtype=np.int64)
         self._count = 0
 
@@ -188,8 +195,22 @@ class HolographicMemory:
 
     @property
     def prototypes(self) -> NDArray[np.float32]:
-        """The stored patterns as one C-contiguous float32 matrix of shape (H, N*N) (a view)."""
-        return self._protos[: self._count]
+        """The stored patterns, float32 of shape (H, N*N) (computed from the ranking matrix)."""
+        n = self.size
+        spec = self.ranking_matrix.reshape(self._count, n, n // 2 + 1, 2).astype(np.float64)
+        spec = (spec[..., 0] + 1j * spec[..., 1]) / self._weights
+        return np.fft.irfft2(spec, s=(n, n)).reshape(self._count, n * n).astype(np.float32)
+
+    @property
+    def ranking_matrix(self) -> NDArray[np.float32]:
+        """The C-contiguous float32 matrix read by every ranking, shape (H, 2 * N * (N // 2 + 1)).
+
+        Row h holds ``w * rfft2(P_h)`` as interleaved (real, imag), ``w`` the Parseval weights of
+        the half spectrum, so that ``row . (rfft2(R) as interleaved float32) = <R, P_h>``: the
+        ranking needs no inverse FFT, and this matrix is what the memory reads per query (the
+        same number of bytes as the spatial prototypes, plus 2N floats per row).
+        """
+        return self._fprotos[: self._count]
 
     @property
     def spectrum(self) -> NDArray[np.complex128]:
@@ -212,13 +233,13 @@ class HolographicMemory:
 
     def _grow(self, extra: int) -> None:
         need = self._count + extra
-        if need > self._protos.shape[0]:
-            cap = max(need, 2 * self._protos.shape[0], 16)
-            protos = np.empty((cap, self._protos.shape[1]), dtype=np.float32)
-            protos[: self._count] = self._protos[: self._count]
+        if need > self._fprotos.shape[0]:
+            cap = max(need, 2 * self._fprotos.shape[0], 16)
+            protos = np.empty((cap, self._fprotos.shape[1]), dtype=np.float32)
+            protos[: self._count] = self._fprotos[: self._count]
             labels = np.empty(cap, dtype=np.int64)
             labels[: self._count] = self._labels[: self._count]
-            self._protos, self._labels = protos, labels
+            self._fprotos, self._labels = protos, labels
 
     def write(self, pattern: ArrayLike, label: int) -> None:
         """Store a pattern of shape (N, N) under ``label``: ``M := M + K(P) * P``.
@@ -244,11 +265,11 @@ class HolographicMemory:
         if not pats:
             return
         self._grow(len(pats))
-        n = self.size
         for p, lab in zip(pats, labs):
             fk = key_spectrum(p, seed=self.seed, method=self.key_method)
-            self._spectrum += fk * np.fft.rfft2(p.astype(np.float64))
-            self._protos[self._count] = p.reshape(n * n)
+            fp = np.fft.rfft2(p.astype(np.float64))
+            self._spectrum += fk * fp
+            self._fprotos[self._count] = _interleave(self._weights * fp)
             self._labels[self._count] = lab
             self._count += 1
 
@@ -268,12 +289,15 @@ class HolographicMemory:
 
     def similarities(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
         """Cosines ``c_h = <R / ||R||, P_h>`` in storage order, shape (H,)."""
-        r = self.recall(pattern, key=key)
-        energy = float(np.sqrt(np.sum(r * r)))
+        fk = self.query_key(pattern) if key is None else key
+        return self._similarities(np.conj(fk) * self._spectrum)
+
+    def _similarities(self, fr: NDArray[np.complexfloating]) -> NDArray[np.float64]:
+        """Cosines from the recall's half spectrum ``fr`` (no inverse FFT; Parseval)."""
+        energy = float(np.sqrt(np.sum(self._weights * (fr.real**2 + fr.imag**2))))
         if self._count == 0 or energy <= 1e-12:
             return np.zeros(self._count, dtype=np.float64)
-        rv = (r / energy).astype(np.float32).reshape(-1)
-        return (self.prototypes @ rv).astype(np.float64)
+        return (self.ranking_matrix @ _interleave(fr / energy)).astype(np.float64)
 
     def error_variances(
         self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None
@@ -296,7 +320,7 @@ class HolographicMemory:
             "seed": self.seed,
             "key_method": self.key_method,
             "labels": self.labels.copy(),
-            "prototypes": self.prototypes.copy(),
+            "ranking_matrix": self.ranking_matrix.copy(),
             "spectrum": np.stack([self._spectrum.real, self._spectrum.imag], axis=-1),
         }
 
@@ -307,7 +331,7 @@ class HolographicMemory:
             mem = cls(int(state["size"]), seed=int(state["seed"]), key_method=str(state["key_method"]))
             n = mem.size
             labels = np.asarray(state["labels"], dtype=np.int64).ravel()
-            protos = np.ascontiguousarray(state["prototypes"], dtype=np.float32).reshape(labels.size, n * n)
+            protos = np.asarray(state["ranking_matrix"], dtype=np.float32).reshape(labels.size, 2 * n * (n // 2 + 1))
             spec = np.asarray(state["spectrum"], dtype=np.float64)
             if spec.shape != (n, n // 2 + 1, 2):
                 raise ValueError(f"spectrum has shape {spec.shape}, expected {(n, n // 2 + 1, 2)}")
@@ -315,9 +339,14 @@ class HolographicMemory:
             raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
         if np.unique(labels).size != labels.size:
             raise AssociativeMemoryError("memory state: duplicate labels")
-        mem._protos, mem._labels, mem._count = protos, labels, labels.size
+        mem._fprotos, mem._labels, mem._count = np.ascontiguousarray(protos), labels.copy(), labels.size
         mem._spectrum = spec[..., 0] + 1j * spec[..., 1]
         return mem
+
+
+def _interleave(spec: NDArray[np.complexfloating]) -> NDArray[np.float32]:
+    """A complex array as a flat float32 vector of interleaved (real, imag)."""
+    return np.ascontiguousarray(spec, dtype=np.complex64).view(np.float32).reshape(-1)
 
 
 def merge_rankings(rankings: Sequence[Ranking]) -> Ranking:
@@ -360,6 +389,8 @@ class BankedMemory:
         self.bank_size = int(bank_size)
         self.banks: list[HolographicMemory] = []
         self._labels: set[int] = set()
+        self._stack: NDArray[np.complex64] | None = None  # (B, N, N // 2 + 1) bank spectra, for rank()
+        self._packed: NDArray[np.float32] | None = None  # (B, bank_size, D) ranking matrices, for rank()
 
     def __len__(self) -> int:
         return sum(len(b) for b in self.banks)
@@ -385,13 +416,42 @@ class BankedMemory:
             bank.write_many(pats[i : i + take], labs[i : i + take])
             self._labels.update(labs[i : i + take])
             i += take
+        self._stack = self._packed = None
 
     def rank(self, pattern: ArrayLike) -> Ranking:
-        """Merged ranking of all banks, best first."""
+        """Merged ranking of all banks, best first.
+
+        Same result as :func:`merge_rankings` over each bank's :meth:`HolographicMemory.rank`:
+        the query key is computed once, and the recalls of all banks are one batched complex
+        multiply in the frequency domain (no inverse FFT, see
+        :attr:`HolographicMemory.ranking_matrix`).
+        """
         if not self.banks:
             return merge_rankings([])
         key = self.banks[0].query_key(pattern)
-        return merge_rankings([b.rank(pattern, key=key) for b in self.banks])
+        if self._stack is None or self._packed is None:
+            self._pack()
+        fr = np.conj(key).astype(np.complex64)[None] * self._stack
+        weights = self.banks[0]._weights.astype(np.float32)
+        energy = np.sqrt(np.einsum("jk,bjk->b", weights, fr.real**2 + fr.imag**2, dtype=np.float64))
+        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0).astype(np.float32)
+        fr *= scale[:, None, None]
+        c = np.matmul(self._packed, fr.view(np.float32).reshape(len(self.banks), -1, 1))[..., 0]
+        c = np.concatenate([c[i, : len(b)] for i, b in enumerate(self.banks)]).astype(np.float64)
+        labels = np.concatenate([b.labels for b in self.banks])
+        return _ranking(labels, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
+
+    def _pack(self) -> None:
+        """Stack the banks' spectra, and move their ranking matrices into one zero-padded
+        (B, bank_size, D) array (each bank keeps a view of its slice, so nothing is duplicated)
+        that one batched matrix-vector product reads."""
+        self._stack = np.stack([b.spectrum for b in self.banks]).astype(np.complex64)
+        d = self.banks[0].ranking_matrix.shape[1]
+        packed = np.zeros((len(self.banks), self.bank_size, d), dtype=np.float32)
+        for i, bank in enumerate(self.banks):
+            packed[i, : len(bank)] = bank.ranking_matrix
+            bank._fprotos = packed[i]
+        self._packed = packed
 
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
@@ -421,6 +481,7 @@ class BankedMemory:
                 raise AssociativeMemoryError("memory state: a bank differs in size, seed or key_method")
             mem._labels.update(b.labels.tolist())
         mem.banks = banks
+        mem._stack = mem._packed = None
         if len(mem._labels) != len(mem):
             raise AssociativeMemoryError("memory state: duplicate labels across banks")
         return mem

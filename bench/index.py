@@ -1,0 +1,225 @@
+"""Benchmark of the associative indexer against NCC and ORB bag-of-visual-words baselines.
+
+Run::
+
+    /tmp/venv/bin/python bench/index.py            # H = 100, 1000, 5000; N = 64, 128
+    /tmp/venv/bin/python bench/index.py --quick    # H = 100, 1000; fewer queries
+
+Images are synthetic, viewframe-like 160 x 120 gray scenes (random filled rectangles, discs and
+lines on a flat background, seeded): rendering thousands of real viewframes would take longer
+than the benchmark itself, and the memory only sees edges anyway. A query is a stored image
+perturbed like a camera frame: a random shift of up to ``--shift`` pixels (non-circular,
+replicated border), a brightness gain 0.6..1.4 and offset -30..30, gaussian noise of ``--noise``
+gray levels.
+
+For each (N, H) and method it reports: ``store_s`` (preprocess + store all H images),
+``rank_ms`` (median time to rank one preprocessed query against all H; ORB: detection included,
+as it has no separate preprocessing), ``top1`` (fraction of queries whose first label is the
+true one). For the memory also the bandwidth floor ``floor_ms`` (median time of one
+``prototypes.sum()`` over the (H, N*N) float32 prototype matrix, i.e. reading it once) and
+``ratio`` = rank_ms / floor_ms. A capacity sweep stores H = 4 .. 256 patterns in ONE bank and
+reports top-1 and recall quality (cosine of the recall with the true prototype); the default
+bank size (``models.associative.DEFAULT_BANK_SIZE``) comes from it.
+
+Output: one JSON document on stdout (``--json-only`` for nothing else) and a table on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import platform
+import statistics
+import sys
+import time
+from collections.abc import Callable
+
+import cv2
+import numpy as np
+from baselines import HolographicIndex, NCCIndex, OrbBowIndex
+
+from models.associative import DEFAULT_BANK_SIZE, HolographicMemory
+from models.preprocess import preprocess
+
+logger = logging.getLogger("bench.index")
+
+SHAPE = (120, 160)
+
+
+def scene(rng: np.random.Generator, shape: tuple[int, int] = SHAPE) -> np.ndarray:
+    """A synthetic edge-rich gray image of shape ``shape`` (uint8)."""
+    h, w = shape
+    img = np.full(shape, rng.uniform(60, 190), np.float32)
+    for _ in range(int(rng.integers(6, 12))):
+        c = float(rng.uniform(0, 255))
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        kind = int(rng.integers(3))
+        if kind == 0:
+            cv2.rectangle(img, (x, y), (x + int(rng.integers(8, 60)), y + int(rng.integers(8, 50))), c, -1)
+        elif kind == 1:
+            cv2.line(img, (x, y), (int(rng.integers(0, w)), int(rng.integers(0, h))), c, int(rng.integers(1, 4)))
+        else:
+            cv2.circle(img, (x, y), int(rng.integers(4, 25)), c, -1)
+    return img.astype(np.uint8)
+
+
+def perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float) -> np.ndarray:
+    """Camera-like perturbation: shift, gain/offset, noise (see the module docstring)."""
+    h, w = img.shape
+    dx, dy = rng.uniform(-shift, shift, 2)
+    out = cv2.warpAffine(img.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REPLICATE)
+    out = out * rng.uniform(0.6, 1.4) + rng.uniform(-30, 30) + rng.normal(0.0, noise, out.shape)
+    return np.clip(out, 0, 255).astype(np.uint8)
+
+
+def _median_ms(fn: Callable[[], object], repeats: int) -> float:
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * statistics.median(times)
+
+
+def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noise: float, seed: int) -> list[dict]:
+    """Top-1 and recall quality of ONE bank as the number of stored patterns grows."""
+    rng = np.random.default_rng(seed)
+    images = [scene(rng) for _ in range(max(hs))]
+    rows = []
+    for n in sizes:
+        pats = [preprocess(im, size=n) for im in images]
+        for h in hs:
+            mem = HolographicMemory(n)
+            mem.write_many(pats[:h], range(h))
+            hits, quality, rel = 0, [], []
+            for _ in range(queries):
+                i = int(rng.integers(h))
+                q = preprocess(perturb(images[i], rng, shift=shift, noise=noise), size=n)
+                r = mem.rank(q)
+                hits += r.best == i
+                rel.append(r.reliability)
+                rec = mem.recall(q)
+                quality.append(float(np.sum(rec * pats[i]) / max(np.linalg.norm(rec), 1e-12)))
+            rows.append({"N": n, "H": h, "top1": hits / queries, "recall_cos": float(np.median(quality)),
+                         "reliability": float(np.median(rel))})
+            logger.info("capacity N=%s H=%s top1=%.2f", n, h, hits / queries)
+    return rows
+
+
+def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, np.ndarray]], *,
+             bank_size: int, with_orb: bool, with_single: bool) -> list[dict]:
+    """All methods on one (N, H) case."""
+    out = []
+    methods: list = [HolographicIndex(n, bank_size=bank_size)]
+    if with_single:
+        single = HolographicIndex(n, bank_size=h)
+        single.name = "memory-1bank"
+        methods.append(single)
+    methods.append(NCCIndex(n))
+    if with_orb:
+        methods.append(OrbBowIndex())
+    labels = list(range(h))
+    for m in methods:
+        t0 = time.perf_counter()
+        m.store(images[:h], labels)
+        store_s = time.perf_counter() - t0
+        if hasattr(m, "rank_pattern"):
+            pats = [(i, m.pattern(q)) for i, q in queries]
+            t_pre = _median_ms(lambda: m.pattern(queries[0][1]), 5)
+            rank = m.rank_pattern
+        else:
+            pats, t_pre, rank = queries, 0.0, m.rank
+        times, hits = [], 0
+        for i, p in pats:
+            t0 = time.perf_counter()
+            order = rank(p)
+            times.append(time.perf_counter() - t0)
+            hits += int(order[0]) == i
+        row = {"method": m.name, "N": n, "H": h, "store_s": round(store_s, 3),
+               "rank_ms": round(1000 * statistics.median(times), 3), "preprocess_ms": round(t_pre, 3),
+               "top1": hits / len(pats)}
+        if isinstance(m, HolographicIndex):
+            banks = m.memory.banks
+            protos = np.concatenate([b.ranking_matrix for b in banks]) if len(banks) > 1 else banks[0].ranking_matrix
+            floor = _median_ms(lambda: protos.sum(), 7)
+            row.update({"banks": len(banks), "floor_ms": round(floor, 3), "ratio": round(row["rank_ms"] / floor, 2)})
+        out.append(row)
+        logger.info("%s", row)
+        del m
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="H = 100, 1000 only, fewer queries")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
+    parser.add_argument("--hs", type=int, nargs="+", default=None, help="stored viewframes (default 100 1000 5000)")
+    parser.add_argument("--queries", type=int, default=None, help="perturbed queries per case (default 100, quick 40)")
+    parser.add_argument("--bank-size", type=int, default=DEFAULT_BANK_SIZE)
+    parser.add_argument("--shift", type=float, default=3.0, help="max shift of a query in image pixels")
+    parser.add_argument("--noise", type=float, default=8.0, help="gaussian noise of a query, gray levels")
+    parser.add_argument("--no-orb", action="store_true", help="skip the ORB baseline")
+    parser.add_argument("--no-capacity", action="store_true")
+    parser.add_argument("--json-only", action="store_true")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.json_only else logging.INFO, stream=sys.stderr,
+                        format="%(asctime)s %(message)s")
+    hs = args.hs or ([100, 1000] if args.quick else [100, 1000, 5000])
+    nq = args.queries or (40 if args.quick else 100)
+
+    rng = np.random.default_rng(args.seed)
+    images = [scene(rng) for _ in range(max(hs))]
+    results = []
+    for h in hs:
+        queries = [(i, perturb(images[i], rng, shift=args.shift, noise=args.noise))
+                   for i in rng.integers(0, h, size=nq).tolist()]
+        for n in args.sizes:
+            results += run_case(n, h, images, queries, bank_size=args.bank_size,
+                                with_orb=not args.no_orb and n == args.sizes[0], with_single=h <= 1000)
+    cap = [] if args.no_capacity else capacity(
+        args.sizes, [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]), queries=nq,
+        shift=args.shift, noise=args.noise, seed=args.seed + 1)
+    doc = {
+        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
+                    "numpy": np.__version__, "opencv": cv2.__version__},
+        "params": {"hs": hs, "sizes": args.sizes, "queries": nq, "shift_px": args.shift, "noise": args.noise,
+                   "bank_size": args.bank_size, "image": list(SHAPE), "seed": args.seed},
+        "results": results,
+        "capacity": cap,
+    }
+    print(json.dumps(doc, indent=1))
+    if not args.json_only:
+        _table(doc)
+    return 0
+
+
+def _table(doc: dict) -> None:
+    try:
+        from rich.console import Console
+        from rich.table import Table
+    except ImportError:  # pragma: no cover
+        Console = None
+    cols = ["method", "N", "H", "banks", "store_s", "preprocess_ms", "rank_ms", "floor_ms", "ratio", "top1"]
+    rows = [[str(r.get(c, "")) for c in cols] for r in doc["results"]]
+    ccols = ["N", "H", "top1", "recall_cos", "reliability"]
+    crows = [[f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in ccols] for r in doc["capacity"]]
+    if Console is not None:
+        console = Console(stderr=True)
+        for title, cs, rs in (("index benchmark", cols, rows), ("capacity of one bank", ccols, crows)):
+            t = Table(title=title)
+            for c in cs:
+                t.add_column(c, justify="right")
+            for r in rs:
+                t.add_row(*r)
+            console.print(t)
+    else:
+        for cs, rs in ((cols, rows), (ccols, crows)):
+            print("\t".join(cs), file=sys.stderr)
+            for r in rs:
+                print("\t".join(r), file=sys.stderr)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
