@@ -233,8 +233,9 @@ class SceneAnalysis:
     def answer(self, question: Question, present: bool | None, *, score: float | None = None) -> None:
         """Record the detector's answer to ``question``.
 
-        ``present`` is ``True``/``False``, or ``None`` when no answer came (detector dead or late):
-        the landmark is then marked as asked and nothing else changes.
+        ``present`` is ``True``/``False``, or ``None`` when the detector could not tell or no answer
+        came (detector dead or late): the landmark is then marked as asked and nothing else changes.
+        Every call counts as one query.
         """
         if self._pending is None or question != self._pending:
             raise ValueError(f"answer to {question} does not match the pending question {self._pending}")
@@ -242,10 +243,10 @@ class SceneAnalysis:
         self._asked.add(question.landmark)
         step = {"landmark": question.landmark, "viewframe": question.viewframe,
                 "p": round(question.probability, 6), "present": present, "score": score}
+        self._queries += 1  # every question asked counts, answered or not
         if present is None:
-            step["effect"] = "no answer"
+            step["effect"] = "no evidence"
         else:
-            self._queries += 1
             holders = [k for k in self._weights if question.landmark in self._landmarks(k)]
             if present:
                 self._present.add(question.landmark)

@@ -135,3 +135,14 @@ def test_answer_must_match_pending_question():
 def test_invalid_parameters(kwargs, message):
     with pytest.raises(ValueError, match=message):
         SceneAnalysis(_ranking(0), VISIBLE, **kwargs)
+
+
+def test_every_question_counts_as_a_query_even_unanswered():
+    sa = SceneAnalysis(_ranking(5, sharp=False), VISIBLE)
+    q = sa.next_question()
+    sa.answer(q, None)
+    q = sa.next_question()
+    sa.answer(q, True)
+    while (q := sa.next_question()) is not None:
+        sa.answer(q, q.landmark in VISIBLE[5])
+    assert sa.decision.queries == len(sa.decision.steps) >= 2
