@@ -25,7 +25,7 @@ import zenoh
 
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, open_session, zenoh_config
-from blackboard.errors import AgentError, BlackboardError, CodecError, DeclarationError
+from blackboard.errors import AgentError, BlackboardError, CodecError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
@@ -34,6 +34,8 @@ __all__ = ["AgentRunner"]
 
 logger = logging.getLogger(__name__)
 
+#: the sender of messages the node publishes itself (see blackboard.node)
+NODE_SENDER = "@node"
 _OPS = {"post": EventKind.POSTED, "update": EventKind.UPDATED, "retract": EventKind.RETRACTED}
 #: activity records are sent to the node in batches of at most this many (and when idle)
 _ACTIVITY_BATCH = 64
@@ -185,7 +187,11 @@ class AgentRunner:
             if not isinstance(message, dict) or message.get("op") not in _OPS:
                 raise CodecError("not a blackboard message (no op)", key=key)
             hyp = Hypothesis.from_record(message.get("hyp"), key=key)
-        except CodecError as err:
+            if split != (hyp.level, hyp.id):
+                raise CodecError(f"key does not match hypothesis {hyp.level}/{hyp.id}", key=key)
+            if message.get("sender") not in (hyp.source, NODE_SENDER):
+                raise CodecError(f"sender {message.get('sender')!r} posted as {hyp.source!r}", key=key)
+        except CodecError as err:  # the node rejects (and traces) the same message
             logger.warning("agent %s: ignored a malformed message: %s", self.name, err)
             return
         kind = _OPS[message["op"]]

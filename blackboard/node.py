@@ -29,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from blackboard.agent import NODE_SENDER
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
 from blackboard.errors import CodecError
@@ -41,8 +42,6 @@ __all__ = ["BlackboardNode", "AgentState", "NODE_SENDER"]
 
 logger = logging.getLogger(__name__)
 
-#: the ``sender`` of messages the node publishes itself (updates, retractions, user posts)
-NODE_SENDER = "@node"
 _ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
                                         TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
 
