@@ -73,7 +73,7 @@ def run_mission(
     trace_path: str | Path | None = None,
     timeout_s: float | None = None,
     progress: Callable[[int, int], None] | None = None,
-    kill_after: tuple[str, int] | None = None,
+    kill_after: tuple[str, str, int] | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -93,8 +93,9 @@ def run_mission(
         Upper bound on the whole run; default scales with the route and frame counts.
     progress : callable(done, total), optional
         Called as positions are posted.
-    kill_after : (agent, n), optional
-        Fault injection for tests and demos: kill ``agent`` once ``n`` positions are posted.
+    kill_after : (agent, level, n), optional
+        Fault injection for tests and demos: kill ``agent`` once ``n`` hypotheses are posted on
+        ``level``.
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
@@ -107,17 +108,20 @@ def run_mission(
     if timeout_s is None:
         timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
     done = 0
-    killed = False
+    posted: dict[str, int] = {}
 
     def on_event(event: Event) -> None:
-        nonlocal done, killed
-        if event.hypothesis.level == levels.POSITION and event.hypothesis.version == 1:
+        nonlocal done
+        h = event.hypothesis
+        if h.version != 1:
+            return
+        posted[h.level] = posted.get(h.level, 0) + 1
+        if h.level == levels.POSITION:
             done += 1
             if progress is not None:
                 progress(done, n_frames)
-            if kill_after is not None and not killed and done >= kill_after[1]:
-                killed = True
-                runtime.kill(kill_after[0])
+        if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
+            runtime.kill(kill_after[0])
 
     started = time.perf_counter()
     with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path) as runtime:
@@ -130,7 +134,7 @@ def run_mission(
         frames_seen = sorted(int(h.body["frame"]) for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME)
         agents = dict(outcome.agents)
     elapsed = time.perf_counter() - started
-    dead = {name: status for name, status in agents.items() if status != "ok"}
+    dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
     records = []
     for f in frames_seen:

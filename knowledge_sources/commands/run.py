@@ -82,7 +82,7 @@ def main(args: argparse.Namespace) -> int:
         console.print(f"results written to {args.out}")
     if args.trace is not None:
         console.print(f"blackboard trace written to {args.trace} (inspect with: mapinterp trace {args.trace})")
-    dead = {k: v for k, v in results["agents"].items() if v != "ok"}
+    dead = {k: v for k, v in results["agents"].items() if v.startswith("dead")}
     if dead:
         console.print(f"[yellow]degraded run: agents not ok: {dead}[/]")
     return 0
