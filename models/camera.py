@@ -162,12 +162,13 @@ class View:
     pose: Pose
 
 
-def _box_mesh(lm) -> trimesh.Trimesh:
+def _box_mesh(lm, below: float = 0.0) -> trimesh.Trimesh:
+    """The landmark's box, reaching ``below`` metres under its base (hidden by the ground)."""
     transform = np.eye(4)
     a = math.radians(lm.yaw_deg)
     transform[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
-    transform[:3, 3] = lm.centre
-    return trimesh.creation.box(extents=(lm.width, lm.depth, lm.height), transform=transform)
+    transform[:3, 3] = (lm.x, lm.y, lm.z0 + (lm.height - below) / 2)
+    return trimesh.creation.box(extents=(lm.width, lm.depth, lm.height + below), transform=transform)
 
 
 class CameraEmulator:
@@ -185,35 +186,20 @@ class CameraEmulator:
         self.width, self.height = int(camera.width), int(camera.height)
         self._tan_y = math.tan(math.radians(camera.fov_y_deg) / 2)
         self._tan_x = self._tan_y * self.width / self.height
-        self.scene = pyrender.Scene(bg_color=(*SKY_RGB, 1.0), ambient_light=_AMBIENT)
-        self._terrain_nodes: list[list[pyrender.Node]] = []
+        self.scene = _ActiveScene(bg_color=(*SKY_RGB, 1.0), ambient_light=_AMBIENT)
+        self._terrain_material = _StaticMaterial(
+            baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True
+        )
+        self._terrain_nodes: dict[tuple[int, int], pyrender.Node] = {}
         self._seg_map: dict[pyrender.Node, np.ndarray] = {}
-        for tile in environment.tiles:
-            nodes = []
-            for lod in tile.levels:
-                prim = pyrender.Primitive(
-                    positions=lod.positions,
-                    normals=lod.normals,
-                    color_0=lod.colors,
-                    indices=lod.indices,
-                    material=pyrender.MetallicRoughnessMaterial(
-                        baseColorFactor=(1.0, 1.0, 1.0, 1.0), metallicFactor=0.0, roughnessFactor=1.0,
-                        doubleSided=True,
-                    ),
-                )
-                mesh = pyrender.Mesh([prim])
-                mesh.is_visible = False
-                node = self.scene.add(mesh)
-                self._seg_map[node] = np.zeros(3)
-                nodes.append(node)
-            self._terrain_nodes.append(nodes)
         self._landmark_nodes = []
         for i, lm in enumerate(environment.landmarks):
             rgb = KIND_COLORS.get(lm.kind, KIND_COLORS["default"])
             material = pyrender.MetallicRoughnessMaterial(
                 baseColorFactor=(*rgb, 1.0), metallicFactor=0.0, roughnessFactor=0.9
             )
-            node = self.scene.add(pyrender.Mesh.from_trimesh(_box_mesh(lm), material=material, smooth=False))
+            node = self.scene.add(pyrender.Mesh.from_trimesh(_box_mesh(lm, environment.ground_margin(lm)), material=material, smooth=False))
+            self.scene.activate(node)
             code = i + 1
             self._seg_map[node] = np.array([code & 255, (code >> 8) & 255, (code >> 16) & 255], dtype=np.float64)
             self._landmark_nodes.append(node)
@@ -271,20 +257,34 @@ class CameraEmulator:
         return (np.asarray(points_xyz, dtype=np.float64).reshape(-1, 3) - pose.position) @ pose.rotation().T
 
     # -- rendering ------------------------------------------------------------------------
+    def _terrain_node(self, tile: int, level: int) -> pyrender.Node:
+        """The scene node of a tile at a level, created (and uploaded) on first use."""
+        key = (tile, level)
+        node = self._terrain_nodes.get(key)
+        if node is None:
+            lod = self.environment.tile_mesh(tile, level)
+            prim = pyrender.Primitive(
+                positions=lod.positions, normals=lod.normals, color_0=lod.colors, indices=lod.indices,
+                material=self._terrain_material,
+            )
+            node = self.scene.add(pyrender.Mesh([prim]))
+            self._seg_map[node] = np.zeros(3)
+            self._terrain_nodes[key] = node
+        return node
+
     def _set_levels(self, pose: Pose) -> None:
         levels = self.environment.tile_levels(
             pose.position, pose.rotation(), tan_half_fov=(self._tan_x, self._tan_y), far=self.camera.far
         )
-        changed = np.nonzero(levels != self._current_levels)[0]
-        for t in changed:
+        for t in np.nonzero(levels != self._current_levels)[0]:
             old, new = self._current_levels[t], levels[t]
             if old >= 0:
-                self._terrain_nodes[t][old].mesh.is_visible = False
+                self.scene.deactivate(self._terrain_nodes[(t, old)])
             if new >= 0:
-                self._terrain_nodes[t][new].mesh.is_visible = True
+                self.scene.activate(self._terrain_node(t, new))
         self._current_levels = levels
         self.triangles_last = sum(
-            len(self.environment.tiles[t].levels[lv].indices) for t, lv in enumerate(levels) if lv >= 0
+            len(self.environment.tile_mesh(t, lv).indices) for t, lv in enumerate(levels) if lv >= 0
         )
 
     def render(
@@ -337,6 +337,42 @@ class CameraEmulator:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class _ActiveScene(pyrender.Scene):
+    """A scene that shows pyrender's renderer only its *active* mesh nodes.
+
+    pyrender sorts and visits every mesh node in each pass, including hidden ones; with a mesh
+    per terrain tile and level that costs more than the drawing. ``mesh_nodes`` here returns
+    the active nodes only, while ``meshes`` still returns all of them, so inactive meshes keep
+    their GL buffers instead of being deleted and uploaded again.
+    """
+
+    def __init__(self, **kwargs) -> None:
+        self._active: set[pyrender.Node] = set()
+        super().__init__(**kwargs)
+
+    @property
+    def mesh_nodes(self) -> set[pyrender.Node]:
+        return self._active
+
+    @property
+    def meshes(self) -> set[pyrender.Mesh]:
+        return {n.mesh for n in self._mesh_nodes}
+
+    def activate(self, node: pyrender.Node) -> None:
+        self._active.add(node)
+
+    def deactivate(self, node: pyrender.Node) -> None:
+        self._active.discard(node)
+
+
+class _StaticMaterial(pyrender.MetallicRoughnessMaterial):
+    """An untextured material whose (empty) texture set pyrender need not recompute per mesh."""
+
+    @property
+    def textures(self) -> set:
+        return set()
 
 
 def _light_pose(direction) -> np.ndarray:

@@ -1,11 +1,18 @@
 """The environment model F* = T(F, L): terrain plus landmark boxes, as meshes for rendering.
 
-The terrain is cut into square tiles of ``tile_cells`` DEM cells; each tile carries a mesh per
-level of detail (vertex stride 1, 2, 4, ... cells) with a vertical *skirt* along its border
-that hides the cracks where neighbouring tiles use different strides. Per view the camera
-emulator shows, for each tile, the level whose stride suits the tile's distance, and hides
-tiles outside the view frustum (:meth:`EnvironmentModel.tile_levels`). On Mesa's software
-rasteriser the cost follows the triangle count, so this keeps rendering fast on large DEMs.
+The terrain is cut into square tiles of ``tile_cells`` DEM cells; each tile has a mesh per
+level of detail (vertex stride 1, 2, 4, ... cells), built on first use, with a vertical
+*skirt* along its border that hides the cracks where neighbouring tiles use different strides.
+Per view the camera emulator shows, for each tile, the level whose stride suits the tile's
+distance, and hides tiles outside the view frustum (:meth:`EnvironmentModel.tile_levels`).
+On Mesa's software rasteriser the cost follows the triangle count (and, through pyrender's
+Python overhead, the number of draw calls: about 0.3 ms each), so big tiles with coarse
+distant levels keep rendering fast on large DEMs.
+
+The drawn ground approximates the bilinear F: it matches F at the DEM posts and lies at most
+|twist| / 4 below it inside a cell (never above, so the camera is never under the ground).
+Landmark boxes are drawn reaching ``ground_margin`` metres below their base z0 so that they do
+not float where the drawn ground dips under F.
 
 Everything here is plain numpy: pyrender objects are made by :class:`models.camera.CameraEmulator`,
 because GL buffers belong to one renderer's context.
@@ -15,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -47,7 +54,7 @@ class TileMesh:
     indices: uint32 (m, 3) triangles.
     """
 
-    stride: int
+    stride: float  # vertex spacing in DEM cells
     positions: np.ndarray
     normals: np.ndarray
     colors: np.ndarray
@@ -56,12 +63,14 @@ class TileMesh:
 
 @dataclass(frozen=True, eq=False)
 class TerrainTile:
-    """A square of DEM cells with its meshes, finest first; ``bounds`` = (x0, x1, y0, y1, z0, z1)."""
+    """A square of DEM cells, rows row0..row1 and cols col0..col1 (vertex indices, inclusive);
+    ``bounds`` = (x0, x1, y0, y1, z0, z1) in metres, z0 including the skirt."""
 
     row0: int
     col0: int
+    row1: int
+    col1: int
     bounds: tuple[float, float, float, float, float, float]
-    levels: list[TileMesh] = field(default_factory=list)
 
 
 def terrain_colors(terrain: Terrain) -> np.ndarray:
@@ -84,24 +93,58 @@ def terrain_colors(terrain: Terrain) -> np.ndarray:
     return np.clip(col * (1 + mottle[..., None]), 0, 1).astype(np.float32)
 
 
-def _grid_indices(nr: int, nc: int) -> np.ndarray:
+def _grid_indices(z: np.ndarray) -> np.ndarray:
+    """Two triangles per quad of a vertex grid with heights ``z`` (nr, nc), uint32 (m, 3).
+
+    Each quad is split along the diagonal that keeps both triangles at or *below* the
+    bilinear surface through its corners: the bilinear patch is the plane through three
+    corners plus ``d * u * v`` with twist ``d = z00 - z01 - z10 + z11``; splitting along
+    00-11 lies above it when d > 0, along 01-10 below it. So the camera, which stands
+    ``eye_height`` above the bilinear F, never ends up under the drawn ground.
+    """
+    nr, nc = z.shape
     i, j = np.mgrid[0 : nr - 1, 0 : nc - 1]
     v00 = (i * nc + j).ravel()
     v01, v10, v11 = v00 + 1, v00 + nc, v00 + nc + 1
-    return np.concatenate([np.stack([v00, v01, v11], 1), np.stack([v00, v11, v10], 1)]).astype(np.uint32)
+    twist = (z[:-1, :-1] - z[:-1, 1:] - z[1:, :-1] + z[1:, 1:]).ravel()
+    pos = twist > 0  # split along 01-10
+    t1 = np.where(pos[:, None], np.stack([v00, v01, v10], 1), np.stack([v00, v01, v11], 1))
+    t2 = np.where(pos[:, None], np.stack([v01, v11, v10], 1), np.stack([v00, v11, v10], 1))
+    return np.concatenate([t1, t2]).astype(np.uint32)
 
 
-def _level_indices(start: int, stop: int, stride: int) -> np.ndarray:
-    """Vertex indices start..stop (inclusive) every ``stride``, always keeping ``stop``."""
-    idx = np.arange(start, stop, stride)
-    return np.append(idx, stop)
+def _level_positions(start: int, stop: int, spacing: float) -> np.ndarray:
+    """Grid positions start..stop (inclusive, in cells) every ``spacing`` cells, keeping ``stop``."""
+    n = max(1, int(math.ceil((stop - start) / spacing - 1e-9)))
+    pos = start + np.arange(n) * spacing
+    return np.append(pos, float(stop))
+
+
+def _bilinear(field: np.ndarray, rr: np.ndarray, cc: np.ndarray) -> np.ndarray:
+    """Sample ``field`` (rows, cols, ...) at fractional (row, col) grids ``rr``, ``cc``."""
+    rows, cols = field.shape[:2]
+    r0 = np.minimum(np.floor(rr).astype(np.intp), rows - 2)
+    c0 = np.minimum(np.floor(cc).astype(np.intp), cols - 2)
+    fr, fc = rr - r0, cc - c0
+    if field.ndim == 3:
+        fr, fc = fr[..., None], fc[..., None]
+    return (
+        field[r0, c0] * (1 - fr) * (1 - fc)
+        + field[r0, c0 + 1] * (1 - fr) * fc
+        + field[r0 + 1, c0] * fr * (1 - fc)
+        + field[r0 + 1, c0 + 1] * fr * fc
+    )
 
 
 class EnvironmentModel:
     """Terrain F, placed landmarks L, F* and the level-of-detail terrain tiles.
 
-    ``lod_factor``: a tile at horizontal distance d uses the coarsest stride s with
-    ``s * cell_size <= d / lod_factor`` (bigger is finer and slower).
+    Level ``l`` of a tile has its vertices every ``2**l / refine`` cells (``refine`` > 1
+    subdivides the finest level with bilinear heights, to follow F more closely near the camera;
+    the default 1 uses the DEM posts, triangulated to stay below F, see ``_grid_indices``).
+    A tile at horizontal distance d uses the coarsest level whose vertex spacing is at most
+    ``d / lod_factor`` (bigger ``lod_factor`` is finer and slower). Tile meshes are built on
+    first use and cached.
     """
 
     def __init__(
@@ -110,22 +153,34 @@ class EnvironmentModel:
         landmarks: list[Landmark],
         *,
         tile_cells: int = 64,
-        levels: int = 5,
+        levels: int | None = None,
         lod_factor: float = 8.0,
+        refine: int = 1,
     ) -> None:
         if tile_cells < 2 or tile_cells & (tile_cells - 1):
             raise ValueError(f"tile_cells must be a power of two >= 2, got {tile_cells}")
-        if levels < 1 or 2 ** (levels - 1) > tile_cells:
-            raise ValueError(f"levels must be in 1..{int(math.log2(tile_cells)) + 1}, got {levels}")
         if not lod_factor > 0:
             raise ValueError(f"lod_factor must be > 0, got {lod_factor}")
+        self.refine = int(refine)
+        if self.refine not in (1, 2, 4, 8):
+            raise ValueError(f"refine must be 1, 2, 4 or 8, got {refine}")
+        max_levels = int(math.log2(tile_cells * self.refine)) + 1
+        self.n_levels = max_levels if levels is None else int(levels)
+        if not 1 <= self.n_levels <= max_levels:
+            raise ValueError(f"levels must be in 1..{max_levels}, got {levels}")
         self.terrain = terrain
         self.landmarks = list(landmarks)
         self.tile_cells = tile_cells
-        self.n_levels = levels
         self.lod_factor = float(lod_factor)
+        h = terrain.heights
+        dzdy, dzdx = np.gradient(h, terrain.cell_size)
+        normals = np.stack([-dzdx, -dzdy, np.ones_like(h)], -1)
+        self._normals = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+        self._colors = terrain_colors(terrain)
+        self.skirt_m = self._skirt_depth()
         self.tiles = self._build_tiles()
         self._bounds = np.array([t.bounds for t in self.tiles], dtype=np.float64).reshape(-1, 6)
+        self._cache: dict[tuple[int, int], TileMesh] = {}
 
     @cached_property
     def raised(self) -> Terrain:
@@ -141,72 +196,90 @@ class EnvironmentModel:
 
     @property
     def full_triangles(self) -> int:
-        """Triangles of the terrain at full resolution (without skirts)."""
+        """Triangles of the terrain at full DEM resolution (without skirts)."""
         rows, cols = self.terrain.shape
         return 2 * (rows - 1) * (cols - 1)
+
+    def ground_margin(self, landmark: Landmark) -> float:
+        """How far below z0 a box must reach to meet the drawn ground (metres, >= 0.5)."""
+        h = self.terrain.heights
+        xy = landmark.corners() / self.terrain.cell_size
+        c0, r0 = np.floor(xy.min(0)).astype(int) - 1
+        c1, r1 = np.ceil(xy.max(0)).astype(int) + 1
+        rows, cols = h.shape
+        block = h[max(r0, 0) : min(r1, rows - 1) + 1, max(c0, 0) : min(c1, cols - 1) + 1]
+        if min(block.shape) < 2:
+            return 0.5
+        twist = np.abs(block[:-1, :-1] - block[:-1, 1:] - block[1:, :-1] + block[1:, 1:])
+        return float(twist.max()) / 4 + 0.5
+
+    def spacing(self, level: int) -> float:
+        """Vertex spacing of ``level`` in DEM cells."""
+        return 2.0**level / self.refine
 
     def _skirt_depth(self) -> float:
         """Deeper than the worst height error of the coarsest level, so cracks stay covered."""
         h = self.terrain.heights
         rows, cols = h.shape
-        s = 2 ** (self.n_levels - 1)
-        ri, ci = _level_indices(0, rows - 1, s), _level_indices(0, cols - 1, s)
-        interp = RegularGridInterpolator((ri, ci), h[np.ix_(ri, ci)])
+        s = max(1.0, self.spacing(self.n_levels - 1))
+        ri, ci = _level_positions(0, rows - 1, s), _level_positions(0, cols - 1, s)
+        interp = RegularGridInterpolator((ri, ci), _bilinear(h, *np.meshgrid(ri, ci, indexing="ij")))
         rr, cc = np.mgrid[0:rows, 0:cols]
         err = np.abs(interp(np.stack([rr.ravel(), cc.ravel()], 1)).reshape(h.shape) - h).max()
         return float(err) + 1.0
 
     def _build_tiles(self) -> list[TerrainTile]:
-        t = self.terrain
-        h = t.heights
+        h = self.terrain.heights
         rows, cols = h.shape
-        cs = t.cell_size
-        dzdy, dzdx = np.gradient(h, cs)
-        normals = np.stack([-dzdx, -dzdy, np.ones_like(h)], -1)
-        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-        colors = terrain_colors(t)
-        skirt = self._skirt_depth()
+        cs = self.terrain.cell_size
         n = self.tile_cells
         tiles = []
         for r0 in range(0, rows - 1, n):
             for c0 in range(0, cols - 1, n):
                 r1, c1 = min(r0 + n, rows - 1), min(c0 + n, cols - 1)
                 block = h[r0 : r1 + 1, c0 : c1 + 1]
-                bounds = (c0 * cs, c1 * cs, r0 * cs, r1 * cs, float(block.min()) - skirt, float(block.max()))
-                tile = TerrainTile(r0, c0, bounds)
-                for level in range(self.n_levels):
-                    s = 2**level
-                    ri, ci = _level_indices(r0, r1, s), _level_indices(c0, c1, s)
-                    nr, nc = len(ri), len(ci)
-                    R, C = np.meshgrid(ri, ci, indexing="ij")
-                    pos = np.stack([C * cs, R * cs, h[R, C]], -1).reshape(-1, 3)
-                    nor = normals[R, C].reshape(-1, 3)
-                    col = colors[R, C].reshape(-1, 3)
-                    tri = _grid_indices(nr, nc)
-                    # skirt: the border ring, copied down by ``skirt`` metres
-                    grid = np.arange(nr * nc).reshape(nr, nc)
-                    ring = np.concatenate([grid[0, :], grid[1:, -1], grid[-1, -2::-1], grid[-2:0:-1, 0]])
-                    low = np.arange(len(ring)) + nr * nc
-                    a, b = ring, np.roll(ring, -1)
-                    la, lb = low, np.roll(low, -1)
-                    skirt_tri = np.concatenate([np.stack([a, b, lb], 1), np.stack([a, lb, la], 1)]).astype(np.uint32)
-                    lowered = pos[ring].copy()
-                    lowered[:, 2] -= skirt
-                    tile.levels.append(
-                        TileMesh(
-                            stride=s,
-                            positions=np.concatenate([pos, lowered]).astype(np.float32),
-                            normals=np.concatenate([nor, nor[ring]]).astype(np.float32),
-                            colors=np.concatenate(
-                                [np.column_stack([col, np.ones(len(col))]),
-                                 np.column_stack([col[ring] * 0.8, np.ones(len(ring))])]
-                            ).astype(np.float32),
-                            indices=np.concatenate([tri, skirt_tri]),
-                        )
-                    )
-                tiles.append(tile)
-        log.info("terrain: %d tiles x %d levels, skirt %.1f m", len(tiles), self.n_levels, skirt)
+                bounds = (c0 * cs, c1 * cs, r0 * cs, r1 * cs, float(block.min()) - self.skirt_m, float(block.max()))
+                tiles.append(TerrainTile(r0, c0, r1, c1, bounds))
+        log.info("terrain: %d tiles of %d cells, %d levels, refine %d, skirt %.1f m",
+                 len(tiles), n, self.n_levels, self.refine, self.skirt_m)
         return tiles
+
+    def tile_mesh(self, tile: int, level: int) -> TileMesh:
+        """The mesh of tile ``tile`` at ``level`` (built on first use), with its skirt."""
+        key = (tile, level)
+        if key in self._cache:
+            return self._cache[key]
+        t = self.tiles[tile]
+        cs = self.terrain.cell_size
+        s = self.spacing(level)
+        ri, ci = _level_positions(t.row0, t.row1, s), _level_positions(t.col0, t.col1, s)
+        nr, nc = len(ri), len(ci)
+        R, C = np.meshgrid(ri, ci, indexing="ij")
+        pos = np.stack([C * cs, R * cs, _bilinear(self.terrain.heights, R, C)], -1).reshape(-1, 3)
+        nor = _bilinear(self._normals, R, C).reshape(-1, 3)
+        nor /= np.linalg.norm(nor, axis=1, keepdims=True)
+        col = _bilinear(self._colors, R, C).reshape(-1, 3)
+        tri = _grid_indices(pos[:, 2].reshape(nr, nc))
+        # skirt: the border ring, copied down by skirt_m metres
+        grid = np.arange(nr * nc).reshape(nr, nc)
+        ring = np.concatenate([grid[0, :], grid[1:, -1], grid[-1, -2::-1], grid[-2:0:-1, 0]])
+        low = np.arange(len(ring)) + nr * nc
+        a, b = ring, np.roll(ring, -1)
+        la, lb = low, np.roll(low, -1)
+        skirt_tri = np.concatenate([np.stack([a, b, lb], 1), np.stack([a, lb, la], 1)]).astype(np.uint32)
+        lowered = pos[ring].copy()
+        lowered[:, 2] -= self.skirt_m
+        mesh = TileMesh(
+            stride=s,
+            positions=np.concatenate([pos, lowered]).astype(np.float32),
+            normals=np.concatenate([nor, nor[ring]]).astype(np.float32),
+            colors=np.concatenate(
+                [np.column_stack([col, np.ones(len(col))]), np.column_stack([col[ring] * 0.8, np.ones(len(ring))])]
+            ).astype(np.float32),
+            indices=np.concatenate([tri, skirt_tri]),
+        )
+        self._cache[key] = mesh
+        return mesh
 
     def tile_levels(
         self,
@@ -243,7 +316,7 @@ class EnvironmentModel:
         dx = np.maximum(np.maximum(b[:, 0] - eye[0], eye[0] - b[:, 1]), 0)
         dy = np.maximum(np.maximum(b[:, 2] - eye[1], eye[1] - b[:, 3]), 0)
         d = np.hypot(dx, dy)
-        ratio = d / (self.lod_factor * self.terrain.cell_size)
+        ratio = d / (self.lod_factor * self.terrain.cell_size) * self.refine
         level = np.floor(np.log2(np.maximum(ratio, 1.0))).astype(int)
         level = np.clip(level, 0, self.n_levels - 1)
         level[outside | (d > far)] = -1

@@ -71,7 +71,7 @@ def _resolve_path(value: Path, info: ValidationInfo, *, must_exist: bool = True)
     base = (info.context or {}).get("base_dir")
     path = Path(value).expanduser()
     if not path.is_absolute():
-        path = (Path(base) if base is not None else Path.cwd()) / path
+        path = ((Path(base) if base is not None else Path.cwd()) / path).absolute()
     if must_exist and not path.is_file():
         raise ValueError(f"file not found: {path}")
     return path
