@@ -132,11 +132,13 @@ class CameraSpec(_Spec):
     near: float = Field(gt=0)
     far: float = Field(gt=0)
 
-    @model_validator(mode="after")
-    def _near_far(self) -> CameraSpec:
-        if self.far <= self.near:
-            raise ValueError(f"far ({self.far}) must be > near ({self.near})")
-        return self
+    @field_validator("far")
+    @classmethod
+    def _beyond_near(cls, value: float, info: ValidationInfo) -> float:
+        near = info.data.get("near")
+        if near is not None and value <= near:
+            raise ValueError(f"must be > near ({near:g})")
+        return value
 
 
 class TruthSpec(_Spec):
