@@ -12,7 +12,6 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from models.terrain import Terrain
@@ -75,10 +74,20 @@ def place_landmarks(terrain: Terrain, specs: Iterable) -> list[Landmark]:
 def raised_dem(terrain: Terrain, landmarks: Iterable[Landmark]) -> Terrain:
     """F*: the DEM with every cell whose centre lies inside a footprint raised to the box top."""
     h = terrain.heights.copy()
+    rows, cols = h.shape
+    cs = terrain.cell_size
     for lm in landmarks:
-        inside = np.zeros(h.shape, np.uint8)
-        # DEM (row, col) = (y, x) / cell_size; cv2 points are (col, row) = (x, y) in cells, 4 bits subpixel
-        poly = np.round(lm.corners() / terrain.cell_size * 16).astype(np.int32)
-        cv2.fillConvexPoly(inside, poly, 1, lineType=cv2.LINE_8, shift=4)
-        h[inside.astype(bool)] = np.maximum(h[inside.astype(bool)], lm.top)
+        xy = lm.corners()
+        c0, r0 = np.maximum(np.floor(xy.min(0) / cs).astype(int), 0)
+        c1, r1 = np.minimum(np.ceil(xy.max(0) / cs).astype(int), [cols - 1, rows - 1])
+        if c1 < c0 or r1 < r0:
+            continue
+        rr, cc = np.mgrid[r0 : r1 + 1, c0 : c1 + 1]
+        dx, dy = cc * cs - lm.x, rr * cs - lm.y  # DEM (row, col) centre = (y, x) / cell_size
+        a = math.radians(lm.yaw_deg)
+        u = dx * math.cos(a) + dy * math.sin(a)  # along the box's width
+        v = -dx * math.sin(a) + dy * math.cos(a)  # along its depth
+        inside = (np.abs(u) <= lm.width / 2 + 1e-9) & (np.abs(v) <= lm.depth / 2 + 1e-9)
+        block = h[r0 : r1 + 1, c0 : c1 + 1]
+        block[inside] = np.maximum(block[inside], lm.top)
     return Terrain(heights=h, cell_size=terrain.cell_size)

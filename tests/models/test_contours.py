@@ -1,0 +1,94 @@
+"""Contour lines to DEM: accuracy on a known surface, GeoJSON reading and its errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from blackboard.errors import InputError
+from models.contours import contours_to_dem, dem_to_contours, load_contours, save_contours
+from models.terrain import Terrain
+
+
+def _analytic(cell: float = 10.0, n: int = 101) -> Terrain:
+    y, x = np.mgrid[0:n, 0:n] * cell
+    z = 60 + 25 * np.sin(2 * np.pi * x / 700) * np.cos(2 * np.pi * y / 900) + 0.01 * x
+    return Terrain(heights=z, cell_size=cell)
+
+
+@pytest.mark.parametrize("interval", [2.0, 5.0])
+def test_contours_round_trip_to_a_known_surface(tmp_path, interval):
+    truth = _analytic()
+    lines = dem_to_contours(truth, interval=interval)
+    assert len(lines) > 10
+    path = tmp_path / "c.geojson"
+    save_contours(lines, path)
+    dem = contours_to_dem(load_contours(path), cell_size=10.0, shape=truth.shape)
+    err = dem.heights - truth.heights
+    inner = np.s_[5:-5, 5:-5]  # away from the map border where contours end
+    rms = float(np.sqrt(np.mean(err[inner] ** 2)))
+    # linear interpolation between contours: errors well under one contour interval
+    assert rms < 0.2 * interval
+    assert np.abs(err[inner]).max() < interval
+    # and the interpolation beats simply taking the nearest contour's height
+    from scipy.interpolate import griddata
+
+    xy = np.concatenate([p for p, _ in lines])
+    zz = np.concatenate([np.full(len(p), e) for p, e in lines])
+    gy, gx = np.mgrid[0:101, 0:101] * 10.0
+    nearest = griddata(xy, zz, (gx, gy), method="nearest")
+    assert rms < np.sqrt(np.mean((nearest - truth.heights)[inner] ** 2))
+
+
+def test_default_shape_covers_the_lines():
+    lines = [(np.array([[0.0, 0.0], [95.0, 0.0]]), 10.0), (np.array([[0.0, 42.0], [95.0, 42.0]]), 20.0)]
+    dem = contours_to_dem(lines, cell_size=10.0, smooth=0)
+    assert dem.shape == (5, 10)
+    assert dem.height_at(50.0, 21.0) == pytest.approx(15.0, abs=0.3)
+
+
+def _write(tmp_path, doc) -> object:
+    p = tmp_path / "c.geojson"
+    p.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    return p
+
+
+def _line(coords, elevation=10.0, kind="LineString"):
+    return {"type": "Feature", "properties": {"elevation": elevation}, "geometry": {"type": kind, "coordinates": coords}}
+
+
+BAD = [
+    ("{not json", "not valid GeoJSON"),
+    ({"type": "FeatureCollection", "features": []}, "at least one feature"),
+    ({"features": [{"geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}, "properties": {}}]},
+     r"features\[0\]: needs a geometry and a numeric properties.elevation"),
+    ({"features": [_line([[0, 0], [1, 1]], elevation="high")]}, r"features\[0\]: needs a geometry"),
+    ({"features": [_line([[0, 0], [1, 1]]), _line([[0, 0]], 20.0)]}, r"features\[1\]: a line needs at least 2"),
+    ({"features": [_line([0, 0], kind="Point")]}, r"features\[0\]: geometry must be a LineString"),
+    ({"features": [_line([["a", 0], [1, 1]])]}, r"features\[0\]: coordinates must be numbers"),
+]
+
+
+@pytest.mark.parametrize(("doc", "message"), BAD)
+def test_bad_contour_files(tmp_path, doc, message):
+    path = _write(tmp_path, doc)
+    with pytest.raises(InputError, match=message) as info:
+        load_contours(path)
+    assert info.value.path == path
+
+
+def test_missing_contour_file(tmp_path):
+    with pytest.raises(InputError, match="contour file not found"):
+        load_contours(tmp_path / "none.geojson")
+
+
+def test_multilinestring_and_errors_of_contours_to_dem(tmp_path):
+    path = _write(tmp_path, {"features": [_line([[[0, 0], [50, 0]], [[0, 10], [50, 10]]], 5.0, "MultiLineString")]})
+    lines = load_contours(path)
+    assert len(lines) == 2 and lines[1][1] == 5.0
+    with pytest.raises(ValueError, match="two or more elevations"):
+        contours_to_dem(lines, cell_size=10.0)
+    with pytest.raises(ValueError, match=">= 0"):
+        contours_to_dem([(np.array([[-50.0, 0], [0, 0]]), 1.0), (np.array([[0.0, 5], [9, 9]]), 2.0)], cell_size=10.0)
