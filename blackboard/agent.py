@@ -39,6 +39,9 @@ NODE_SENDER = "@node"
 _OPS = {"post": EventKind.POSTED, "update": EventKind.UPDATED, "retract": EventKind.RETRACTED}
 #: activity records are sent to the node in batches of at most this many (and when idle)
 _ACTIVITY_BATCH = 64
+#: an agent reports idle after its inbox stayed empty this long (fewer status messages; the
+#: correctness of quiescence does not depend on it, only its latency)
+_IDLE_GRACE_S = 0.002
 
 
 class AgentRunner:
@@ -163,8 +166,11 @@ class AgentRunner:
                 if self._agenda:
                     self._run_one()
                     continue
-                self._flush(state="idle")
-                item = self._inbox.get()
+                try:  # under a stream of posts, do not report idle between every two of them
+                    item = self._inbox.get(timeout=_IDLE_GRACE_S)
+                except queue.Empty:
+                    self._flush(state="idle")
+                    item = self._inbox.get()
             kind, payload = item
             if kind in ("stop", "kill"):
                 return

@@ -87,22 +87,37 @@ def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
         found = _find_bad(obj, "")
         key, why = found if found else (None, str(err))
         raise CodecError(f"cannot encode: {why}", key=key or None) from None
-    found = _find_bad(obj, "")  # non-str map keys, too deep: msgpack itself would accept them
-    if found:
-        raise CodecError(f"cannot encode: {found[1]}", key=found[0] or None)
+    if not _containers_ok(obj, 0):  # non-str map keys, too deep: msgpack itself would accept them
+        found = _find_bad(obj, "")
+        key, why = found if found else (None, "invalid structure")
+        raise CodecError(f"cannot encode: {why}", key=key or None)
     if len(data) > max_bytes:
         raise CodecError(f"encoded size {len(data)} bytes exceeds the limit of {max_bytes} bytes")
     return data
 
 
-def _depth_exceeds(obj: Any, depth: int = 0) -> bool:
+def _containers_ok(obj: Any, depth: int, *, keys: bool = True) -> bool:
+    """True if maps have str keys (when ``keys``) and nesting is within :data:`MAX_DEPTH`;
+    visits containers only (the hot path of every message)."""
     if depth > MAX_DEPTH:
-        return True
-    if isinstance(obj, dict):
-        return any(_depth_exceeds(v, depth + 1) for v in obj.values())
-    if isinstance(obj, (list, tuple)):
-        return any(_depth_exceeds(v, depth + 1) for v in obj)
-    return False
+        return False
+    kind = type(obj)
+    if kind is dict:
+        for k, v in obj.items():
+            if keys and type(k) is not str:
+                return False
+            if type(v) in _CONTAINERS and not _containers_ok(v, depth + 1, keys=keys):
+                return False
+    elif kind in _CONTAINERS:
+        for v in obj:
+            if type(v) in _CONTAINERS and not _containers_ok(v, depth + 1, keys=keys):
+                return False
+    elif isinstance(obj, (dict, list, tuple)):  # subclasses: the slow, general walk
+        return _find_bad(obj, "") is None
+    return True
+
+
+_CONTAINERS = (dict, list, tuple)
 
 
 def _ext_hook(code: int, data: bytes) -> Any:
@@ -147,6 +162,6 @@ def decode(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, key: str | None =
         )
     except Exception as err:  # msgpack raises many types (ExtraData, ValueError, UnpackValueError, ...)
         raise CodecError(f"malformed message: {type(err).__name__}: {err}", key=key) from None
-    if _depth_exceeds(obj):
+    if not _containers_ok(obj, 0, keys=False):
         raise CodecError(f"message nested deeper than {MAX_DEPTH}", key=key)
     return obj

@@ -13,9 +13,9 @@ Example::
 
 from __future__ import annotations
 
+import os
 import re
 import time
-import uuid
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -36,7 +36,7 @@ def validate_name(value: object, what: str) -> str:
 
 def new_id(prefix: str = "h") -> str:
     """A fresh, globally unique hypothesis id such as ``doubler-3f2a9c0d41b7e5a2``."""
-    return f"{prefix}-{uuid.uuid4().hex[:16]}"
+    return f"{prefix}-{os.urandom(8).hex()}"
 
 
 @dataclass(frozen=True)

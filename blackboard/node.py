@@ -42,6 +42,7 @@ __all__ = ["BlackboardNode", "AgentState", "NODE_SENDER"]
 
 logger = logging.getLogger(__name__)
 
+_MAX_UNREPORTED = 100_000
 _ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
                                         TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
 
@@ -118,8 +119,8 @@ class BlackboardNode:
         self._waiters: list[threading.Event] = []
         self.user_timeouts: list[tuple[Hypothesis, str]] = []
         self.stats: Counter[str] = Counter()
-        #: called on the worker thread with each POSTED/UPDATED/RETRACTED/TIMEOUT event (progress)
-        self.listener: Callable[[Event], None] | None = None
+        self._listener: Callable[[Event], None] | None = None
+        self._unreported: list[Event] = []  # events while nobody listened (bounded)
         self._session: zenoh.Session | None = None
         self._thread: threading.Thread | None = None
         self._entities: list[Any] = []
@@ -166,6 +167,11 @@ class BlackboardNode:
         self._inbox.put(("await", event))
         return event
 
+    def listen(self, listener: Callable[[Event], None] | None) -> None:
+        """Call ``listener`` (on the worker thread) with each POSTED, UPDATED, RETRACTED and TIMEOUT
+        event, first with those that happened since the last listener was removed."""
+        self._inbox.put(("listen", listener))
+
     def call(self, fn: Any) -> None:
         """Run ``fn()`` on the worker thread (after everything enqueued so far)."""
         self._inbox.put(("call", fn))
@@ -193,7 +199,8 @@ class BlackboardNode:
     def _work(self) -> None:
         handlers = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
                     "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
-                    "await": self._waiters.append, "call": lambda fn: fn()}
+                    "await": self._waiters.append, "listen": self._set_listener, "call": lambda fn: fn()}
+        bookkept = time.monotonic()
         while True:
             timeout = max(0.0, self._deadlines[0][0] - time.monotonic()) if self._deadlines else None
             try:
@@ -207,6 +214,9 @@ class BlackboardNode:
                     handlers[kind](payload)
                 except Exception:  # never let one message kill the node
                     logger.exception("blackboard node: failed to handle a %s item", kind)
+            if kind != "tick" and not self._inbox.empty() and time.monotonic() - bookkept < 0.01:
+                continue  # in a burst, deadlines and quiescence are checked every 10 ms
+            bookkept = time.monotonic()
             self._fire_deadlines()
             if self._waiters:
                 self._check_quiescence()
@@ -297,11 +307,22 @@ class BlackboardNode:
                           addressed_to=hyp.addressed_to, deadline_s=hyp.deadline_s, body=hyp.body, **extra)
 
     def _notify(self, kind: EventKind, hyp: Hypothesis, reason: str = "") -> None:
-        if self.listener is not None:
-            try:
-                self.listener(Event(kind, hyp, reason))
-            except Exception:  # the caller's progress callback
-                logger.exception("blackboard node: progress callback raised")
+        event = Event(kind, hyp, reason)
+        if self._listener is None:
+            if len(self._unreported) < _MAX_UNREPORTED:
+                self._unreported.append(event)
+            return
+        try:
+            self._listener(event)
+        except Exception:  # the caller's progress callback
+            logger.exception("blackboard node: progress callback raised")
+
+    def _set_listener(self, listener: Callable[[Event], None] | None) -> None:
+        self._listener = listener
+        if listener is not None:
+            backlog, self._unreported = self._unreported, []
+            for event in backlog:
+                self._notify(event.kind, event.hypothesis, event.reason)
 
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:

@@ -211,14 +211,14 @@ class Runtime:
         """Run until quiescent: nothing pending, nothing running, in every agent.
 
         ``progress`` is called (on the node's thread) with every post, update, retraction and
-        timeout while running.
+        timeout since the previous run (or the start) until quiescence.
 
         Raises:
             AgentError: not quiescent within ``timeout_s``; names the agents still busy.
             BlackboardError: not quiescent and no agent busy (addressed posts still waiting).
         """
         started = time.perf_counter()
-        self.node.listener = progress
+        self.node.listen(progress)
         try:
             if not self.node.wait_quiescent().wait(timeout_s):
                 busy = self.node.busy_agents()
@@ -228,7 +228,7 @@ class Runtime:
                                      + ", ".join(busy))
                 raise BlackboardError(f"run {self.run_id} not quiescent after {timeout_s} s")
         finally:
-            self.node.listener = None
+            self.node.listen(None)
         return RunOutcome(
             quiescent=True,
             hypotheses=self.node.hypotheses(),
