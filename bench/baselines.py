@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from models.associative import DEFAULT_BANK_SIZE, BankedMemory
+from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT, BankedMemory
 from models.preprocess import preprocess
 
 __all__ = ["HolographicIndex", "NCCIndex", "OrbBowIndex"]
@@ -42,9 +42,17 @@ class HolographicIndex:
 
     name = "memory"
 
-    def __init__(self, size: int = 128, *, blur_sigma: float = 2.0, bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0) -> None:
+    def __init__(
+        self,
+        size: int = 128,
+        *,
+        blur_sigma: float = 2.0,
+        bank_size: int = DEFAULT_BANK_SIZE,
+        max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT,
+        seed: int = 0,
+    ) -> None:
         self.size, self.blur_sigma = size, blur_sigma
-        self.memory = BankedMemory(size, bank_size=bank_size, seed=seed)
+        self.memory = BankedMemory(size, bank_size=bank_size, seed=seed, max_shift=max_shift)
 
     def pattern(self, image: NDArray) -> NDArray[np.float32]:
         return preprocess(image, size=self.size, blur_sigma=self.blur_sigma)

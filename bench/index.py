@@ -35,12 +35,19 @@ import sys
 import time
 from collections.abc import Callable
 
-import cv2
-import numpy as np
-from baselines import HolographicIndex, NCCIndex, OrbBowIndex
+from pathlib import Path
 
-from models.associative import DEFAULT_BANK_SIZE, HolographicMemory
-from models.preprocess import preprocess
+# bench/ holds other scripts (e.g. bench/blackboard.py) whose names shadow the packages when
+# this file runs as a script: the repository root first, bench/ last
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [str(_HERE.parent)] + [p for p in sys.path if Path(p or ".").resolve() != _HERE] + [str(_HERE)]
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+from baselines import HolographicIndex, NCCIndex, OrbBowIndex  # noqa: E402
+
+from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT, HolographicMemory  # noqa: E402
+from models.preprocess import preprocess  # noqa: E402
 
 logger = logging.getLogger("bench.index")
 
@@ -82,7 +89,8 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
     return 1000.0 * statistics.median(times)
 
 
-def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noise: float, seed: int) -> list[dict]:
+def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noise: float, seed: int,
+             max_shift: tuple[int, int]) -> list[dict]:
     """Top-1 and recall quality of ONE bank as the number of stored patterns grows."""
     rng = np.random.default_rng(seed)
     images = [scene(rng) for _ in range(max(hs))]
@@ -90,7 +98,7 @@ def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noi
     for n in sizes:
         pats = [preprocess(im, size=n) for im in images]
         for h in hs:
-            mem = HolographicMemory(n)
+            mem = HolographicMemory(n, max_shift=max_shift)
             mem.write_many(pats[:h], range(h))
             hits, quality, rel = 0, [], []
             for _ in range(queries):
@@ -108,12 +116,12 @@ def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noi
 
 
 def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, np.ndarray]], *,
-             bank_size: int, with_orb: bool, with_single: bool) -> list[dict]:
+             bank_size: int, max_shift: tuple[int, int], with_orb: bool, with_single: bool) -> list[dict]:
     """All methods on one (N, H) case."""
     out = []
-    methods: list = [HolographicIndex(n, bank_size=bank_size)]
+    methods: list = [HolographicIndex(n, bank_size=bank_size, max_shift=max_shift)]
     if with_single:
-        single = HolographicIndex(n, bank_size=h)
+        single = HolographicIndex(n, bank_size=h, max_shift=max_shift)
         single.name = "memory-1bank"
         methods.append(single)
     methods.append(NCCIndex(n))
@@ -140,10 +148,10 @@ def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, 
                "rank_ms": round(1000 * statistics.median(times), 3), "preprocess_ms": round(t_pre, 3),
                "top1": hits / len(pats)}
         if isinstance(m, HolographicIndex):
-            banks = m.memory.banks
-            protos = np.concatenate([b.ranking_matrix for b in banks]) if len(banks) > 1 else banks[0].ranking_matrix
-            floor = _median_ms(lambda: protos.sum(), 7)
-            row.update({"banks": len(banks), "floor_ms": round(floor, 3), "ratio": round(row["rank_ms"] / floor, 2)})
+            matrix = m.memory.ranking_matrix
+            floor = _median_ms(lambda: matrix.sum(), 7)
+            row.update({"banks": len(m.memory.banks), "floor_ms": round(floor, 3),
+                        "ratio": round(row["rank_ms"] / floor, 2)})
         out.append(row)
         logger.info("%s", row)
         del m
@@ -157,6 +165,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hs", type=int, nargs="+", default=None, help="stored viewframes (default 100 1000 5000)")
     parser.add_argument("--queries", type=int, default=None, help="perturbed queries per case (default 100, quick 40)")
     parser.add_argument("--bank-size", type=int, default=DEFAULT_BANK_SIZE)
+    parser.add_argument("--max-shift", type=int, nargs=2, default=list(DEFAULT_MAX_SHIFT), metavar=("ROWS", "COLS"),
+                        help="shift search of the memory, memory pixels")
     parser.add_argument("--shift", type=float, default=3.0, help="max shift of a query in image pixels")
     parser.add_argument("--noise", type=float, default=8.0, help="gaussian noise of a query, gray levels")
     parser.add_argument("--no-orb", action="store_true", help="skip the ORB baseline")
@@ -176,16 +186,16 @@ def main(argv: list[str] | None = None) -> int:
         queries = [(i, perturb(images[i], rng, shift=args.shift, noise=args.noise))
                    for i in rng.integers(0, h, size=nq).tolist()]
         for n in args.sizes:
-            results += run_case(n, h, images, queries, bank_size=args.bank_size,
+            results += run_case(n, h, images, queries, bank_size=args.bank_size, max_shift=tuple(args.max_shift),
                                 with_orb=not args.no_orb and n == args.sizes[0], with_single=h <= 1000)
     cap = [] if args.no_capacity else capacity(
         args.sizes, [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]), queries=nq,
-        shift=args.shift, noise=args.noise, seed=args.seed + 1)
+        shift=args.shift, noise=args.noise, seed=args.seed + 1, max_shift=tuple(args.max_shift))
     doc = {
         "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
                     "numpy": np.__version__, "opencv": cv2.__version__},
         "params": {"hs": hs, "sizes": args.sizes, "queries": nq, "shift_px": args.shift, "noise": args.noise,
-                   "bank_size": args.bank_size, "image": list(SHAPE), "seed": args.seed},
+                   "bank_size": args.bank_size, "max_shift": args.max_shift, "image": list(SHAPE), "seed": args.seed},
         "results": results,
         "capacity": cap,
     }

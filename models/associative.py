@@ -43,6 +43,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -53,6 +54,7 @@ from models.keys import KEY_METHODS, key_spectrum
 
 __all__ = [
     "DEFAULT_BANK_SIZE",
+    "DEFAULT_MAX_SHIFT",
     "Ranking",
     "reliability",
     "HolographicMemory",
@@ -64,6 +66,8 @@ logger = logging.getLogger(__name__)
 
 #: default number of viewframes per bank (measured: see bench/index.py)
 DEFAULT_BANK_SIZE = 8
+#: default shift search (rows, cols) of the recall against the prototypes, in memory pixels
+DEFAULT_MAX_SHIFT = (1, 2)
 
 _MAD_TO_STD = 1.4826
 
@@ -150,6 +154,46 @@ def _check_key_method(key_method: str) -> None:
         raise AssociativeMemoryError(f"key_method must be one of {', '.join(KEY_METHODS)}, got {key_method!r}")
 
 
+def _check_shift(max_shift: int | tuple[int, int]) -> tuple[int, int]:
+    """``max_shift`` as a (rows, cols) pair of non-negative ints."""
+    pair = (max_shift, max_shift) if isinstance(max_shift, (int, np.integer)) else tuple(max_shift)
+    if (
+        len(pair) != 2
+        or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 or v > 16 for v in pair)
+    ):
+        raise AssociativeMemoryError(f"max_shift must be an int or (rows, cols) of ints in 0..16, got {max_shift!r}")
+    return int(pair[0]), int(pair[1])
+
+
+@lru_cache(maxsize=16)
+def _lag_ramps(n: int, max_shift: tuple[int, int]) -> NDArray[np.complex128]:
+    """Phase ramps of shape (L, N, N // 2 + 1) that shift an image by every (row, col) lag with
+    ``|row| <= max_shift[0]``, ``|col| <= max_shift[1]`` (lag (0, 0) first)."""
+    fy = np.fft.fftfreq(n)[:, None]
+    fx = np.fft.rfftfreq(n)[None, :]
+    lags = [(0, 0)] + [
+        (r, c)
+        for r in range(-max_shift[0], max_shift[0] + 1)
+        for c in range(-max_shift[1], max_shift[1] + 1)
+        if (r, c) != (0, 0)
+    ]
+    ramps = np.stack([np.exp(-2j * np.pi * (fy * r + fx * c)) for r, c in lags])
+    ramps.setflags(write=False)
+    return ramps
+
+
+def _interleave(spec: NDArray[np.complexfloating]) -> NDArray[np.float32]:
+    """A complex array as float32 interleaved (real, imag): (..., N, M) -> (..., 2 N M)."""
+    spec = np.ascontiguousarray(spec, dtype=np.complex64)
+    return spec.view(np.float32).reshape(*spec.shape[:-2], -1)
+
+
+def _query_matrix(key: NDArray[np.complexfloating], max_shift: tuple[int, int]) -> NDArray[np.float32]:
+    """(L, D) float32: conj(key) times every lag ramp, interleaved."""
+    n = key.shape[0]
+    return _interleave(np.conj(key)[None] * _lag_ramps(n, max_shift))
+
+
 class HolographicMemory:
     """One memory bank of size N x N, stored in the frequency domain.
 
@@ -161,9 +205,19 @@ class HolographicMemory:
         Seed of the keys' random phase (see :func:`models.keys.make_key`).
     key_method : str
         K-GEN method, one of :data:`models.keys.KEY_METHODS`.
+    max_shift : int or (rows, cols)
+        The recall is compared with each prototype at every circular shift up to this many
+        memory pixels (see the module docstring, "Shifts"); 0 compares at zero lag only.
     """
 
-    def __init__(self, size: int = 128, *, seed: int = 0, key_method: str = "phase") -> None:
+    def __init__(
+        self,
+        size: int = 128,
+        *,
+        seed: int = 0,
+        key_method: str = "phase",
+        max_shift: int | tuple[int, int] = DEFAULT_MAX_SHIFT,
+    ) -> None:
         if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 4:
             raise AssociativeMemoryError(f"size must be an integer >= 4, got {size!r}")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -172,17 +226,18 @@ class HolographicMemory:
         self.size = int(size)
         self.seed = int(seed)
         self.key_method = key_method
+        self.max_shift = _check_shift(max_shift)
         n = self.size
         self._spectrum = np.zeros((n, n // 2 + 1), dtype=np.complex128)
-        # ranking matrix: row h = weighted rfft2 of P_h, float32 (re, im) interleaved, so that
-        # row . view(rfft2(R)) = <R, P_h>; a capacity buffer whose first _count rows are used
-        self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
-        self._weights = np.full((n, n // 2 + 1), 2.0 / (n * n))  # Parseval weights of rfft bins
+        self._weights = np.full((n, n // 2 + 1), 2.0 / (n * n))  # Parseval weights of the half spectrum
         self._weights[:, 0] /= 2.0
         if n % 2 == 0:
             self._weights[:, n // 2] /= 2.0
+        # w * rfft2(P_h), interleaved float32; a capacity buffer whose first _count rows are used
+        self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
         self._labels = np.zeros(0, dtype=np.int64)
         self._count = 0
+        self._match: NDArray[np.float32] | None = None  # (H, D) ranking matrix, built on demand
 
     # ---------------------------------------------------------------- storage
     def __len__(self) -> int:
@@ -195,27 +250,31 @@ class HolographicMemory:
 
     @property
     def prototypes(self) -> NDArray[np.float32]:
-        """The stored patterns, float32 of shape (H, N*N) (computed from the ranking matrix)."""
+        """The stored (normalised) patterns, float32 of shape (H, N*N), in storage order."""
         n = self.size
-        spec = self.ranking_matrix.reshape(self._count, n, n // 2 + 1, 2).astype(np.float64)
+        spec = self._fprotos[: self._count].reshape(self._count, n, n // 2 + 1, 2).astype(np.float64)
         spec = (spec[..., 0] + 1j * spec[..., 1]) / self._weights
         return np.fft.irfft2(spec, s=(n, n)).reshape(self._count, n * n).astype(np.float32)
-
-    @property
-    def ranking_matrix(self) -> NDArray[np.float32]:
-        """The C-contiguous float32 matrix read by every ranking, shape (H, 2 * N * (N // 2 + 1)).
-
-        Row h holds ``w * rfft2(P_h)`` as interleaved (real, imag), ``w`` the Parseval weights of
-        the half spectrum, so that ``row . (rfft2(R) as interleaved float32) = <R, P_h>``: the
-        ranking needs no inverse FFT, and this matrix is what the memory reads per query (the
-        same number of bytes as the spatial prototypes, plus 2N floats per row).
-        """
-        return self._fprotos[: self._count]
 
     @property
     def spectrum(self) -> NDArray[np.complex128]:
         """The memory ``rfft2(M)``, shape (N, N // 2 + 1) (a view; do not modify)."""
         return self._spectrum
+
+    @property
+    def ranking_matrix(self) -> NDArray[np.float32]:
+        """The C-contiguous float32 matrix a ranking reads, shape (H, 2 * N * (N // 2 + 1)).
+
+        Row h is ``w * rfft2(P_h) * conj(rfft2(M))`` interleaved (real, imag), ``w`` the Parseval
+        weights of the half spectrum, so that for a query key spectrum FK
+        ``row . interleave(conj(FK)) = <K (x) M, P_h> = <R, P_h>`` (module docstring).
+        """
+        if self._match is None:
+            n = self.size
+            fp = self._fprotos[: self._count].reshape(self._count, n, n // 2 + 1, 2)
+            fp = fp[..., 0].astype(np.complex128) + 1j * fp[..., 1]
+            self._match = np.ascontiguousarray(_interleave(fp * np.conj(self._spectrum)[None]))
+        return self._match
 
     def _pattern(self, pattern: ArrayLike, what: str) -> NDArray[np.float32]:
         p = np.asarray(pattern)
@@ -272,6 +331,7 @@ class HolographicMemory:
             self._fprotos[self._count] = _interleave(self._weights * fp)
             self._labels[self._count] = lab
             self._count += 1
+        self._match = None
 
     # ---------------------------------------------------------------- recall
     def query_key(self, pattern: ArrayLike) -> NDArray[np.complex128]:
@@ -287,22 +347,24 @@ class HolographicMemory:
         n = self.size
         return np.fft.irfft2(np.conj(fk) * self._spectrum, s=(n, n))
 
-    def similarities(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
-        """Cosines ``c_h = <R / ||R||, P_h>`` in storage order, shape (H,)."""
-        fk = self.query_key(pattern) if key is None else key
-        return self._similarities(np.conj(fk) * self._spectrum)
+    def recall_energy(self, key: NDArray[np.complexfloating]) -> float:
+        """``||R||`` for a query key spectrum, without the inverse FFT (Parseval)."""
+        return float(np.sqrt(np.sum(self._weights * np.abs(self._spectrum) ** 2 * np.abs(key) ** 2)))
 
-    def _similarities(self, fr: NDArray[np.complexfloating]) -> NDArray[np.float64]:
-        """Cosines from the recall's half spectrum ``fr`` (no inverse FFT; Parseval)."""
-        energy = float(np.sqrt(np.sum(self._weights * (fr.real**2 + fr.imag**2))))
+    def similarities(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
+        """Cosines ``c_h = max over shifts d of <shift_d(R) / ||R||, P_h>``, storage order, (H,)."""
+        fk = self.query_key(pattern) if key is None else key
+        energy = self.recall_energy(fk)
         if self._count == 0 or energy <= 1e-12:
             return np.zeros(self._count, dtype=np.float64)
-        return (self.ranking_matrix @ _interleave(fr / energy)).astype(np.float64)
+        c = self.ranking_matrix @ _query_matrix(fk, self.max_shift).T
+        return c.max(axis=1).astype(np.float64) / energy
 
     def error_variances(
         self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None
     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """``(labels, variances)`` in storage order: ``var(R^ - P_h)`` for every stored P_h."""
+        """``(labels, variances)`` in storage order: ``var(R^ - P_h)`` for every stored P_h
+        (minimised over the searched shifts of R^)."""
         c = self.similarities(pattern, key=key)
         n2 = float(self.size * self.size)
         return self.labels.copy(), np.maximum(2.0 - 2.0 * c, 0.0) / n2
@@ -319,8 +381,9 @@ class HolographicMemory:
             "size": self.size,
             "seed": self.seed,
             "key_method": self.key_method,
+            "max_shift": list(self.max_shift),
             "labels": self.labels.copy(),
-            "ranking_matrix": self.ranking_matrix.copy(),
+            "prototype_spectra": self._fprotos[: self._count].copy(),
             "spectrum": np.stack([self._spectrum.real, self._spectrum.imag], axis=-1),
         }
 
@@ -328,10 +391,16 @@ class HolographicMemory:
     def from_state(cls, state: dict[str, Any]) -> HolographicMemory:
         """Rebuild a bank from :meth:`state`; raises AssociativeMemoryError on malformed data."""
         try:
-            mem = cls(int(state["size"]), seed=int(state["seed"]), key_method=str(state["key_method"]))
+            mem = cls(
+                int(state["size"]),
+                seed=int(state["seed"]),
+                key_method=str(state["key_method"]),
+                max_shift=tuple(int(v) for v in state["max_shift"]),
+            )
             n = mem.size
             labels = np.asarray(state["labels"], dtype=np.int64).ravel()
-            protos = np.asarray(state["ranking_matrix"], dtype=np.float32).reshape(labels.size, 2 * n * (n // 2 + 1))
+            protos = np.asarray(state["prototype_spectra"], dtype=np.float32)
+            protos = protos.reshape(labels.size, 2 * n * (n // 2 + 1))
             spec = np.asarray(state["spectrum"], dtype=np.float64)
             if spec.shape != (n, n // 2 + 1, 2):
                 raise ValueError(f"spectrum has shape {spec.shape}, expected {(n, n // 2 + 1, 2)}")
@@ -342,11 +411,6 @@ class HolographicMemory:
         mem._fprotos, mem._labels, mem._count = np.ascontiguousarray(protos), labels.copy(), labels.size
         mem._spectrum = spec[..., 0] + 1j * spec[..., 1]
         return mem
-
-
-def _interleave(spec: NDArray[np.complexfloating]) -> NDArray[np.float32]:
-    """A complex array as a flat float32 vector of interleaved (real, imag)."""
-    return np.ascontiguousarray(spec, dtype=np.complex64).view(np.float32).reshape(-1)
 
 
 def merge_rankings(rankings: Sequence[Ranking]) -> Ranking:
@@ -368,8 +432,10 @@ def merge_rankings(rankings: Sequence[Ranking]) -> Ranking:
 class BankedMemory:
     """Viewframes split over :class:`HolographicMemory` banks of at most ``bank_size`` each.
 
-    All banks share ``seed`` and ``key_method``, so a query's key is computed once. ``banks``
-    is the list of banks (fill order); :meth:`rank` merges their rankings.
+    All banks share ``seed``, ``key_method`` and ``max_shift``, so a query's key is computed
+    once. ``banks`` is the list of banks (fill order); :meth:`rank` gives the same ranking as
+    :func:`merge_rankings` over the banks' own rankings, with one matrix product over the
+    banks' ranking matrices packed together.
     """
 
     def __init__(
@@ -379,21 +445,27 @@ class BankedMemory:
         bank_size: int = DEFAULT_BANK_SIZE,
         seed: int = 0,
         key_method: str = "phase",
+        max_shift: int | tuple[int, int] = DEFAULT_MAX_SHIFT,
     ) -> None:
         if isinstance(bank_size, bool) or not isinstance(bank_size, (int, np.integer)) or bank_size < 1:
             raise AssociativeMemoryError(f"bank_size must be an integer >= 1, got {bank_size!r}")
-        self._template = HolographicMemory(size, seed=seed, key_method=key_method)  # validates
-        self.size = int(size)
-        self.seed = int(seed)
-        self.key_method = key_method
+        template = HolographicMemory(size, seed=seed, key_method=key_method, max_shift=max_shift)  # validates
+        self.size = template.size
+        self.seed = template.seed
+        self.key_method = template.key_method
+        self.max_shift = template.max_shift
         self.bank_size = int(bank_size)
         self.banks: list[HolographicMemory] = []
         self._labels: set[int] = set()
-        self._stack: NDArray[np.complex64] | None = None  # (B, N, N // 2 + 1) bank spectra, for rank()
-        self._packed: NDArray[np.float32] | None = None  # (B, bank_size, D) ranking matrices, for rank()
+        self._packed: NDArray[np.float32] | None = None  # (H, D) all banks' ranking matrices
+        self._bank_power: NDArray[np.float64] | None = None  # (B, N * (N // 2 + 1)) w |FM_b|^2
+        self._row_bank: NDArray[np.int64] | None = None  # (H,) bank of each packed row
 
     def __len__(self) -> int:
         return sum(len(b) for b in self.banks)
+
+    def _new_bank(self) -> HolographicMemory:
+        return HolographicMemory(self.size, seed=self.seed, key_method=self.key_method, max_shift=self.max_shift)
 
     def write(self, pattern: ArrayLike, label: int) -> None:
         """Store one pattern in the last bank, opening a new bank when it is full."""
@@ -410,48 +482,44 @@ class BankedMemory:
         i = 0
         while i < len(pats):
             if not self.banks or len(self.banks[-1]) >= self.bank_size:
-                self.banks.append(HolographicMemory(self.size, seed=self.seed, key_method=self.key_method))
+                self.banks.append(self._new_bank())
             bank = self.banks[-1]
             take = min(self.bank_size - len(bank), len(pats) - i)
             bank.write_many(pats[i : i + take], labs[i : i + take])
             self._labels.update(labs[i : i + take])
             i += take
-        self._stack = self._packed = None
+        self._packed = None
+
+    @property
+    def ranking_matrix(self) -> NDArray[np.float32]:
+        """All banks' :attr:`HolographicMemory.ranking_matrix` as one (H, D) array (each bank
+        keeps a view of its rows, so nothing is duplicated)."""
+        if self._packed is None:
+            d = 2 * self.size * (self.size // 2 + 1)
+            packed = np.empty((len(self), d), dtype=np.float32)
+            row = 0
+            for bank in self.banks:
+                packed[row : row + len(bank)] = bank.ranking_matrix
+                bank._match = packed[row : row + len(bank)]
+                row += len(bank)
+            self._bank_power = np.stack(
+                [(b._weights * np.abs(b.spectrum) ** 2).ravel() for b in self.banks]
+            ) if self.banks else np.zeros((0, 0))
+            self._row_bank = np.repeat(np.arange(len(self.banks)), [len(b) for b in self.banks])
+            self._packed = packed
+        return self._packed
 
     def rank(self, pattern: ArrayLike) -> Ranking:
-        """Merged ranking of all banks, best first.
-
-        Same result as :func:`merge_rankings` over each bank's :meth:`HolographicMemory.rank`:
-        the query key is computed once, and the recalls of all banks are one batched complex
-        multiply in the frequency domain (no inverse FFT, see
-        :attr:`HolographicMemory.ranking_matrix`).
-        """
+        """Merged ranking of all banks, best first."""
         if not self.banks:
             return merge_rankings([])
         key = self.banks[0].query_key(pattern)
-        if self._stack is None or self._packed is None:
-            self._pack()
-        fr = np.conj(key).astype(np.complex64)[None] * self._stack
-        weights = self.banks[0]._weights.astype(np.float32)
-        energy = np.sqrt(np.einsum("jk,bjk->b", weights, fr.real**2 + fr.imag**2, dtype=np.float64))
-        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0).astype(np.float32)
-        fr *= scale[:, None, None]
-        c = np.matmul(self._packed, fr.view(np.float32).reshape(len(self.banks), -1, 1))[..., 0]
-        c = np.concatenate([c[i, : len(b)] for i, b in enumerate(self.banks)]).astype(np.float64)
+        matrix = self.ranking_matrix
+        energy = np.sqrt(self._bank_power @ (np.abs(key) ** 2).ravel())  # ||R_b|| per bank
+        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
+        c = (matrix @ _query_matrix(key, self.max_shift).T).max(axis=1) * scale[self._row_bank]
         labels = np.concatenate([b.labels for b in self.banks])
         return _ranking(labels, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
-
-    def _pack(self) -> None:
-        """Stack the banks' spectra, and move their ranking matrices into one zero-padded
-        (B, bank_size, D) array (each bank keeps a view of its slice, so nothing is duplicated)
-        that one batched matrix-vector product reads."""
-        self._stack = np.stack([b.spectrum for b in self.banks]).astype(np.complex64)
-        d = self.banks[0].ranking_matrix.shape[1]
-        packed = np.zeros((len(self.banks), self.bank_size, d), dtype=np.float32)
-        for i, bank in enumerate(self.banks):
-            packed[i, : len(bank)] = bank.ranking_matrix
-            bank._fprotos = packed[i]
-        self._packed = packed
 
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
@@ -459,6 +527,7 @@ class BankedMemory:
             "size": self.size,
             "seed": self.seed,
             "key_method": self.key_method,
+            "max_shift": list(self.max_shift),
             "bank_size": self.bank_size,
             "banks": [b.state() for b in self.banks],
         }
@@ -472,16 +541,16 @@ class BankedMemory:
                 bank_size=int(state["bank_size"]),
                 seed=int(state["seed"]),
                 key_method=str(state["key_method"]),
+                max_shift=tuple(int(v) for v in state["max_shift"]),
             )
             banks = [HolographicMemory.from_state(b) for b in state["banks"]]
         except (KeyError, TypeError, ValueError) as err:
             raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
         for b in banks:
-            if (b.size, b.seed, b.key_method) != (mem.size, mem.seed, mem.key_method):
-                raise AssociativeMemoryError("memory state: a bank differs in size, seed or key_method")
+            if (b.size, b.seed, b.key_method, b.max_shift) != (mem.size, mem.seed, mem.key_method, mem.max_shift):
+                raise AssociativeMemoryError("memory state: a bank differs in size, seed, key_method or max_shift")
             mem._labels.update(b.labels.tolist())
         mem.banks = banks
-        mem._stack = mem._packed = None
         if len(mem._labels) != len(mem):
             raise AssociativeMemoryError("memory state: duplicate labels across banks")
         return mem

@@ -111,17 +111,21 @@ def test_every_stored_pattern_is_recalled_from_its_own_key(key_method: str) -> N
         assert r.reliability > 3.0
 
 
-def test_error_variance_is_the_variance_of_the_error_matrix() -> None:
+@pytest.mark.parametrize("max_shift", [(0, 0), (1, 2)])
+def test_error_variance_is_the_variance_of_the_error_matrix(max_shift: tuple[int, int]) -> None:
+    # v_h = min over searched shifts d of var(roll(R / ||R||, d) - P_h), computed directly
     pats = _random_patterns(16, 5, seed=4)
-    mem = HolographicMemory(16)
+    mem = HolographicMemory(16, max_shift=max_shift)
     mem.write_many(pats, range(5))
-    q = pats[2]
+    q = np.roll(pats[2], (1, -2), axis=(0, 1))
     r = mem.recall(q)
     r_hat = r / np.linalg.norm(r)
+    lags = [(a, b) for a in range(-max_shift[0], max_shift[0] + 1) for b in range(-max_shift[1], max_shift[1] + 1)]
+    direct = [min(np.var(np.roll(r_hat, d, axis=(0, 1)) - p) for d in lags) for p in pats]
     labels, variances = mem.error_variances(q)
-    direct = [np.var(r_hat - p) for p in pats]
     assert labels.tolist() == list(range(5))
-    assert np.allclose(variances, direct, rtol=1e-5)
+    assert np.allclose(variances, direct, rtol=1e-4)
+    assert (mem.rank(q).best == 2) == (max_shift != (0, 0))  # the shifted query needs the search
 
 
 @pytest.mark.parametrize(
@@ -176,6 +180,8 @@ def test_state_round_trips_through_msgpack() -> None:
         assert back.rank(q).to_dict() == mem.rank(q).to_dict()
     with pytest.raises(AssociativeMemoryError, match="already stored"):
         back.write(pats[0], 12)
+    single = HolographicMemory.from_state(msgpack.unpackb(msgpack.packb(mem.banks[0].state(), default=pack), object_hook=unpack))
+    assert single.rank(pats[1]).to_dict() == mem.banks[0].rank(pats[1]).to_dict()
 
 
 def test_ranking_plain_data_and_merge() -> None:
@@ -224,7 +230,14 @@ def test_bad_input_raises_memory_errors(call, match: str) -> None:
 
 @pytest.mark.parametrize(
     ("kwargs", "match"),
-    [({"size": 2}, "size"), ({"seed": -3}, "seed"), ({"key_method": "linear"}, "key_method"), ({"bank_size": 0}, "bank_size")],
+    [
+        ({"size": 2}, "size"),
+        ({"seed": -3}, "seed"),
+        ({"key_method": "linear"}, "key_method"),
+        ({"bank_size": 0}, "bank_size"),
+        ({"max_shift": -1}, "max_shift"),
+        ({"max_shift": (1, 2, 3)}, "max_shift"),
+    ],
 )
 def test_bad_configuration(kwargs: dict, match: str) -> None:
     with pytest.raises(AssociativeMemoryError, match=match):
