@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import logging
-from typing import ClassVar
+import time
+from typing import Any, ClassVar
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
@@ -15,13 +16,20 @@ log = logging.getLogger(__name__)
 
 class Camera(KnowledgeSource):
     """Reads the scenario's camera images, or simulates them along the route, and posts each on
-    ``sensor_frame``. The true pose, when known, goes to the separate ``truth`` level, which no
+    ``sensor_frame``, all at once or paced at ``rate_hz``. The true pose, when known, goes to the separate ``truth`` level, which no
     agent consumes: it is there for evaluation only.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP,)
     produces: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
     exclusive: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
+
+    def __init__(self, name: str, *, rate_hz: float | None = None, **options: Any) -> None:
+        """``rate_hz``: post frames at this rate, as a camera would (default: all at once)."""
+        super().__init__(name, **options)
+        if rate_hz is not None and not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.rate_hz = rate_hz
 
     def precondition(self, event: Event) -> float | None:
         return 1.0 if event.kind is EventKind.POSTED else None
@@ -32,7 +40,12 @@ class Camera(KnowledgeSource):
 
         scenario = load_scenario(event.hypothesis.body["path"])
         frames = sensor_frames(scenario)
+        start = time.perf_counter()
         for f in frames:
+            if self.rate_hz is not None:
+                delay = start + f.index / self.rate_hz - time.perf_counter()
+                if delay > 0:
+                    time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
             fid = levels.frame_id(f.index)
             board.post(levels.SENSOR_FRAME, {"frame": f.index, "image": f.image, "source": f.source},
                        id=fid, links=(event.hypothesis.id,))

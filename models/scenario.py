@@ -165,6 +165,7 @@ class SimulateSpec(_Spec):
     """Simulated camera frames near the route points (see the end-to-end issue)."""
 
     per_point: int = Field(default=1, ge=1)
+    stride: int = Field(default=1, ge=1)  # frames at every stride-th route point only
     jitter_m: float = Field(default=1.5, ge=0)
     jitter_deg: float = Field(default=3.0, ge=0)
     advance: float = Field(default=0.15, ge=0, lt=1)

@@ -160,7 +160,7 @@ def simulate_frames(
 ) -> list[SensorFrame]:
     """Simulated camera frames along the route.
 
-    For each route point ``i`` (pose ``poses[i]``), ``spec.per_point`` frames are taken at a
+    For every ``spec.stride``-th route point ``i`` (pose ``poses[i]``), ``spec.per_point`` frames are taken at a
     position advanced by a uniform fraction in ``[0, spec.advance)`` of the leg towards point
     ``i + 1`` (the last point advances along its heading by the previous leg's length), displaced
     by Gaussian jitter of ``spec.jitter_m`` metres per axis, with the heading off by Gaussian
@@ -176,6 +176,8 @@ def simulate_frames(
     frames = []
     n = len(poses)
     for i, pose in enumerate(poses):
+        if i % spec.stride:
+            continue
         if i + 1 < n:
             leg = np.array([poses[i + 1].x - pose.x, poses[i + 1].y - pose.y])
         else:

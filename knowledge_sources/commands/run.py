@@ -21,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strategy", choices=["associative", "prior"], default=None,
                         help="scheduler strategy (default: the scenario's, normally associative)")
     parser.add_argument("--processes", action="store_true", help="run each agent in its own OS process")
+    parser.add_argument("--rate", type=float, default=None, metavar="HZ",
+                        help="the camera posts frames at this rate, as a real one would (default: all at once)")
     parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                         help="give up (with an error naming the busy agents) after this long")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -75,7 +77,7 @@ def main(args: argparse.Namespace) -> int:
 
         results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
                               zenoh=zenoh_options_from_args(args), trace_path=args.trace,
-                              timeout_s=args.timeout, progress=progress)
+                              timeout_s=args.timeout, progress=progress, frame_rate=args.rate)
     Console().print(render_summary(results))
     if args.out is not None:
         write_results(args.out, results)

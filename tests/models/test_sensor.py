@@ -128,6 +128,17 @@ def test_simulated_frames_near_route_points_and_reproducible(tmp_path):
     assert 1.0 < diff < 60.0
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("stride, per_point, points", [(1, 1, [0, 1, 2]), (2, 1, [0, 2]), (2, 3, [0, 0, 0, 2, 2, 2])])
+def test_simulate_stride_and_per_point(tmp_path, stride, per_point, points):
+    scenario = _scenario(tmp_path, {"simulate": {"stride": stride, "per_point": per_point, "jitter_m": 0.0,
+                                                 "advance": 0.0}})
+    frames = sensor_frames(scenario)
+    assert [f.index for f in frames] == list(range(len(points)))
+    nearest = [min(range(3), key=lambda i: math.dist(f.truth[:2], scenario.route[i])) for f in frames]
+    assert nearest == points
+
+
 def test_sensor_frames_from_files_with_truth(tmp_path):
     (tmp_path / "frames").mkdir()
     for i in range(2):
