@@ -1,0 +1,146 @@
+"""``mapinterp table SCENARIO``: the error-variance table of camera images against viewframes.
+
+Renders the scenario's viewframes, preprocesses and stores them in the holographic memory
+(parameters from the scenario's ``memory`` block), and for every camera frame (the files of
+``sensor.frames``, resized to the camera size, or the simulated frames of ``sensor.simulate``)
+prints one row: the error variance of the recall against every stored viewframe (see
+:mod:`models.associative`), the row's minimum marked ``*``. When a frame has a true pose, its
+*truth viewframe* is the route point nearest to it, and the row says whether the minimum falls
+on it. ``--json`` prints the same as one JSON document.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from blackboard.errors import ScenarioError
+
+__all__ = ["HELP", "TableRow", "add_arguments", "error_variance_table", "format_table", "main"]
+
+log = logging.getLogger(__name__)
+
+HELP = "print the error-variance table of camera images against stored viewframes"
+
+
+@dataclass(frozen=True)
+class TableRow:
+    """One camera frame: ``variances`` (V,) in viewframe order, ``best`` the index of the
+    minimum, ``truth`` the nearest route point to the true pose (None if unknown)."""
+
+    frame: int
+    source: str
+    variances: list[float]
+    best: int
+    reliability: float
+    truth: int | None
+
+    @property
+    def correct(self) -> bool | None:
+        """Whether the minimum falls on the truth viewframe (None without a true pose)."""
+        return None if self.truth is None else self.best == self.truth
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "frame": self.frame,
+            "source": self.source,
+            "variances": self.variances,
+            "best": self.best,
+            "reliability": self.reliability,
+            "truth_viewframe": self.truth,
+            "correct": self.correct,
+        }
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scenario", type=Path, help="scenario YAML file with a sensor block")
+    parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+
+def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
+    """Render, store and rank: ``(viewframes, rows)`` for a loaded scenario with sensor frames.
+
+    Raises :class:`~blackboard.errors.ScenarioError` when the scenario has no ``sensor`` block.
+    """
+    from models.associative import BankedMemory
+    from models.camera import CameraEmulator
+    from models.environment import build_environment
+    from models.preprocess import preprocess
+    from models.sensor import sensor_frames
+    from models.viewframes import build_viewframes, route_poses
+
+    if scenario.sensor is None:
+        raise ScenarioError(scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate")
+    spec = scenario.memory
+    with CameraEmulator(build_environment(scenario), scenario.camera) as emulator:
+        viewframes = build_viewframes(scenario, emulator=emulator)
+        poses = route_poses(scenario, emulator.environment.terrain)
+        frames = sensor_frames(scenario, emulator=emulator, poses=poses)
+
+    def pattern(image: np.ndarray) -> np.ndarray:
+        return preprocess(image, size=spec.size, edge=spec.edge, blur_sigma=spec.blur_sigma)
+
+    memory = BankedMemory(spec.size, bank_size=spec.bank_size, seed=scenario.seed, key_method=spec.key)
+    memory.write_many([pattern(vf.image) for vf in viewframes], [vf.index for vf in viewframes])
+    rows = []
+    for frame in frames:
+        ranking = memory.rank(pattern(frame.image))
+        by_label = dict(zip(ranking.labels.tolist(), ranking.variances.tolist()))
+        variances = [by_label[vf.index] for vf in viewframes]
+        truth = None
+        if frame.truth is not None:
+            x, y = frame.truth[0], frame.truth[1]
+            truth = min(range(len(poses)), key=lambda i: math.hypot(poses[i].x - x, poses[i].y - y))
+        rows.append(TableRow(frame.index, frame.source, variances, int(ranking.labels[0]), ranking.reliability, truth))
+    return viewframes, rows
+
+
+def format_table(scenario_name: str, viewframe_indices: list[int], rows: list[TableRow], *, size: int) -> str:
+    """Plain-text table; cells are error variances x N^2 (so 0 = perfect, 2 = unrelated)."""
+    scale = float(size * size)
+    head = f"{'frame':<22}" + "".join(f"{'V' + str(v):>10}" for v in viewframe_indices) + f"{'rel':>7}  truth"
+    lines = [
+        f"error variance x {size}^2 of the recall against each stored viewframe ({scenario_name}); * row minimum",
+        head,
+        "-" * len(head),
+    ]
+    for r in rows:
+        name = Path(r.source).name if r.source != "simulated" else f"simulated {r.frame}"
+        cells = "".join(
+            f"{v * scale:>9.4f}{'*' if j == r.best else ' '}" for j, v in zip(viewframe_indices, r.variances)
+        )
+        verdict = "-" if r.truth is None else f"V{r.truth} {'ok' if r.correct else 'WRONG'}"
+        lines.append(f"{name[:21]:<22}{cells}{r.reliability:>7.2f}  {verdict}")
+    judged = [r for r in rows if r.truth is not None]
+    if judged:
+        ok = sum(bool(r.correct) for r in judged)
+        lines.append(f"{ok}/{len(judged)} rows have their minimum on the truth viewframe")
+    return "\n".join(lines)
+
+
+def main(args: argparse.Namespace) -> int:
+    from models.scenario import load_scenario
+
+    scenario = load_scenario(args.scenario)
+    viewframes, rows = error_variance_table(scenario)
+    indices = [vf.index for vf in viewframes]
+    if args.json:
+        doc = {
+            "scenario": scenario.name,
+            "memory": scenario.memory.model_dump(),
+            "viewframes": [
+                {"index": vf.index, "pose": [vf.pose.x, vf.pose.y, vf.pose.z, vf.pose.heading_deg]} for vf in viewframes
+            ],
+            "rows": [r.to_dict() for r in rows],
+        }
+        print(json.dumps(doc, indent=1))
+    else:
+        print(format_table(scenario.name, indices, rows, size=scenario.memory.size))
+    return 0
