@@ -310,8 +310,11 @@ class CameraEmulator:
         self._light.intensity = _DEFAULT_LIGHT_INTENSITY if light_intensity is None else float(light_intensity)
         self.scene.set_pose(self._light_node, _light_pose(light_direction or _DEFAULT_LIGHT_DIRECTION))
         try:
-            color, depth = self._renderer.render(self.scene)
-            seg, _ = self._renderer.render(
+            color, _ = self._renderer.render(self.scene)
+            # depth from the segmentation pass: it rasterises without multisampling, so depth is
+            # sampled at pixel centres (the colour pass' depth comes from MSAA sample 0, which
+            # sits 3/8 pixel off the centre)
+            seg, depth = self._renderer.render(
                 self.scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._seg_map
             )
         except Exception as exc:
@@ -327,10 +330,30 @@ class CameraEmulator:
         )
 
     def close(self) -> None:
-        """Release the GL context (idempotent)."""
-        if self._renderer is not None:
-            self._renderer.delete()
-            self._renderer = None
+        """Release the GL context (idempotent).
+
+        pyrender's own ``OffscreenRenderer.delete`` calls ``eglTerminate`` on the process-wide
+        EGL display, which kills every other renderer still open in the process; on EGL only
+        this renderer's context is destroyed here.
+        """
+        r, self._renderer = self._renderer, None
+        if r is None:
+            return
+        platform = r._platform
+        context = getattr(platform, "_egl_context", None)
+        if context is None:
+            r.delete()
+            return
+        from OpenGL.EGL import eglDestroyContext
+
+        try:
+            platform.make_current()
+            r._renderer.delete()
+            platform.make_uncurrent()
+            eglDestroyContext(platform._egl_display, context)
+            platform._egl_context = None
+        except Exception as exc:  # noqa: BLE001 - best effort at teardown
+            log.warning("closing the offscreen renderer: %s", exc)
 
     def __enter__(self) -> CameraEmulator:
         return self

@@ -1,0 +1,130 @@
+"""Camera emulator: the pinhole geometry contract on real pyrender (EGL) renders."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from models.camera import CameraEmulator, Pose
+from models.environment import EnvironmentModel
+from models.landmarks import place_landmarks
+from models.scenario import CameraSpec, LandmarkSpec
+from models.terrain import Terrain
+
+CAMERA = CameraSpec(width=160, height=120, fov_y_deg=45.0, eye_height=2.0, near=1.0, far=3000.0)
+F = 60.0 / math.tan(math.radians(22.5))  # fy = (H / 2) / tan(fov_y / 2) = 144.85 px
+
+
+@pytest.fixture(scope="module")
+def flat():
+    """Flat ground at z = 0 (1 km square) with one box 100 m east of (100, 500)."""
+    terrain = Terrain(heights=np.zeros((101, 101)), cell_size=10.0)
+    lms = place_landmarks(terrain, [LandmarkSpec(id="A", kind="house", x=200, y=500, width=10, depth=20, height=10)])
+    with CameraEmulator(EnvironmentModel(terrain, lms), CAMERA) as cam:
+        yield cam
+
+
+def test_intrinsics_are_the_documented_pinhole(flat):
+    fx, fy, cx, cy = flat.intrinsics
+    assert fx == pytest.approx(F) and fy == pytest.approx(F)
+    assert (cx, cy) == (79.5, 59.5)
+
+
+def test_pose_at_stands_on_the_ground(flat):
+    p = flat.pose_at(123.0, 456.0, 30.0)
+    assert p == Pose(123.0, 456.0, 2.0, 30.0, 0.0)
+    assert flat.pose_at(1.0, 2.0, 0.0, pitch_deg=-5.0).pitch_deg == -5.0
+
+
+def test_box_projects_to_the_hand_computed_rectangle(flat):
+    pose = Pose(100.0, 500.0, 2.0, 0.0)  # looking east along +x
+    view = flat.render(pose)
+    assert view.image.shape == (120, 160, 3) and view.image.dtype == np.uint8
+    assert view.mask.dtype == np.int32 and view.depth.dtype == np.float32
+    rows, cols = np.nonzero(view.mask == 0)
+    # front face at x = 195 (95 m ahead): y 490..510 -> col 79.5 -/+ F * 10 / 95; z 0..10 -> row 59.5 + F * (2 - z) / 95
+    col0, col1 = 79.5 - F * 10 / 95, 79.5 + F * 10 / 95
+    row0, row1 = 59.5 - F * 8 / 95, 59.5 + F * 2 / 95
+    assert (rows.min(), rows.max()) == (math.ceil(row0), math.floor(row1))
+    assert abs(cols.min() - math.ceil(col0)) <= 1 and abs(cols.max() - math.floor(col1)) <= 1
+    # the same rectangle from the emulator's own projection of the box corners
+    lm = flat.environment.landmarks[0]
+    rc = flat.project(lm.box_vertices(), pose)
+    assert rc[:, 0].min() == pytest.approx(row0) and rc[:, 0].max() == pytest.approx(row1)
+    assert rc[:, 1].min() == pytest.approx(col0) and rc[:, 1].max() == pytest.approx(col1)
+    # depth is metres along the view axis: 95 on the face, 0 in the sky
+    assert view.depth[55, 80] == pytest.approx(95.0, abs=0.05)
+    assert view.depth[0, 0] == 0.0 and (view.mask[:40] == -1).all()
+    # flat ground below the horizon: depth = eye height * F / (row - cy), whatever the column
+    for row in (64, 70, 100, 119):
+        np.testing.assert_allclose(view.depth[row, [3, 150]], 2.0 * F / (row - 59.5), rtol=2e-3)
+
+
+@pytest.mark.parametrize(("heading", "visible"), [(0.0, True), (90.0, False), (180.0, False), (-20.0, True),
+                                                  (40.0, False), (20.0, True)])
+def test_heading_is_counterclockwise_from_east(flat, heading, visible):
+    view = flat.render(Pose(100.0, 500.0, 2.0, heading))
+    assert (view.mask == 0).any() == visible
+    if heading == -20.0:  # turned right (clockwise): the box moves to the left half
+        assert np.nonzero(view.mask == 0)[1].mean() < 79.5
+
+
+def test_box_north_of_camera_seen_when_heading_90(flat):
+    view = flat.render(Pose(200.0, 300.0, 2.0, 90.0))
+    cols = np.nonzero(view.mask == 0)[1]
+    assert abs(cols.mean() - 79.5) < 2  # straight ahead
+
+
+def test_pitch_up_moves_the_scene_down(flat):
+    level = flat.render(Pose(100.0, 500.0, 2.0, 0.0))
+    up = flat.render(Pose(100.0, 500.0, 2.0, 0.0, pitch_deg=5.0))
+    r_level = np.nonzero(level.mask == 0)[0].mean()
+    r_up = np.nonzero(up.mask == 0)[0].mean()
+    assert r_up - r_level == pytest.approx(F * math.tan(math.radians(5.0)), abs=1.5)
+
+
+def test_project_gives_nan_behind_the_camera(flat):
+    pose = Pose(100.0, 500.0, 2.0, 0.0)
+    rc = flat.project(np.array([[200.0, 500.0, 2.0], [50.0, 500.0, 2.0]]), pose)
+    np.testing.assert_allclose(rc[0], [59.5, 79.5])
+    assert np.isnan(rc[1]).all()
+
+
+def test_views_are_reproducible_and_lighting_changes_only_the_image(flat):
+    pose = Pose(100.0, 500.0, 2.0, 5.0)
+    a = flat.render(pose)
+    flat.render(Pose(300.0, 300.0, 2.0, 120.0))  # something else in between
+    b = flat.render(pose)
+    np.testing.assert_array_equal(a.image, b.image)
+    np.testing.assert_array_equal(a.mask, b.mask)
+    dim = flat.render(pose, light_intensity=0.1, light_direction=(0.0, 0.0, -1.0))
+    np.testing.assert_array_equal(dim.mask, a.mask)
+    np.testing.assert_allclose(dim.depth, a.depth)
+    ground = a.mask == -1
+    ground &= a.depth > 0
+    assert dim.image[ground].mean() < a.image[ground].mean() - 10
+    c = flat.render(pose)
+    np.testing.assert_array_equal(c.image, a.image)  # defaults restored
+
+
+def test_closed_emulator_refuses_to_render():
+    from blackboard.errors import RenderError
+
+    terrain = Terrain(heights=np.zeros((3, 3)), cell_size=10.0)
+    cam = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
+    cam.close()
+    cam.close()
+    with pytest.raises(RenderError, match="closed"):
+        cam.render(Pose(5.0, 5.0, 2.0, 0.0))
+
+
+def test_camera_never_under_the_drawn_ground():
+    """Rough terrain: the camera stands on the bilinear F, the mesh must stay below it."""
+    rng = np.random.default_rng(3)
+    terrain = Terrain(heights=rng.uniform(0, 40, (33, 33)), cell_size=20.0)
+    with CameraEmulator(EnvironmentModel(terrain, [], tile_cells=16), CAMERA) as cam:
+        for x, y, h in rng.uniform([50, 50, 0], [590, 590, 360], (6, 3)):
+            view = cam.render(cam.pose_at(x, y, h, pitch_deg=-60.0))  # look down at the feet
+            assert (view.depth > 0).all()  # ground everywhere, never sky seen through it
