@@ -18,24 +18,49 @@ so with c_h = <R^, P_h> (a cosine)::
 
     v_h = var(R^ - P_h) = (2 - 2 c_h) / N**2
 
-Ranking every prototype is thus one (H, N*N) @ (N*N,) float32 matrix-vector product; it is
-done on the prototypes' half spectra (Parseval, :attr:`HolographicMemory.ranking_matrix`), so a
-ranking needs one complex multiply per bank and no inverse FFT at all, and v_h is a bounded statistic (0 .. 4/N**2) that means the same
-in every bank, so rankings of several banks merge by sorting (:func:`merge_rankings`). Within
-one bank the order is that of the un-normalised error variance var(R - P_h).
+v_h is bounded (0 .. 4/N**2) and means the same in every bank, so rankings of several banks
+merge by sorting (:func:`merge_rankings`). Within one bank the order is that of the
+un-normalised error variance var(R - P_h).
+
+**Ranking without a recall image.** By Parseval, with w the weights of the half spectrum and
+FK the query key's spectrum::
+
+    <R, P_h> = sum_k w(k) conj(FP_h(k)) conj(FK(k)) FM(k) = Re < w FP_h conj(FM) , conj(FK) >
+
+so each bank precomputes one row per prototype, ``w FP_h conj(FM)``
+(:attr:`HolographicMemory.ranking_matrix`, float32, as many bytes as the prototypes), and a
+ranking is ONE float32 matrix product of that (H, D) matrix with the query vector
+``conj(FK)``, for all banks at once; ``||R||`` per bank is a dot product with the precomputed
+power ``w |FM|**2``. The recall R is never formed (:meth:`HolographicMemory.recall` still
+gives it, and the tests check the identity against the direct sums).
+
+**Shifts.** The key is shift-equivariant (:mod:`models.keys`): a camera turned by a degree
+recalls its viewframe shifted by a few pixels, which the zero-lag error variance punishes.
+With ``max_shift = (rows, cols)`` the recall is compared with each prototype at every circular
+shift up to that size and v_h is the smallest error variance (``max_shift = 0``: the plain
+formula). A shift is a phase ramp, so the L searched shifts make the query vector an (D, L)
+matrix: the ranking reads the prototype matrix once, with L times the arithmetic. Default
+(1, 2): 15 shifts; on the Table A scenario it is what puts every minimum on the diagonal.
 
 **Reliability** of a ranking: how many robust standard deviations the best stands below the
 others, ``(median(rest) - best) / (1.4826 * MAD(rest))`` with ``rest`` all variances but the
 best (the spread is floored at 1e-3 of the median, so two equal-looking candidates do not give
 infinity). It is scale-free, hence comparable across runs, sizes and bank layouts; about 0..3
-means "no clear winner", above ~5 a clear one. A ranking of fewer than two entries has
-reliability 0.
+means "no clear winner", above ~5 a clear one (with only 3-4 candidates the MAD is unstable and
+the number large). A ranking of fewer than two entries has reliability 0.
 
-**Capacity.** The crosstalk grows with the number H of stored patterns; the margin of the true
-prototype shrinks roughly as sqrt(N_eff / H). :class:`BankedMemory` splits the viewframes
-over banks of ``bank_size`` (default from ``bench/index.py``, see
-``/work/notes/bench_index.md``); each bank is a :class:`HolographicMemory` whose
-:meth:`~HolographicMemory.state` is plain arrays, so banks can live in other processes.
+**Capacity.** Every stored pattern adds crosstalk of the same energy as the signal; the
+margin of the true prototype shrinks as sqrt(N_eff / H), N_eff the number of effectively
+independent pixels (652 at N = 128, blur 2, with the whitening of
+:mod:`models.preprocess`). Measured (``bench/index.py``, ``/work/notes/bench_index.md``): one
+bank holds only about 8-16 perturbed viewframes at N = 128 before top-1 drops, far fewer than
+"some hundreds". :class:`BankedMemory` therefore splits the viewframes over banks of
+``bank_size`` (default :data:`DEFAULT_BANK_SIZE` = 8); as the ranking cost does not depend on
+the bank size (above), small banks cost nothing but memory. With a bank size of 1 the memory
+reduces (up to the key normalisation) to the cross-correlation of the whitened patterns (the NCC
+baseline): banking trades the holographic superposition away for accuracy. Each bank is a
+:class:`HolographicMemory` whose :meth:`~HolographicMemory.state` is plain arrays, so banks can
+live in other processes and their rankings merge with :func:`merge_rankings`.
 """
 
 from __future__ import annotations

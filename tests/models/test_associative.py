@@ -242,3 +242,19 @@ def test_bad_input_raises_memory_errors(call, match: str) -> None:
 def test_bad_configuration(kwargs: dict, match: str) -> None:
     with pytest.raises(AssociativeMemoryError, match=match):
         BankedMemory(**kwargs)
+
+
+def test_banks_of_one_reduce_to_ncc_of_whitened_patterns() -> None:
+    # <R, P_h> = sum w |FP_h|^2 exp(i (phi_h - phi_Q)): with whitened patterns (flat envelope),
+    # one pattern per bank is the NCC of the patterns (module docstring, "Capacity")
+    rng = np.random.default_rng(9)
+    images = [_scene(rng) for _ in range(6)]
+    pats = [preprocess(im, size=64) for im in images]
+    mem = BankedMemory(64, bank_size=1, max_shift=0)
+    mem.write_many(pats, range(6))
+    for im in images:
+        q = preprocess(_perturb(im, rng, shift=2.0, noise=6.0, gain=0.8), size=64)
+        ncc = np.array([float(np.sum(q * p)) for p in pats])
+        r = mem.rank(q)
+        assert r.labels.tolist() == np.argsort(-ncc, kind="stable").tolist()
+        assert np.allclose(np.sort(1 - r.variances * 64 * 64 / 2), np.sort(ncc), atol=0.02)
