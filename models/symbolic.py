@@ -17,7 +17,8 @@ Each ordered pair of visible landmarks (a, b) gets an edge when some relation ho
 ``relations`` attribute is the sorted list of those that do, read as "a REL b":
 
 - ``left_of`` / ``right_of``: a's centroid column is left/right of b's by more than 2 px;
-- ``in_front_of`` / ``behind``: their column spans overlap and a is nearer/farther by more
+- ``in_front_of`` / ``behind``: their column spans overlap or touch (an occluder ends where
+  the occluded part begins) and a is nearer/farther by more
   than 5 % of the range;
 - ``above``: a's lowest visible row is above b's highest visible row;
 - ``near``: their footprint centres are less than ``near_m`` (default 60 m) apart.
@@ -199,7 +200,7 @@ def describe(
                 rels.append("left_of")
             if na["centroid"][1] > nb["centroid"][1] + 2:
                 rels.append("right_of")
-            overlap = na["bbox"][1] <= nb["bbox"][3] and nb["bbox"][1] <= na["bbox"][3]
+            overlap = na["bbox"][1] <= nb["bbox"][3] + 1 and nb["bbox"][1] <= na["bbox"][3] + 1
             margin = 0.05 * max(na["range_m"], nb["range_m"])
             if overlap and na["range_m"] + margin < nb["range_m"]:
                 rels.append("in_front_of")
