@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
 import yaml
@@ -16,29 +15,6 @@ from models.scenario import load_scenario
 
 pytestmark = pytest.mark.slow
 
-SMALL = {
-    "name": "small",
-    "seed": 3,
-    "terrain": {"cell_size": 10.0, "procedural": {"size": 96, "relief": 80.0, "seed": 5}},
-    "landmarks": [
-        {"id": "H1", "kind": "house", "x": 300, "y": 330, "width": 18, "depth": 12, "height": 8, "yaw_deg": 10},
-        {"id": "T1", "kind": "tower", "x": 420, "y": 420, "width": 4, "depth": 4, "height": 30},
-        {"id": "H2", "kind": "house", "x": 520, "y": 470, "width": 18, "depth": 12, "height": 8, "yaw_deg": 60},
-    ],
-    "route": [[220, 260], [260, 290], [300, 300], [340, 320], [380, 350], [420, 370], [460, 400], [500, 420]],
-    "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
-    "sensor": {"simulate": {"per_point": 1, "jitter_m": 0.5, "jitter_deg": 1.0, "advance": 0.05}},
-    "scheduler": {"query_timeout_s": 3.0},
-}
-
-
-@pytest.fixture
-def small(tmp_path) -> Path:
-    path = tmp_path / "small.yaml"
-    path.write_text(yaml.safe_dump(SMALL))
-    return path
-
-
 CONTRACT = {
     "frame": int, "viewframe": (int, type(None)), "position": (list, type(None)), "heading_deg": (float, type(None)),
     "confidence": float, "queries": int, "backtracks": int, "latency_ms": (float, type(None)),
@@ -46,7 +22,8 @@ CONTRACT = {
 }
 
 
-def test_results_follow_the_contract_and_round_trip(small, tmp_path):
+def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path):
+    SMALL = small_data
     results = run_mission(small, trace_path=tmp_path / "run.trace")
     assert results["scenario"] == "small" and results["strategy"] == "associative"
     assert len(results["frames"]) == len(SMALL["route"])
@@ -88,7 +65,8 @@ def test_associative_asks_fewer_questions_than_prior(small):
     assert a["summary"]["mean_queries"] < p["summary"]["mean_queries"]
 
 
-def test_killed_detector_gives_degraded_result_and_complete_trace(small, tmp_path):
+def test_killed_detector_gives_degraded_result_and_complete_trace(small, small_data, tmp_path):
+    SMALL = small_data
     trace = tmp_path / "killed.trace"
     results = run_mission(small, processes=True, trace_path=trace, kill_after=("detector-house", "sensor_frame", 1),
                           timeout_s=120)
@@ -110,9 +88,9 @@ def test_killed_detector_gives_degraded_result_and_complete_trace(small, tmp_pat
     "change, field",
     [({"sensor": None}, "sensor")],
 )
-def test_mission_without_camera_frames_is_refused(tmp_path, change, field):
+def test_mission_without_camera_frames_is_refused(tmp_path, small_data, change, field):
     path = tmp_path / "nosensor.yaml"
-    data = {**SMALL, **change}
+    data = {**small_data, **change}
     data = {k: v for k, v in data.items() if v is not None}
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(ScenarioError, match=field) as err:

@@ -1,0 +1,39 @@
+"""Fixtures of the knowledge_sources tests: a small scenario that runs end to end in seconds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+SMALL = {
+    "name": "small",
+    "seed": 3,
+    "terrain": {"cell_size": 10.0, "procedural": {"size": 96, "relief": 80.0, "seed": 5}},
+    "landmarks": [
+        {"id": "H1", "kind": "house", "x": 300, "y": 330, "width": 18, "depth": 12, "height": 8, "yaw_deg": 10},
+        {"id": "T1", "kind": "tower", "x": 420, "y": 420, "width": 4, "depth": 4, "height": 30},
+        {"id": "H2", "kind": "house", "x": 520, "y": 470, "width": 18, "depth": 12, "height": 8, "yaw_deg": 60},
+    ],
+    "route": [[220, 260], [260, 290], [300, 300], [340, 320], [380, 350], [420, 370], [460, 400], [500, 420]],
+    "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+    "sensor": {"simulate": {"per_point": 1, "jitter_m": 0.5, "jitter_deg": 1.0, "advance": 0.05}},
+    "scheduler": {"query_timeout_s": 3.0},
+}
+
+
+@pytest.fixture
+def small_data() -> dict:
+    """A deep copy of SMALL, to change freely."""
+    return yaml.safe_load(yaml.safe_dump(SMALL))
+
+
+@pytest.fixture
+def small(tmp_path) -> Path:
+    """The SMALL scenario written to a YAML file."""
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(SMALL))
+    return path
+
+
