@@ -200,6 +200,10 @@ class AgentRunner:
         except CodecError as err:  # the node rejects (and traces) the same message
             logger.warning("agent %s: ignored a malformed message: %s", self.name, err)
             return
+        sender, n = message.get("sender"), message.get("n")
+        if isinstance(n, int) and isinstance(sender, str) and self.board is not None:
+            if n > self.board.seen_from.get(sender, 0):
+                self.board.seen_from[sender] = n
         kind = _OPS[message["op"]]
         if kind is EventKind.RETRACTED:
             self._retracted.add(hyp.id)

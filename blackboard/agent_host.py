@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -38,6 +39,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"error: {err}", flush=True)
         return 2
     print("ready", flush=True)
+    os.dup2(2, 1)  # the agent's own prints go to stderr: nobody reads the pipe any more
     try:
         sys.stdin.buffer.read()  # the watchdog: returns at EOF (parent closed the pipe or died)
     finally:

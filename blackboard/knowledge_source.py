@@ -130,6 +130,9 @@ class Board:
         self._max = max_message_bytes
         self._lock = threading.Lock()
         self.sent = 0  # one-hop posts published so far (quiescence accounting)
+        #: sender -> highest post number seen from it; the node answers this agent's requests only
+        #: after it has received those posts too (so an update of a post just seen never misses it)
+        self.seen_from: dict[str, int] = {}
 
     def _check_level(self, level: str) -> None:
         validate_name(level, "level")
@@ -205,7 +208,8 @@ class Board:
     # -- transport ---------------------------------------------------------------------------------
 
     def _read(self, key: str) -> list[Hypothesis]:
-        selector = f"{key}?agent={self.agent};sent={self.sent}"
+        after = ",".join(f"{name}:{n}" for name, n in self.seen_from.items())
+        selector = f"{key}?agent={self.agent};sent={self.sent}" + (f";after={after}" if after else "")
         out = []
         for reply in self._get(selector, None):
             record = decode(reply, max_bytes=self._max, key=key)
@@ -214,7 +218,7 @@ class Board:
         return out
 
     def _request(self, request: dict) -> dict:
-        request = {**request, "agent": self.agent, "sent": self.sent}
+        request = {**request, "agent": self.agent, "sent": self.sent, "after": dict(self.seen_from)}
         replies = self._get(self._keys.request, encode(request, max_bytes=self._max))
         if not replies:
             raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")

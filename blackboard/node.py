@@ -73,10 +73,20 @@ class _Pending:
 
 @dataclass
 class _Deferred:
-    agent: str
-    sent: int
+    """A request waiting until the node has received the posts its sender had sent or seen."""
+
+    after: dict[str, int]
     handler: Any
     args: tuple = field(default_factory=tuple)
+
+
+def _after(agent: str, sent: int, seen: Any) -> dict[str, int]:
+    after = {agent: sent}
+    if isinstance(seen, dict):
+        for name, n in seen.items():
+            if isinstance(name, str) and isinstance(n, int):
+                after[name] = max(n, after.get(name, 0))
+    return after
 
 
 class BlackboardNode:
@@ -379,7 +389,8 @@ class BlackboardNode:
         if op == "join":
             self._reply(query, self._join(agent, request))
         elif op in ("update", "retract"):
-            self._deferred.append(_Deferred(agent, sent, self._change, (query, op, agent, request)))
+            self._deferred.append(_Deferred(_after(agent, sent, request.get("after")), self._change,
+                                            (query, op, agent, request)))
             self._run_deferred()
         else:
             self._reply(query, {"ok": False, "error": "malformed", "message": f"unknown op {op!r}"})
@@ -421,10 +432,12 @@ class BlackboardNode:
     def _run_deferred(self) -> None:
         if not self._deferred:
             return
-        ready = [d for d in self._deferred if self._received[d.agent] >= d.sent]
+        ready, waiting = [], []
+        for d in self._deferred:
+            (ready if all(self._received[a] >= n for a, n in d.after.items()) else waiting).append(d)
         if not ready:
             return
-        self._deferred = [d for d in self._deferred if self._received[d.agent] < d.sent]
+        self._deferred = waiting
         for item in ready:
             item.handler(*item.args)
 
@@ -478,9 +491,11 @@ class BlackboardNode:
         agent = params.get("agent") or ""
         try:
             sent = int(params.get("sent") or 0)
+            seen = dict((name, int(n)) for name, _, n in
+                        (item.rpartition(":") for item in (params.get("after") or "").split(",") if item))
         except ValueError:
-            sent = 0
-        self._deferred.append(_Deferred(agent, sent, self._answer_read, (query,)))
+            sent, seen = 0, {}
+        self._deferred.append(_Deferred(_after(agent, sent, seen), self._answer_read, (query,)))
         self._run_deferred()
 
     def _answer_read(self, query: zenoh.Query) -> None:

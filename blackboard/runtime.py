@@ -172,6 +172,7 @@ class Runtime:
         assert proc.stdout is not None
         ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
         line = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
+        proc.stdout.close()  # after "ready" the child writes to stderr only
         if line != "ready":
             proc.kill()
             proc.wait()
@@ -259,8 +260,6 @@ class Runtime:
                 logger.warning("agent process %s did not stop; killing it", name)
                 proc.kill()
                 proc.wait()
-            if proc.stdout is not None:
-                proc.stdout.close()
         self._children.clear()
         if self._started:
             self.node.close()

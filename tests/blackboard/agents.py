@@ -9,7 +9,7 @@ from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
 __all__ = [
     "Doubler", "Echo", "Asker", "Silent", "Failing", "Updater", "Recorder", "Exclusive", "BadSetup",
-    "LateCounter", "Burster", "Tally", "Bumper", "Rogue", "Slow",
+    "LateCounter", "Burster", "Tally", "Bumper", "Rogue", "Slow", "Booster",
 ]
 
 
@@ -177,3 +177,14 @@ class Slow(KnowledgeSource):
 
     def act(self, event: Event, board: Board) -> None:
         time.sleep(float(self.options.get("delay_s", 1.0)))
+
+
+class Booster(KnowledgeSource):
+    """Updates every 'doubled' hypothesis posted by another agent as soon as it sees it."""
+
+    consumes = ("doubled",)
+    produces = ("doubled",)
+
+    def act(self, event: Event, board: Board) -> None:
+        if event.kind is EventKind.POSTED and event.hypothesis.source != self.name:
+            board.update(event.hypothesis.id, body={"boosted": True}, credibility=0.5)

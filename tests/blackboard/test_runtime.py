@@ -87,6 +87,19 @@ def test_concurrent_updates_never_lose_a_write(run_id: str, n: int) -> None:
     assert final.body == {"origin": True, **{f"u{k}-{i}": i for k in (1, 2, 3) for i in range(n)}}
 
 
+@pytest.mark.parametrize("mode", MODES)
+def test_update_of_a_post_just_seen_from_another_agent(run_id: str, mode: str) -> None:
+    with Runtime(run_id=run_id, mode=mode) as rt:
+        rt.add(f"{AGENTS}:Doubler", name="doubler")
+        rt.add(f"{AGENTS}:Booster", name="booster")
+        for x in range(20):
+            rt.post("number", {"x": x})
+        outcome = rt.run(timeout_s=20)
+        doubled = rt.hypotheses("doubled")
+    assert outcome.stats["update"] == 20 and len(doubled) == 20
+    assert all(h.version == 2 and h.credibility == 0.5 and h.body["boosted"] for h in doubled)
+
+
 def test_act_failures_are_traced_then_the_agent_dies(run_id: str, tmp_path: Path) -> None:
     with Runtime(run_id=run_id, trace_path=tmp_path / "t.trace") as rt:
         rt.add(f"{AGENTS}:Failing", name="failing")
