@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 from blackboard.agent import AgentRunner
 from blackboard.config import ZenohOptions
-from blackboard.errors import MapinterpError
+from blackboard.errors import AgentError, MapinterpError
 
 __all__ = ["main"]
 
@@ -36,7 +36,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                              max_message_bytes=int(spec["max_message_bytes"]))
         runner.start()
     except (MapinterpError, ValueError, KeyError, IndexError, TypeError) as err:
-        print(f"error: {err}", flush=True)
+        message = err.message if isinstance(err, AgentError) else str(err)  # the parent names the agent
+        print(f"error: {message}", flush=True)
         return 2
     print("ready", flush=True)
     os.dup2(2, 1)  # the agent's own prints go to stderr: nobody reads the pipe any more

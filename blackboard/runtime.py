@@ -174,11 +174,18 @@ class Runtime:
         line = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
         proc.stdout.close()  # after "ready" the child writes to stderr only
         if line != "ready":
+            if not ready:
+                reason = f"agent process did not start within {START_TIMEOUT_S} s"
+            elif line.startswith("error: "):
+                reason = line.removeprefix("error: ")
+            else:
+                reason = "agent process exited before joining (its stderr shows why)"
             proc.kill()
             proc.wait()
+            if proc.stdin is not None:
+                proc.stdin.close()
             del self._children[name]
-            raise AgentError(name, line.removeprefix("error: ") if line else
-                             f"agent process did not start within {START_TIMEOUT_S} s")
+            raise AgentError(name, reason)
 
     def source(self, name: str) -> KnowledgeSource:
         """The knowledge source object of an in-process agent (for tests and tools).

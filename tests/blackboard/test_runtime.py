@@ -7,10 +7,13 @@ from pathlib import Path
 
 import pytest
 
-from blackboard.errors import AgentError, BlackboardError, DeclarationError
+from blackboard.agent import AgentRunner
+from blackboard.config import loopback_endpoint
+from blackboard.errors import AgentError, BlackboardError, DeclarationError, TransportError
 from blackboard.knowledge_source import Event, EventKind
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
+from tests.blackboard.agents import Doubler
 
 AGENTS = "tests.blackboard.agents"
 MODES = ["inprocess", "processes"]
@@ -116,9 +119,21 @@ def test_act_failures_are_traced_then_the_agent_dies(run_id: str, tmp_path: Path
     assert [r["agent"] for r in records if r["kind"] == "agent_dead"] == ["failing"]
 
 
-def test_setup_failure_is_reported(run_id: str) -> None:
-    with Runtime(run_id=run_id) as rt, pytest.raises(AgentError, match="'bad'.*setup failed.*model file missing"):
-        rt.add(f"{AGENTS}:BadSetup", name="bad")
+@pytest.mark.parametrize("mode", MODES)
+def test_setup_failure_is_reported(run_id: str, mode: str) -> None:
+    with Runtime(run_id=run_id, mode=mode) as rt:
+        with pytest.raises(AgentError, match="^agent 'bad': setup failed: OSError: model file missing$"):
+            rt.add(f"{AGENTS}:BadSetup", name="bad")
+        rt.add(f"{AGENTS}:Doubler", name="doubler")  # the runtime carries on
+        rt.post("number", {"x": 1})
+        assert rt.run(timeout_s=10).agents["doubler"] == "ok"
+
+
+def test_agent_without_a_node_fails_at_once(run_id: str) -> None:
+    source = Doubler("doubler")
+    runner = AgentRunner(source, run_id=run_id, connect=[loopback_endpoint()])
+    with pytest.raises(TransportError, match="cannot open a zenoh session"):
+        runner.start()
 
 
 def test_second_exclusive_writer_is_refused(run_id: str) -> None:
