@@ -32,7 +32,7 @@ from blackboard.errors import ScenarioError
 from models.landmarks import Landmark, place_landmarks, raised_dem
 from models.terrain import Terrain, load_terrain
 
-__all__ = ["TileMesh", "TerrainTile", "EnvironmentModel", "build_environment", "terrain_colors", "KIND_COLORS"]
+__all__ = ["TileMesh", "TerrainTile", "EnvironmentModel", "build_environment", "outside_frustum", "terrain_colors", "KIND_COLORS"]
 
 log = logging.getLogger(__name__)
 
@@ -303,16 +303,7 @@ class EnvironmentModel:
         corners = np.stack(
             [np.stack([xs[:, i], ys[:, j], zs[:, k]], -1) for i in (0, 1) for j in (0, 1) for k in (0, 1)], 1
         )  # (n, 8, 3)
-        cam = (corners - eye) @ rotation.T  # (n, 8, 3) camera (right, up, forward)
-        tx, ty = tan_half_fov[0] * 1.05, tan_half_fov[1] * 1.05
-        xc, yc, zc = cam[..., 0], cam[..., 1], cam[..., 2]
-        outside = (
-            np.all(zc < 0, 1)
-            | np.all(xc > zc * tx, 1)
-            | np.all(-xc > zc * tx, 1)
-            | np.all(yc > zc * ty, 1)
-            | np.all(-yc > zc * ty, 1)
-        )
+        outside = outside_frustum(corners, eye, rotation, tan_half_fov=tan_half_fov)
         dx = np.maximum(np.maximum(b[:, 0] - eye[0], eye[0] - b[:, 1]), 0)
         dy = np.maximum(np.maximum(b[:, 2] - eye[1], eye[1] - b[:, 3]), 0)
         d = np.hypot(dx, dy)
@@ -321,6 +312,25 @@ class EnvironmentModel:
         level = np.clip(level, 0, self.n_levels - 1)
         level[outside | (d > far)] = -1
         return level
+
+
+def outside_frustum(
+    corners: np.ndarray, eye: np.ndarray, rotation: np.ndarray, *, tan_half_fov: tuple[float, float]
+) -> np.ndarray:
+    """True for each convex body, given by its corners (n, k, 3) world (x, y, z), that lies wholly
+    outside one plane of the view frustum (behind the camera or beyond a side); bool (n,).
+    Conservative: a body reported inside may still be out of view. ``rotation`` as in
+    :meth:`EnvironmentModel.tile_levels`; the side planes are widened by 5 %."""
+    cam = (np.asarray(corners, dtype=np.float64) - eye) @ rotation.T  # camera (right, up, forward)
+    tx, ty = tan_half_fov[0] * 1.05, tan_half_fov[1] * 1.05
+    xc, yc, zc = cam[..., 0], cam[..., 1], cam[..., 2]
+    return (
+        np.all(zc < 0, -1)
+        | np.all(xc > zc * tx, -1)
+        | np.all(-xc > zc * tx, -1)
+        | np.all(yc > zc * ty, -1)
+        | np.all(-yc > zc * ty, -1)
+    )
 
 
 def build_environment(scenario, *, terrain: Terrain | None = None, **lod) -> EnvironmentModel:
