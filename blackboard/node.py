@@ -1,7 +1,7 @@
 """The blackboard node: authoritative store, version authority, trace, liveness and quiescence.
 
-The node's zenoh session is a router that the agents' sessions connect to as clients. Its
-callbacks only enqueue; one worker thread does everything else, so the store needs no
+The node opens a zenoh router (listening on ``tcp/127.0.0.1``; agents connect to it as
+clients) and, as another client of it, its own session. Its callbacks only enqueue; one worker thread does everything else, so the store needs no
 locking beyond what readers from other threads use.
 
 Quiescence (global, across processes, no sleeping): the node counts every sample on each
@@ -111,7 +111,9 @@ class BlackboardNode:
         options = zenoh_options or ZenohOptions()
         self.endpoint = options.listen[0] if options.listen else loopback_endpoint()
         extra_listen = [] if options.listen else [self.endpoint]
-        self._config = zenoh_config(options, mode="router", listen=extra_listen)
+        self._router_config = zenoh_config(options, mode="router", listen=extra_listen)
+        self._config = zenoh_config(ZenohOptions(config_file=options.config_file), mode="client",
+                                    connect=[self.endpoint])
         self._max = max_message_bytes
         self._trace = TraceWriter(trace_path) if trace_path is not None else None
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
@@ -131,6 +133,7 @@ class BlackboardNode:
         self.stats: Counter[str] = Counter()
         self._listener: Callable[[Event], None] | None = None
         self._unreported: list[Event] = []  # events while nobody listened (bounded)
+        self._router: zenoh.Session | None = None
         self._session: zenoh.Session | None = None
         self._thread: threading.Thread | None = None
         self._entities: list[Any] = []
@@ -138,8 +141,17 @@ class BlackboardNode:
     # -- public (any thread) -----------------------------------------------------------------------
 
     def start(self) -> None:
-        """Open the router session, declare subscribers and queryables, start the worker."""
-        self._session = session = open_session(self._config)
+        """Open the router and the node's own (client) session, declare subscribers and
+        queryables, start the worker.
+
+        The router session runs no Python: it forwards posts from producers to consumers
+        without waiting for the interpreter lock the node's work holds."""
+        self._router = open_session(self._router_config)
+        try:
+            self._session = session = open_session(self._config)
+        except Exception:
+            self._router.close()
+            raise
         put = self._inbox.put
         self._entities = [
             session.declare_subscriber(self.keys.all_hypotheses, lambda s: put(("hyp", s)),
@@ -160,8 +172,9 @@ class BlackboardNode:
             self._inbox.put(("stop", None))
             self._thread.join(10.0)
             self._thread = None
-        if self._session is not None and not self._session.is_closed():
-            self._session.close()
+        for session in (self._session, self._router):
+            if session is not None and not session.is_closed():
+                session.close()
         self._entities.clear()
         self._trace_write(TraceKind.RUN_END, stats=dict(self.stats))
         if self._trace is not None:
