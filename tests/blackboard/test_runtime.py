@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from blackboard.agent import AgentRunner
-from blackboard.config import loopback_endpoint
+from blackboard.config import ZenohOptions, loopback_endpoint
 from blackboard.errors import AgentError, BlackboardError, DeclarationError, TransportError
 from blackboard.knowledge_source import Event, EventKind
 from blackboard.runtime import Runtime
@@ -228,3 +228,14 @@ def test_post_to_an_already_dead_agent_times_out(run_id: str) -> None:
 def test_runtime_needs_to_be_started(run_id: str) -> None:
     with pytest.raises(BlackboardError, match="context manager"):
         Runtime(run_id=run_id).add(f"{AGENTS}:Doubler", name="d")
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_user_zenoh_config_file(run_id: str, mode: str, tmp_path: Path) -> None:
+    config = tmp_path / "zenoh.json5"
+    config.write_text("{ scouting: { multicast: { enabled: false } }, transport: { unicast: { lowlatency: false } } }")
+    with Runtime(run_id=run_id, mode=mode, zenoh=ZenohOptions(config_file=config)) as rt:
+        rt.add(f"{AGENTS}:Doubler", name="doubler")
+        rt.post("number", {"x": 5})
+        rt.run(timeout_s=20)
+        assert [h.body["x"] for h in rt.hypotheses("doubled")] == [10]
