@@ -211,6 +211,8 @@ class Runtime:
 
     def post(self, level: str, body: dict, **kw: Any) -> Hypothesis:
         """Post an input as source ``"user"`` (keywords as :meth:`Board.post`)."""
+        if not self._started:
+            raise BlackboardError("Runtime.post() needs the runtime started (use it as a context manager)")
         hyp = Hypothesis.new(level, body, source="user", **kw)
         self.node.post_local(hyp)
         return hyp
