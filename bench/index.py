@@ -21,6 +21,8 @@ true one). For the memory also the bandwidth floor ``floor_ms`` (median time of 
 reports top-1 and recall quality (cosine of the recall with the true prototype); the default
 bank size (``models.associative.DEFAULT_BANK_SIZE``) comes from it.
 
+BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` unless set): the floor is single-threaded.
+
 Output: one JSON document on stdout (``--json-only`` for nothing else) and a table on stderr.
 """
 
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import logging
 import platform
 import statistics
@@ -36,6 +39,11 @@ import time
 from collections.abc import Callable
 
 from pathlib import Path
+
+# one BLAS thread: the bandwidth floor (numpy sum) is single-threaded too, and on a shared
+# 2-core machine a second BLAS thread waits for time slices (8 ms stalls); override with
+# OPENBLAS_NUM_THREADS=2 to measure the threaded case
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 # bench/ holds other scripts (e.g. bench/blackboard.py) whose names shadow the packages when
 # this file runs as a script: the repository root first, bench/ last
@@ -192,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         args.sizes, [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]), queries=nq,
         shift=args.shift, noise=args.noise, seed=args.seed + 1, max_shift=tuple(args.max_shift))
     doc = {
-        "machine": {"cpus": __import__("os").cpu_count(), "python": platform.python_version(),
+        "machine": {"cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "python": platform.python_version(),
                     "numpy": np.__version__, "opencv": cv2.__version__},
         "params": {"hs": hs, "sizes": args.sizes, "queries": nq, "shift_px": args.shift, "noise": args.noise,
                    "bank_size": args.bank_size, "max_shift": args.max_shift, "image": list(SHAPE), "seed": args.seed},
