@@ -18,7 +18,8 @@ segmentation pass (mask and depth) and the symbolic description. Reported per co
 ``vf_per_s`` (viewframes per second over the timed passes), ``ms_per_vf``, ``triangles`` (mean
 terrain triangles drawn per view), ``warmup_s`` (first pass, building meshes), and for ``lod``
 the fidelity against ``full``: ``depth_err_m`` (median over views of the median |depth
-difference| on ground pixels), ``mask_iou`` (landmark pixels, mean over views that have any)
+difference| on ground pixels), ``depth_rel_p99`` (median over views of the 99th percentile of
+the relative depth difference on ground pixels), ``mask_iou`` (landmark pixels, mean over views that have any)
 and ``same_visible`` (fraction of views whose visible landmark set is identical). The ratio
 ``speedup`` = full ms / lod ms is measured in the same run.
 
@@ -86,16 +87,19 @@ def bench_scenario(path: Path, repeat: int) -> dict:
                          "triangles": tri, "warmup_s": round(warm, 2), "views": len(poses)}
             views[name] = vs
         out["full_dem_triangles"] = env.full_triangles
-    errs, ious, same = [], [], []
+    errs, p99s, ious, same = [], [], [], []
     for (a, da), (b, db) in zip(views["lod"], views["full"]):
         ground = (a.mask < 0) & (b.mask < 0) & (a.depth > 0) & (b.depth > 0)
         if ground.any():
+            rel = np.abs(a.depth[ground] - b.depth[ground]) / b.depth[ground]
             errs.append(float(np.median(np.abs(a.depth[ground] - b.depth[ground]))))
+            p99s.append(float(np.percentile(rel, 99)))
         la, lb = a.mask >= 0, b.mask >= 0
         if (la | lb).any():
             ious.append(float(((a.mask == b.mask) & la).sum() / (la | lb).sum()))
         same.append(da.visible == db.visible)
-    out["lod"].update(depth_err_m=round(float(np.median(errs)), 3), mask_iou=round(float(np.mean(ious)), 3)
+    out["lod"].update(depth_err_m=round(float(np.median(errs)), 3),
+                      depth_rel_p99=round(float(np.median(p99s)), 4), mask_iou=round(float(np.mean(ious)), 3)
                       if ious else None, same_visible=round(float(np.mean(same)), 3))
     out["speedup"] = round(out["full"]["ms_per_vf"] / out["lod"]["ms_per_vf"], 2)
     return out
@@ -121,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _table(results: list[dict]) -> None:
-    cols = ["scenario", "dem", "config", "vf/s", "ms/vf", "triangles", "warmup_s", "depth_err_m", "mask_iou",
+    cols = ["scenario", "dem", "config", "vf/s", "ms/vf", "triangles", "warmup_s", "depth_err_m", "depth_rel_p99",
+            "mask_iou",
             "same_visible", "speedup"]
     rows = []
     for r in results:
@@ -129,6 +134,7 @@ def _table(results: list[dict]) -> None:
             c = r[cfg]
             rows.append([r["scenario"], "x".join(map(str, r["dem"])), cfg, str(c["vf_per_s"]), str(c["ms_per_vf"]),
                          str(c["triangles"]), str(c["warmup_s"]), str(c.get("depth_err_m", "")),
+                         str(c.get("depth_rel_p99", "")),
                          str(c.get("mask_iou", "")), str(c.get("same_visible", "")),
                          str(r["speedup"]) if cfg == "lod" else ""])
     try:
