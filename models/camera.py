@@ -364,6 +364,10 @@ class CameraEmulator:
             platform._egl_context = None
         except Exception as exc:  # noqa: BLE001 - best effort at teardown
             log.warning("closing the offscreen renderer: %s", exc)
+        finally:
+            # OffscreenRenderer.__del__ would call delete() -> eglTerminate: leave it nothing to do
+            r._platform = None
+            r._renderer = None
 
     def __enter__(self) -> CameraEmulator:
         return self

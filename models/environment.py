@@ -32,7 +32,15 @@ from blackboard.errors import ScenarioError
 from models.landmarks import Landmark, place_landmarks, raised_dem
 from models.terrain import Terrain, load_terrain
 
-__all__ = ["TileMesh", "TerrainTile", "EnvironmentModel", "build_environment", "outside_frustum", "terrain_colors", "KIND_COLORS"]
+__all__ = [
+    "TileMesh",
+    "TerrainTile",
+    "EnvironmentModel",
+    "build_environment",
+    "outside_frustum",
+    "terrain_colors",
+    "KIND_COLORS",
+]
 
 log = logging.getLogger(__name__)
 

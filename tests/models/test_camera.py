@@ -128,3 +128,59 @@ def test_camera_never_under_the_drawn_ground():
         for x, y, h in rng.uniform([50, 50, 0], [590, 590, 360], (6, 3)):
             view = cam.render(cam.pose_at(x, y, h, pitch_deg=-60.0))  # look down at the feet
             assert (view.depth > 0).all()  # ground everywhere, never sky seen through it
+
+
+@pytest.fixture(scope="module")
+def hills():
+    from models.terrain import procedural_terrain
+
+    terrain = procedural_terrain(size=128, relief=60.0, cell_size=10.0, rng=4)
+    lms = place_landmarks(terrain, [LandmarkSpec(id="H", kind="house", x=700, y=640, width=20, depth=12, height=8),
+                                    LandmarkSpec(id="T", kind="tower", x=900, y=700, width=4, depth=4, height=30)])
+    return terrain, lms
+
+
+def test_level_of_detail_follows_distance_and_culls_behind(hills):
+    terrain, lms = hills
+    env = EnvironmentModel(terrain, lms, tile_cells=16)
+    pose = Pose(600.0, 600.0, float(terrain.height_at(600, 600)) + 2, 0.0)
+    fy = math.tan(math.radians(22.5))
+    levels = env.tile_levels(pose.position, pose.rotation(), tan_half_fov=(fy * 4 / 3, fy), far=3000.0)
+    centres = np.array([[(t.bounds[0] + t.bounds[1]) / 2, (t.bounds[2] + t.bounds[3]) / 2] for t in env.tiles])
+    ahead = centres[:, 0] - 600.0
+    assert (levels[ahead < -100] == -1).all()  # behind the camera: not drawn
+    shown = levels >= 0
+    assert levels[shown].min() == 0 and levels[shown].max() >= 2
+    # farther tiles never get a finer level than nearer ones straight ahead
+    row = np.abs(centres[:, 1] - 600.0) < 16 * 10
+    order = np.argsort(ahead[row & shown])
+    assert (np.diff(levels[row & shown][order]) >= 0).all()
+
+
+def test_level_of_detail_keeps_the_picture(hills):
+    terrain, lms = hills
+    with CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16), CAMERA) as lod, \
+            CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16, levels=1), CAMERA) as full:
+        for x, y, h in [(600, 600, 20.0), (650, 560, 60.0), (300, 900, -30.0)]:
+            a, b = lod.render(lod.pose_at(x, y, h)), full.render(full.pose_at(x, y, h))
+            assert lod.triangles_last < full.triangles_last
+            assert (a.mask == b.mask).mean() > 0.995
+            ground = (a.depth > 0) & (b.depth > 0)
+            rel = np.abs(a.depth[ground] - b.depth[ground]) / b.depth[ground]
+            assert np.percentile(rel, 99) < 0.05
+            assert ((a.depth > 0) == (b.depth > 0)).mean() > 0.99  # same skyline
+
+
+def test_closing_one_emulator_leaves_another_working(caplog):
+    terrain = Terrain(heights=np.zeros((11, 11)), cell_size=10.0)
+    a = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
+    b = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
+    a.close()
+    del a
+    import gc
+
+    gc.collect()  # pyrender's own __del__ must not terminate the shared EGL display
+    view = b.render(Pose(10.0, 50.0, 2.0, 0.0))
+    assert (view.depth[-1] > 0).all()
+    b.close()
+    assert "closing the offscreen renderer" not in caplog.text
