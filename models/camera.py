@@ -365,7 +365,10 @@ class CameraEmulator:
         except Exception as exc:  # noqa: BLE001 - best effort at teardown
             log.warning("closing the offscreen renderer: %s", exc)
         finally:
-            # OffscreenRenderer.__del__ would call delete() -> eglTerminate: leave it nothing to do
+            # OffscreenRenderer.__del__ and the platform's __del__ would call eglTerminate on the
+            # shared display: leave them nothing to do
+            platform._egl_context = None
+            platform._egl_display = None
             r._platform = None
             r._renderer = None
 
