@@ -10,8 +10,11 @@ and a camera-frame point (right, up, forward) = (xc, yc, zc) lands at
 
 Rendering is offscreen through pyrender; ``PYOPENGL_PLATFORM`` defaults to ``egl`` (Mesa).
 One renderer and one scene are reused across views; per view only the terrain tiles' levels of
-detail, the camera pose and the light change. Each view takes two passes: a lit colour pass
-(image and depth) and a flat segmentation pass (landmark mask).
+detail, the landmark boxes that may be in view, the camera pose and the light change. Each
+view takes two passes: a lit colour pass (the image) and a flat segmentation pass (the landmark
+mask, and the depth: it rasterises without multisampling, so depth is sampled at pixel centres).
+Several emulators may live in one process; :meth:`CameraEmulator.close` destroys only its own
+EGL context (pyrender's ``delete`` would ``eglTerminate`` the display shared with the others).
 
 Shading is Lambertian (``albedo * (ambient + intensity * max(n . l, 0))``), done by a small
 fragment shader that replaces pyrender's physically based ``mesh.frag``: on Mesa's software
@@ -53,7 +56,8 @@ log = logging.getLogger(__name__)
 #: background (sky) colour, RGB in [0, 1]
 SKY_RGB = (0.70, 0.80, 0.92)
 _DEFAULT_LIGHT_DIRECTION = (-0.45, 0.35, -0.82)  # light travels from the south-east, high sun
-_DEFAULT_LIGHT_INTENSITY = 0.75
+_DEFAULT_LIGHT_INTENSITY = 1.0  # a relative scale: the sun's colour carries its strength
+_SUN_RGB = (0.75, 0.75, 0.73)
 _AMBIENT = (0.48, 0.48, 0.52)
 
 _LAMBERT_FRAG = """#version 330 core
@@ -198,7 +202,8 @@ class CameraEmulator:
             material = pyrender.MetallicRoughnessMaterial(
                 baseColorFactor=(*rgb, 1.0), metallicFactor=0.0, roughnessFactor=0.9
             )
-            node = self.scene.add(pyrender.Mesh.from_trimesh(_box_mesh(lm, environment.ground_margin(lm)), material=material, smooth=False))
+            box = _box_mesh(lm, environment.ground_margin(lm))
+            node = self.scene.add(pyrender.Mesh.from_trimesh(box, material=material, smooth=False))
             code = i + 1
             self._seg_map[node] = np.array([code & 255, (code >> 8) & 255, (code >> 16) & 255], dtype=np.float64)
             self._landmark_nodes.append(node)
@@ -208,11 +213,13 @@ class CameraEmulator:
                 aspectRatio=self.width / self.height,
             )
         )
-        self._light = pyrender.DirectionalLight(color=np.ones(3), intensity=_DEFAULT_LIGHT_INTENSITY)
+        self._light = pyrender.DirectionalLight(color=np.array(_SUN_RGB), intensity=_DEFAULT_LIGHT_INTENSITY)
         self._light_node = self.scene.add(self._light, pose=_light_pose(_DEFAULT_LIGHT_DIRECTION))
         self._current_levels = np.full(len(environment.tiles), -1)
+        # drawn boxes reach ground_margin below z0: cull with the corners of what is drawn
         self._box_corners = np.array([lm.box_vertices() for lm in environment.landmarks]).reshape(-1, 8, 3)
-        self._box_corners[:, :4, 2] -= np.array([environment.ground_margin(lm) for lm in environment.landmarks]).reshape(-1, 1)
+        margins = np.array([environment.ground_margin(lm) for lm in environment.landmarks])
+        self._box_corners[:, :4, 2] -= margins.reshape(-1, 1)
         try:
             self._renderer = pyrender.OffscreenRenderer(self.width, self.height)
         except Exception as exc:  # pyrender/PyOpenGL raise many kinds
@@ -306,8 +313,9 @@ class CameraEmulator:
     ) -> View:
         """Render the view from ``pose``: image, depth and landmark mask (see :class:`View`).
 
-        ``light_intensity`` (default 3.0) and ``light_direction`` (world (x, y, z) direction the
-        sunlight travels, default from the south-east and high) change the lighting of this view only.
+        ``light_intensity`` (relative sun strength, default 1.0; the ambient light stays) and
+        ``light_direction`` (world (x, y, z) direction the sunlight travels, default from the
+        south-east and high) change the lighting of this view only.
         """
         if self._renderer is None:
             raise RenderError("the camera emulator is closed")
