@@ -42,6 +42,10 @@ def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses)
             color = "tab:green" if f["correct"] else "tab:red"
             ax.plot([tx, ex], [ty, ey], "-", color=color, lw=1, zorder=5)
             ax.plot(ex, ey, "o", mfc="none", color=color, ms=7, zorder=6)
+    pts = np.asarray(route, dtype=float)
+    margin = max(150.0, 0.15 * float(np.ptp(pts, axis=0).max()))
+    ax.set_xlim(pts[:, 0].min() - margin, pts[:, 0].max() + margin)
+    ax.set_ylim(pts[:, 1].min() - margin, pts[:, 1].max() + margin)
     s = results["summary"]
     top1 = "n/a" if s["top1"] is None else f"{s['top1']:.0%}"
     ax.set_title(f"{results['scenario']} ({results['strategy']}): true x, estimate o; top-1 {top1}")
