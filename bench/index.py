@@ -18,8 +18,10 @@ as it has no separate preprocessing), ``top1`` (fraction of queries whose first 
 true one). For the memory also the bandwidth floor ``floor_ms`` (median time of one
 ``prototypes.sum()`` over the (H, N*N) float32 prototype matrix, i.e. reading it once) and
 ``ratio`` = rank_ms / floor_ms. A capacity sweep stores H = 4 .. 256 patterns in ONE bank and
-reports top-1 and recall quality (cosine of the recall with the true prototype); the default
-bank size (``models.associative.DEFAULT_BANK_SIZE``) comes from it.
+reports top-1 and recall quality (cosine of the recall with the true prototype). Finally, top-1
+counts on the bundled route scenarios (rendered viewframes, simulated camera frames) for NCC and
+the memory at several bank sizes and shift searches; the defaults
+(``models.associative.DEFAULT_BANK_SIZE``, ``DEFAULT_MAX_SHIFT``) come from these two.
 
 BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` unless set): the floor is single-threaded.
 
@@ -123,6 +125,42 @@ def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noi
     return rows
 
 
+def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple[int, int]]) -> list[dict]:
+    """Top-1 on rendered route viewframes against the scenario's camera frames (real renders,
+    simulated sensor; truth = the route point nearest the true pose), for NCC and the memory."""
+    import math
+
+    from models.associative import BankedMemory
+    from models.camera import CameraEmulator
+    from models.environment import build_environment
+    from models.scenario import load_scenario
+    from models.sensor import sensor_frames
+    from models.viewframes import build_viewframes, route_poses
+
+    rows = []
+    for path in paths:
+        sc = load_scenario(path)
+        with CameraEmulator(build_environment(sc), sc.camera) as em:
+            vfs = build_viewframes(sc, emulator=em)
+            poses = route_poses(sc, em.environment.terrain)
+            frames = sensor_frames(sc, emulator=em, poses=poses)
+        truth = [min(range(len(poses)), key=lambda i: math.hypot(poses[i].x - f.truth[0], poses[i].y - f.truth[1]))
+                 for f in frames]
+        pats = [preprocess(v.image) for v in vfs]
+        queries = [preprocess(f.image) for f in frames]
+        matrix = np.stack([p.ravel() for p in pats])
+        ncc = sum(int(np.argmax(matrix @ q.ravel())) == t for q, t in zip(queries, truth))
+        row = {"scenario": sc.name, "viewframes": len(vfs), "frames": len(frames), "ncc": ncc}
+        for b in bank_sizes:
+            for ms in shifts:
+                mem = BankedMemory(128, bank_size=b, max_shift=ms)
+                mem.write_many(pats, range(len(pats)))
+                row[f"memory b={b} shift={ms[0]},{ms[1]}"] = sum(mem.rank(q).best == t for q, t in zip(queries, truth))
+        rows.append(row)
+        logger.info("%s", row)
+    return rows
+
+
 def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, np.ndarray]], *,
              bank_size: int, max_shift: tuple[int, int], with_orb: bool, with_single: bool) -> list[dict]:
     """All methods on one (N, H) case."""
@@ -179,6 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", type=float, default=8.0, help="gaussian noise of a query, gray levels")
     parser.add_argument("--no-orb", action="store_true", help="skip the ORB baseline")
     parser.add_argument("--no-capacity", action="store_true")
+    parser.add_argument("--scenarios", nargs="*", default=None, metavar="YAML",
+                        help="also top-1 on these scenarios' rendered viewframes and simulated frames "
+                             "(default: the bundled hills, contours, jacksboro; none with --quick)")
     parser.add_argument("--json-only", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
@@ -199,6 +240,10 @@ def main(argv: list[str] | None = None) -> int:
     cap = [] if args.no_capacity else capacity(
         args.sizes, [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]), queries=nq,
         shift=args.shift, noise=args.noise, seed=args.seed + 1, max_shift=tuple(args.max_shift))
+    if args.scenarios is None:
+        root = Path(__file__).resolve().parent.parent / "scenarios"
+        args.scenarios = [] if args.quick else [str(root / f"{n}.yaml") for n in ("hills", "contours", "jacksboro")]
+    scen = scenario_top1(args.scenarios, bank_sizes=[1, 4, 8], shifts=[(0, 0), (1, 2), (2, 6)]) if args.scenarios else []
     doc = {
         "machine": {"cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "python": platform.python_version(),
                     "numpy": np.__version__, "opencv": cv2.__version__},
@@ -206,6 +251,7 @@ def main(argv: list[str] | None = None) -> int:
                    "bank_size": args.bank_size, "max_shift": args.max_shift, "image": list(SHAPE), "seed": args.seed},
         "results": results,
         "capacity": cap,
+        "scenarios": scen,
     }
     print(json.dumps(doc, indent=1))
     if not args.json_only:
@@ -223,9 +269,17 @@ def _table(doc: dict) -> None:
     rows = [[str(r.get(c, "")) for c in cols] for r in doc["results"]]
     ccols = ["N", "H", "top1", "recall_cos", "reliability"]
     crows = [[f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in ccols] for r in doc["capacity"]]
+    if doc["scenarios"]:
+        scols = list(doc["scenarios"][0])
+        srows = [[str(r[c]) for c in scols] for r in doc["scenarios"]]
+    else:
+        scols, srows = [], []
     if Console is not None:
         console = Console(stderr=True)
-        for title, cs, rs in (("index benchmark", cols, rows), ("capacity of one bank", ccols, crows)):
+        for title, cs, rs in (("index benchmark", cols, rows), ("capacity of one bank", ccols, crows),
+                              ("top-1 on scenario frames (counts)", scols, srows)):
+            if not rs:
+                continue
             t = Table(title=title)
             for c in cs:
                 t.add_column(c, justify="right")
@@ -233,7 +287,9 @@ def _table(doc: dict) -> None:
                 t.add_row(*r)
             console.print(t)
     else:
-        for cs, rs in ((cols, rows), (ccols, crows)):
+        for cs, rs in ((cols, rows), (ccols, crows), (scols, srows)):
+            if not rs:
+                continue
             print("\t".join(cs), file=sys.stderr)
             for r in rs:
                 print("\t".join(r), file=sys.stderr)
