@@ -10,15 +10,15 @@ pipeline, identical for both sides, is::
   with the camera size. The aspect ratio is not kept (both sides are squeezed the same way).
 * **edges**: gradient magnitude (``"sobel"``, ``"scharr"``), absolute Laplacian
   (``"laplacian"``), binary Canny edges (``"canny"``, thresholds relative to the image's own
-  gradients, see :func:`_canny`) or none (``"none"``, the gray levels themselves). Borders are reflected, so
-  the image frame itself produces no edge.
+  gradients, see :func:`_canny`) or none (``"none"``, the gray levels themselves). Borders
+  are reflected, so the image frame itself produces no edge.
 * **whiten** (default on): the edge image's spectrum is set to unit magnitude (its phase is
   kept). Edge maps are non-negative lines whose energy sits in a few low frequencies, so
   without it a 128 x 128 pattern has only ~65 effectively independent pixels (participation
-  ratio of the power spectrum) and the holographic memory's crosstalk wins from a few dozen
+  ratio of the power spectrum) and the holographic memory's crosstalk wins from about ten
   stored patterns on; whitened and then blurred, the spectrum is the gaussian envelope alone
-  and N_eff = N**2 / (2 pi sigma**2) (652 at N = 128, sigma = 2). Measured in
-  ``/work/notes/bench_index.md``. The blur is then applied in the frequency domain (circular,
+  and N_eff = N**2 / (2 pi sigma**2) (652 at N = 128, sigma = 2). Measured by
+  ``bench/index.py``. The blur is then applied in the frequency domain (circular,
   as the memory is).
 * **blur**: a gaussian of ``blur_sigma`` memory pixels spreads each edge over its
   neighbourhood, which makes the comparison tolerant to shifts of about ``blur_sigma`` pixels
