@@ -57,7 +57,7 @@ the number large). A ranking of fewer than two entries has reliability 0.
 **Capacity.** Every stored pattern adds crosstalk of the same energy as the signal; the
 margin of the true prototype shrinks as sqrt(N_eff / H), N_eff the number of effectively
 independent pixels (652 at N = 128, blur 2, with the whitening of
-:mod:`models.preprocess`). Measured (``bench/index.py``, ``/work/notes/bench_index.md``): one
+:mod:`models.preprocess`). Measured (``bench/index.py``): one
 bank holds only about 8-16 perturbed synthetic viewframes at N = 128 before top-1 drops, far
 fewer than "some hundreds", and fewer still for the views along a route, which resemble each
 other so that their crosstalk is structured rather than noise (on the bundled scenarios bank
