@@ -56,16 +56,17 @@ the number large). A ranking of fewer than two entries has reliability 0.
 
 **Capacity.** Every stored pattern adds crosstalk of the same energy as the signal; the
 margin of the true prototype shrinks as sqrt(N_eff / H), N_eff the number of effectively
-independent pixels (652 at N = 128, blur 2, with the whitening of
-:mod:`models.preprocess`). Measured (``bench/index.py``): one
-bank holds only about 8-16 perturbed synthetic viewframes at N = 128 before top-1 drops, far
-fewer than "some hundreds", and fewer still for the views along a route, which resemble each
-other so that their crosstalk is structured rather than noise (on the bundled scenarios bank
-size 8 loses 3-10 of 30 frames that bank size 1-4 gets right). :class:`BankedMemory` therefore splits the viewframes over banks of
-``bank_size`` (default :data:`DEFAULT_BANK_SIZE` = 4); as the ranking cost does not depend on
-the bank size (above), small banks cost nothing but memory. With a bank size of 1 the memory
-reduces (up to the key normalisation) to the cross-correlation of the whitened patterns (the NCC
-baseline): banking trades the holographic superposition away for accuracy. Each bank is a
+independent pixels (652 at N = 128, blur 2, with the whitening of :mod:`models.preprocess`).
+Measured (``bench/index.py``): one bank holds only about 8-16 perturbed synthetic viewframes
+at N = 128 before top-1 drops, far fewer than "some hundreds", and fewer still for the views
+along a route, which resemble each other so that their crosstalk is structured rather than
+noise (on the bundled scenarios, bank size 8 gets 2-12 frames of 22-30 wrong that bank size 1
+gets right). :class:`BankedMemory` therefore splits the viewframes over banks of
+``bank_size`` (default :data:`DEFAULT_BANK_SIZE` = 4). The ranking cost hardly depends on the
+bank size (above; a bank adds one power vector of N (N/2 + 1) floats, 1/(2 bank_size) of its
+prototype rows). With a bank size of 1 the memory reduces (up to the key normalisation) to the
+cross-correlation of the whitened patterns (the NCC baseline) plus the shift search: banking
+trades the holographic superposition away for accuracy. Each bank is a
 :class:`HolographicMemory` whose :meth:`~HolographicMemory.state` is plain arrays, so banks can
 live in other processes and their rankings merge with :func:`merge_rankings`.
 """
