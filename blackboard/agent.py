@@ -7,6 +7,11 @@ FIFO among equals), drops obviated activations (the triggering hypothesis was re
 superseded before the activation ran) and runs ``act``. Whenever the inbox and the agenda
 are empty it reports ``idle`` to the node with its counters (samples received per level,
 posts sent, timeouts received), which is what global quiescence is decided from.
+
+The runner also follows the run itself: the node holds a liveliness token on
+:func:`node_token_key` and announces the end of the run on :func:`run_end_key`; :attr:`AgentRunner.ended`
+is set on either the announcement or the loss of the node (:attr:`AgentRunner.node_lost`), which
+is how an agent started on another machine (``mapinterp agent``) knows when to stop.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import itertools
 import logging
 import os
 import queue
+import socket
 import threading
 import time
 import traceback
@@ -25,12 +31,12 @@ import zenoh
 
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, open_session, zenoh_config
-from blackboard.errors import AgentError, BlackboardError, CodecError
+from blackboard.errors import AgentError, BlackboardError, CodecError, TransportError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
-__all__ = ["AgentRunner"]
+__all__ = ["AgentRunner", "node_token_key", "run_end_key"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,6 +48,18 @@ _ACTIVITY_BATCH = 64
 #: an agent reports idle after its inbox stayed empty this long (fewer status messages; the
 #: correctness of quiescence does not depend on it, only its latency)
 _IDLE_GRACE_S = 0.002
+#: between two attempts to reach the node while :meth:`AgentRunner.start` waits for it
+_RETRY_S = 0.2
+
+
+def node_token_key(keys: RunKeys) -> str:
+    """The liveliness token the node of a run holds while it is up."""
+    return f"{keys.control}/node"
+
+
+def run_end_key(keys: RunKeys) -> str:
+    """Node -> every agent: the run has ended."""
+    return f"{keys.control}/end"
 
 
 class AgentRunner:
@@ -50,6 +68,8 @@ class AgentRunner:
     ``connect`` are the endpoints of the blackboard node (a zenoh router); the session is a
     zenoh client of it. :meth:`start` joins (raises :class:`DeclarationError` if refused) and
     runs ``setup``; :meth:`stop` shuts down cleanly; :meth:`kill` drops the session abruptly.
+    :attr:`ended` is set when the node announces the end of the run, or is lost
+    (:attr:`node_lost`).
     """
 
     def __init__(
@@ -65,6 +85,7 @@ class AgentRunner:
         self.name = source.name
         self.keys = RunKeys(run_id)
         self._config = zenoh_config(zenoh_options, mode="client", connect=connect)
+        self.connect = list(connect)
         self._max = max_message_bytes
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
         self._agenda: list[tuple[float, int, Event]] = []
@@ -82,19 +103,36 @@ class AgentRunner:
         self._entities: list[Any] = []
         self.board: Board | None = None
         self.done = threading.Event()
+        #: set when the node announces the end of the run, or its liveliness token disappears
+        self.ended = threading.Event()
+        self.node_lost = False
+        self._node_seen = threading.Event()
+        self._end_announced = False
 
     # -- lifecycle ---------------------------------------------------------------------------------
 
-    def start(self) -> None:
+    def start(self, *, wait_s: float = 0.0) -> None:
         """Open the session, subscribe, join the node, declare liveliness, run ``setup``, start working.
 
+        ``wait_s`` > 0: keep trying to reach the endpoints, and wait for the node of this run,
+        for up to that long (an agent started before the run, or on another machine).
+
         Raises:
-            TransportError: the node cannot be reached.
+            TransportError: the node cannot be reached (within ``wait_s``), or no node of this
+                run is there.
             DeclarationError: the node refused the declaration (e.g. a second exclusive writer).
             AgentError: ``setup`` raised (the agent is reported dead).
         """
-        self._session = session = open_session(self._config)
+        deadline = time.monotonic() + wait_s
+        self._session = session = self._open(wait_s, deadline)
         put = self._inbox.put
+        self._entities.append(session.declare_subscriber(run_end_key(self.keys), self._on_run_end))
+        self._entities.append(session.liveliness().declare_subscriber(node_token_key(self.keys), self._on_node_token,
+                                                                      history=True))
+        if wait_s > 0 and not self._node_seen.wait(max(0.0, deadline - time.monotonic())):
+            self._close_session()
+            raise TransportError(f"no blackboard node of run {self.keys.run_id!r} at {', '.join(self.connect)} "
+                                 f"within {wait_s:g} s (is the run started, with this --run-id?)")
         for level in self.source.consumes:
             self._entities.append(session.declare_subscriber(self.keys.level(level), lambda s: put(("hyp", s))))
         self._entities.append(session.declare_subscriber(self.keys.inbox(self.name), lambda s: put(("ctl", s))))
@@ -107,6 +145,7 @@ class AgentRunner:
                 "produces": list(self.source.produces),
                 "exclusive": list(self.source.exclusive),
                 "pid": os.getpid(),
+                "host": socket.gethostname(),
             })
         except BlackboardError:
             self._close_session()
@@ -121,6 +160,32 @@ class AgentRunner:
             raise AgentError(self.name, reason) from err
         self._thread = threading.Thread(target=self._work, name=f"agent-{self.name}", daemon=True)
         self._thread.start()
+
+    def _open(self, wait_s: float, deadline: float) -> zenoh.Session:
+        """The client session; retried until ``deadline`` when ``wait_s`` > 0."""
+        while True:
+            try:
+                return open_session(self._config)
+            except TransportError:
+                if time.monotonic() + _RETRY_S > deadline:
+                    if wait_s <= 0:
+                        raise
+                    raise TransportError(f"cannot reach the blackboard at {', '.join(self.connect)} within "
+                                         f"{wait_s:g} s (nothing listens there, or not reachable from here)") from None
+            time.sleep(_RETRY_S)
+
+    def _on_run_end(self, sample: zenoh.Sample) -> None:
+        """Zenoh callback: only sets an event."""
+        self._end_announced = True
+        self.ended.set()
+
+    def _on_node_token(self, sample: zenoh.Sample) -> None:
+        """Zenoh callback: only sets events."""
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._node_seen.set()
+        elif self._node_seen.is_set() and not self._end_announced:
+            self.node_lost = True
+            self.ended.set()
 
     def stop(self, timeout_s: float = 10.0) -> None:
         """Finish the current activation, run ``shutdown``, leave, close the session."""

@@ -12,6 +12,12 @@ and caught up (received on each consumed level what the node counted, the node r
 its posts, it received all its timeouts), nothing is deferred and no addressed post waits for
 its deadline, the node sends a probe; if every live agent answers the probe idle and no new
 sample, timeout or request arrived in between, the run is quiescent.
+
+Agents on other machines (``mapinterp agent --connect``) join like local ones and count alike
+for quiescence and liveness. The node holds a liveliness token (:func:`~blackboard.agent.node_token_key`)
+while it is up; :meth:`BlackboardNode.wait_joined` waits for named agents to join; on
+:meth:`~BlackboardNode.close` the node announces the end of the run
+(:func:`~blackboard.agent.run_end_key`) and gives the agents still connected a moment to leave.
 """
 
 from __future__ import annotations
@@ -24,12 +30,12 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import zenoh
 
-from blackboard.agent import NODE_SENDER
+from blackboard.agent import NODE_SENDER, node_token_key, run_end_key
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
 from blackboard.errors import CodecError
@@ -43,6 +49,8 @@ __all__ = ["BlackboardNode", "AgentState", "NODE_SENDER"]
 logger = logging.getLogger(__name__)
 
 _MAX_UNREPORTED = 100_000
+#: on close, how long the node waits for the agents still connected to leave after the run end
+END_GRACE_S = 5.0
 _ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
                                         TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
 
@@ -129,6 +137,9 @@ class BlackboardNode:
         self._probe = 0
         self._probe_changes: int | None = None
         self._waiters: list[threading.Event] = []
+        self._tokens: set[str] = set()  # agents whose liveliness token is present
+        self._join_waiters: list[tuple[frozenset[str], threading.Event]] = []
+        self._gone_waiters: list[threading.Event] = []
         self.user_timeouts: list[tuple[Hypothesis, str]] = []
         self.stats: Counter[str] = Counter()
         self._listener: Callable[[Event], None] | None = None
@@ -165,10 +176,18 @@ class BlackboardNode:
         self._trace_write(TraceKind.RUN_START, run_id=self.keys.run_id, endpoint=self.endpoint)
         self._thread = threading.Thread(target=self._work, name=f"node-{self.keys.run_id}", daemon=True)
         self._thread.start()
+        self._entities.append(session.liveliness().declare_token(node_token_key(self.keys)))
 
     def close(self) -> None:
-        """Stop the worker, close the session, end and close the trace."""
+        """Announce the end of the run, give the agents still connected up to :data:`END_GRACE_S`
+        to leave, stop the worker, close the sessions, end and close the trace."""
         if self._thread is not None:
+            gone = threading.Event()
+            self._inbox.put(("end", gone))
+            if not gone.wait(END_GRACE_S):
+                with self._lock:
+                    left = sorted(self._tokens)
+                logger.warning("blackboard node: agents still connected at the end of the run: %s", ", ".join(left))
             self._inbox.put(("stop", None))
             self._thread.join(10.0)
             self._thread = None
@@ -205,6 +224,18 @@ class BlackboardNode:
             found = [h for h, _ in self._store.values() if level is None or h.level == level]
         return sorted(found, key=lambda h: (h.timestamp, h.id))
 
+    def wait_joined(self, names: Iterable[str]) -> threading.Event:
+        """An event set once every agent in ``names`` has joined and holds its liveliness token
+        (or joined and is already dead)."""
+        event = threading.Event()
+        self._inbox.put(("await_join", (frozenset(names), event)))
+        return event
+
+    def missing(self, names: Iterable[str]) -> list[str]:
+        """Those of ``names`` that have not joined (see :meth:`wait_joined`), sorted."""
+        with self._lock:
+            return sorted(n for n in set(names) if not self._present(n))
+
     def busy_agents(self) -> list[str]:
         """Live agents that are not idle and caught up (for timeout messages)."""
         with self._lock:
@@ -222,7 +253,8 @@ class BlackboardNode:
     def _work(self) -> None:
         handlers = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
                     "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
-                    "await": self._waiters.append, "listen": self._set_listener, "call": lambda fn: fn()}
+                    "await": self._waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
+                    "await_join": self._await_join, "end": self._on_end}
         bookkept = time.monotonic()
         while True:
             timeout = max(0.0, self._deadlines[0][0] - time.monotonic()) if self._deadlines else None
@@ -366,17 +398,54 @@ class BlackboardNode:
         state = message.get("state")
         if state == "dead" and agent.live:
             self._agent_gone(agent, f"dead: {message.get('reason')}", TraceKind.AGENT_DEAD)
+            self._check_presence()
         elif state == "stopped" and agent.live:
             agent.state = "stopped"
 
     def _on_live(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
         agent = self.agents.get(name)
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._tokens.add(name)
+            else:
+                self._tokens.discard(name)
         if sample.kind == zenoh.SampleKind.DELETE and agent is not None:
             if agent.live:
                 self._agent_gone(agent, "dead: left (liveliness token dropped)", TraceKind.AGENT_LEAVE)
             else:
                 self._trace_write(TraceKind.AGENT_LEAVE, agent=name, reason=agent.state)
+        self._check_presence()
+
+    def _present(self, name: str) -> bool:
+        """Joined and holding its token, or joined and already dead (caller holds the lock)."""
+        agent = self.agents.get(name)
+        return agent is not None and (name in self._tokens or not agent.live)
+
+    def _await_join(self, item: tuple[frozenset[str], threading.Event]) -> None:
+        self._join_waiters.append(item)
+        self._check_presence()
+
+    def _on_end(self, gone: threading.Event) -> None:
+        """Announce the end of the run; ``gone`` is set once no agent holds a token any more."""
+        self._publish(run_end_key(self.keys), encode({"op": "end", "run_id": self.keys.run_id}))
+        self._gone_waiters.append(gone)
+        self._check_presence()
+
+    def _check_presence(self) -> None:
+        with self._lock:
+            if self._join_waiters:
+                waiting = []
+                for names, event in self._join_waiters:
+                    if all(self._present(n) for n in names):
+                        event.set()
+                    else:
+                        waiting.append((names, event))
+                self._join_waiters = waiting
+            if self._gone_waiters and not self._tokens:
+                for event in self._gone_waiters:
+                    event.set()
+                self._gone_waiters.clear()
 
     def _agent_gone(self, agent: AgentState, state: str, kind: TraceKind) -> None:
         with self._lock:
@@ -439,7 +508,9 @@ class BlackboardNode:
             self.agents[name] = AgentState(name, decl["consumes"], decl["produces"], decl["exclusive"],
                                            pid=request.get("pid"))
         self._changes += 1
-        self._trace_write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), **{k: list(v) for k, v in decl.items()})
+        self._trace_write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
+                          **{k: list(v) for k, v in decl.items()})
+        self._check_presence()
         return {"ok": True}
 
     def _run_deferred(self) -> None:

@@ -11,6 +11,11 @@ Example::
 ``mode="processes"`` runs each knowledge source in its own OS process
 (``python -m blackboard.agent_host``) connected to the node over ``tcp/127.0.0.1``; a child
 exits when its stdin closes, so children never outlive the parent.
+
+Agents may also run elsewhere: started with ``mapinterp agent ... --connect ENDPOINT`` against
+a runtime whose node listens there (``ZenohOptions(listen=[ENDPOINT])``); :meth:`Runtime.wait_joined`
+waits for them, and from then on they count like local agents (quiescence, liveness). When the
+runtime closes, the node announces the end of the run and such agents stop by themselves.
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ import subprocess
 import sys
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -186,6 +191,22 @@ class Runtime:
                 proc.stdin.close()
             del self._children[name]
             raise AgentError(name, reason)
+
+    def wait_joined(self, names: Iterable[str], *, timeout_s: float) -> None:
+        """Wait until every agent in ``names`` (started elsewhere, e.g. by ``mapinterp agent``) has
+        joined this run and holds its liveliness token.
+
+        Raises:
+            AgentError: some have not joined within ``timeout_s``; names them.
+        """
+        if not self._started:
+            raise BlackboardError("Runtime.wait_joined() needs the runtime started (use it as a context manager)")
+        names = sorted(set(names))
+        if not names or self.node.wait_joined(names).wait(timeout_s):
+            return
+        missing = self.node.missing(names)
+        if missing:  # (else they joined at the last moment)
+            raise AgentError(", ".join(missing), f"did not join run {self.run_id} within {timeout_s:g} s")
 
     def source(self, name: str) -> KnowledgeSource:
         """The knowledge source object of an in-process agent (for tests and tools).
