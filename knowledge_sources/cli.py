@@ -3,7 +3,9 @@
 Sub-commands live one per module in :mod:`knowledge_sources.commands` and are imported only
 when chosen. A :class:`~blackboard.errors.MapinterpError` (a user's mistake: a malformed
 scenario, a missing image, a dead agent) is printed as one sentence naming the culprit, with
-exit status 2, never as a traceback; ``--debug`` shows the traceback.
+exit status 2, never as a traceback; ``--debug`` shows the traceback. Output piped into a
+reader that stops early (``mapinterp trace run.trace --timeline | head``) ends quietly with
+status 141, as a command killed by SIGPIPE would.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import sys
 from collections.abc import Sequence
 
@@ -25,6 +28,7 @@ COMMANDS: dict[str, str] = {
     "run": "run",
     "trace": "trace",
     "report": "report",
+    "agent": "agent",
 }
 
 _HELP: dict[str, str] = {
@@ -33,7 +37,11 @@ _HELP: dict[str, str] = {
     "run": "localize the vehicle: run the agent ensemble on a scenario over the blackboard",
     "trace": "inspect a blackboard trace file",
     "report": "plot a results file: map, frames beside their viewframes, rankings, queries",
+    "agent": "run one knowledge source here, joining a run on another machine (--connect ENDPOINT)",
 }
+
+#: exit status when the reader of our standard output went away (128 + SIGPIPE)
+EXIT_BROKEN_PIPE = 141
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -62,7 +70,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
-        return int(_command_module(args.command).main(args) or 0)
+        status = int(_command_module(args.command).main(args) or 0)
+        sys.stdout.flush()  # here, not at interpreter exit, so a closed pipe is caught below
+        return status
+    except BrokenPipeError:
+        # the reader closed the pipe (`| head`): no traceback, and no second error when Python
+        # flushes stdout at exit (the recipe of the Python signal module's documentation)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_BROKEN_PIPE
     except MapinterpError as err:
         if args.debug:
             raise
