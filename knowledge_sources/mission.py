@@ -13,19 +13,24 @@ benchmark call. It starts the knowledge sources
 
 posts the scenario, runs until the blackboard is quiescent and turns the ``position``
 hypotheses into the results of :mod:`knowledge_sources.results`.
+
+Agents named in ``remote`` are not started here: someone starts them elsewhere with the
+``mapinterp agent ...`` command lines passed to ``on_wait_remote`` (see
+:mod:`knowledge_sources.commands.agent`), and the scenario is posted once they have joined.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import shlex
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from blackboard.config import ZenohOptions
-from blackboard.errors import ScenarioError
+from blackboard.errors import AgentError, ScenarioError
 from blackboard.knowledge_source import Event
 from blackboard.runtime import Runtime
 from knowledge_sources import levels
@@ -77,6 +82,10 @@ def run_mission(
     progress: Callable[[int, int], None] | None = None,
     kill_after: tuple[str, str, int] | None = None,
     frame_rate: float | None = None,
+    remote: Sequence[str] = (),
+    run_id: str | None = None,
+    wait_remote_s: float = 60.0,
+    on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -101,6 +110,20 @@ def run_mission(
     kill_after : (agent, level, n), optional
         Fault injection for tests and demos: kill ``agent`` once ``n`` hypotheses are posted on
         ``level``.
+    remote : names of agents of :func:`agent_plan`, optional
+        Not started here: the run waits up to ``wait_remote_s`` for them to join (over
+        ``zenoh.listen``, or ``zenoh.connect``) before posting the scenario, then counts them
+        like local agents.
+    run_id : str, optional
+        The run's id (remote agents give it with ``--run-id``); default random.
+    on_wait_remote : callable(commands), optional
+        Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
+        logged at WARNING.
+
+    Raises
+    ------
+    AgentError
+        A ``remote`` name is not an agent of this mission, or did not join within ``wait_remote_s``.
     """
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
@@ -132,10 +155,27 @@ def run_mission(
         if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
             runtime.kill(kill_after[0])
 
+    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate)
+    remote = sorted(set(remote))
+    unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
+    if unknown:
+        raise AgentError(", ".join(unknown), "--remote names no agent of this mission; its agents are: "
+                         + ", ".join(n for _, n, _ in plan))
     started = time.perf_counter()
-    with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path) as runtime:
-        for factory, name, options in agent_plan(scenario, strategy=strategy, frame_rate=frame_rate):
-            runtime.add(factory, name=name, options=options)
+    with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path,
+                 run_id=run_id) as runtime:
+        if remote:
+            waiting_since = time.monotonic()
+            _announce_remote(runtime, plan, remote, zenoh, on_wait_remote)
+        for factory, name, options in plan:
+            if name not in remote:
+                runtime.add(factory, name=name, options=options)
+        if remote:
+            try:
+                runtime.wait_joined(remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic()))
+            except AgentError as err:
+                raise AgentError(err.agent, f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
+                                            "(was it started with the printed mapinterp agent command?)") from None
         runtime.post(levels.SCENARIO, {"path": str(Path(scenario.path).resolve()), "strategy": strategy})
         outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
         positions = {int(h.body["frame"]): h.body for h in outcome.hypotheses if h.level == levels.POSITION}
@@ -178,3 +218,26 @@ def run_mission(
         "frames": records,
         "summary": summary,
     }
+
+
+def _announce_remote(
+    runtime: Runtime,
+    plan: list[tuple[str, str, dict[str, Any]]],
+    remote: list[str],
+    zenoh: ZenohOptions | None,
+    on_wait_remote: Callable[[dict[str, list[str]]], None] | None,
+) -> None:
+    """Tell the user how to start each remote agent: where to connect is the first ``listen``
+    endpoint, else the first ``connect`` one (a router both reach), else the node's own."""
+    from knowledge_sources.commands.agent import command_line
+
+    zenoh = zenoh or ZenohOptions()
+    endpoint = (zenoh.listen or zenoh.connect or [runtime.node.endpoint])[0]
+    commands = {name: command_line(factory, name, options, run_id=runtime.run_id, connect=endpoint,
+                                   zenoh_config=zenoh.config_file)
+                for factory, name, options in plan if name in remote}
+    if on_wait_remote is not None:
+        on_wait_remote(commands)
+    else:
+        for name, argv in commands.items():
+            log.warning("waiting for remote agent %s: start it with %s", name, shlex.join(argv))

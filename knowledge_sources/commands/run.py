@@ -1,8 +1,13 @@
-"""``mapinterp run SCENARIO``: localize the vehicle with the agent ensemble on the blackboard."""
+"""``mapinterp run SCENARIO``: localize the vehicle with the agent ensemble on the blackboard.
+
+With ``--listen ENDPOINT --remote AGENT``, that agent is not started here: the command prints
+the ``mapinterp agent ...`` line that starts it on another machine, and waits for it to join.
+"""
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 from typing import Any
@@ -26,6 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                         help="give up (with an error naming the busy agents) after this long")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--run-id", default=None, metavar="RUN",
+                        help="the run's id, which remote agents give to join it (default: random)")
+    parser.add_argument("--remote", action="append", default=[], metavar="AGENT",
+                        help="do not start this agent of the mission here; wait for it to join from "
+                             "elsewhere with `mapinterp agent` (repeatable; the commands are printed)")
+    parser.add_argument("--wait-remote", type=float, default=60.0, metavar="SECONDS",
+                        help="how long to wait for the --remote agents to join (default 60)")
     add_zenoh_arguments(parser)
 
 
@@ -57,6 +69,17 @@ def render_summary(results: dict[str, Any]) -> "Any":
     return table
 
 
+def _print_remote(commands: dict[str, list[str]], wait_s: float) -> None:
+    """The exact command line of each remote agent, one per line (plain print: never wrapped)."""
+    print(f"waiting up to {wait_s:g} s for the remote agents {', '.join(commands)}; "
+          "start each where it should run with:", file=sys.stderr)
+    for argv in commands.values():
+        print(f"  {shlex.join(argv)}", file=sys.stderr)
+    if any(host in argv[argv.index("--connect") + 1] for argv in commands.values() for host in ("0.0.0.0", "[::]")):
+        print("  (replace the wildcard address by this machine's address)", file=sys.stderr)
+    sys.stderr.flush()
+
+
 def main(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -77,7 +100,9 @@ def main(args: argparse.Namespace) -> int:
 
         results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
                               zenoh=zenoh_options_from_args(args), trace_path=args.trace,
-                              timeout_s=args.timeout, progress=progress, frame_rate=args.rate)
+                              timeout_s=args.timeout, progress=progress, frame_rate=args.rate,
+                              remote=args.remote, run_id=args.run_id, wait_remote_s=args.wait_remote,
+                              on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote))
     Console().print(render_summary(results))
     if args.out is not None:
         write_results(args.out, results)
