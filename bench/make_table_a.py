@@ -16,25 +16,29 @@ import math
 import sys
 from pathlib import Path
 
-import cv2
-import numpy as np
-import yaml
-
-from models.camera import CameraEmulator
-from models.environment import build_environment
-from models.scenario import scenario_from_dict
-from models.viewframes import route_poses
-
 ROOT = Path(__file__).resolve().parent.parent
+# bench/blackboard.py would shadow the blackboard package: repository root first, bench/ out
+sys.path[:] = [str(ROOT)] + [p for p in sys.path if Path(p or ".").resolve() != ROOT / "bench"]
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import yaml  # noqa: E402
+
+from models.camera import CameraEmulator  # noqa: E402
+from models.environment import build_environment  # noqa: E402
+from models.scenario import scenario_from_dict  # noqa: E402
+from models.viewframes import route_poses  # noqa: E402
+
 SCENARIO = ROOT / "scenarios" / "table_a.yaml"
 OUT = ROOT / "scenarios" / "data" / "table_a"
 
-#: per frame: (metres forward, metres left, heading offset deg, light intensity, gain, offset, noise sigma)
+#: per frame: (metres forward, metres left, heading offset deg, relative sun strength, gain, offset,
+#: noise sigma)
 PERTURB = [
-    (0.8, 0.6, 1.5, 2.6, 0.85, 12.0, 5.0),
-    (-0.7, -0.7, -1.2, 3.3, 1.05, -10.0, 6.0),
-    (0.6, -0.8, 2.0, 2.8, 0.80, 20.0, 4.0),
-    (-0.9, 0.5, -1.8, 3.2, 0.95, -15.0, 7.0),
+    (0.8, 0.6, 1.5, 0.87, 0.85, 12.0, 5.0),
+    (-0.7, -0.7, -1.2, 1.10, 1.05, -10.0, 6.0),
+    (0.6, -0.8, 2.0, 0.93, 0.80, 20.0, 4.0),
+    (-0.9, 0.5, -1.8, 1.07, 0.95, -15.0, 7.0),
 ]
 
 
