@@ -190,6 +190,35 @@ def test_signal_stops_the_agent_cleanly(procs, tmp_path: Path, signum: int) -> N
     assert [r["reason"] for r in leave] == ["stopped"]
 
 
+_NODE_ONLY = """
+import sys, time
+from blackboard.config import ZenohOptions
+from blackboard.runtime import Runtime
+rt = Runtime(run_id=sys.argv[1], zenoh=ZenohOptions(listen=[sys.argv[2]])).__enter__()
+print("up", flush=True)
+time.sleep(600)
+"""
+
+
+def test_agent_whose_node_crashes_exits_with_an_error(procs, tmp_path: Path) -> None:
+    endpoint, run_id = loopback_endpoint(), _run_id()
+    node = subprocess.Popen([sys.executable, "-c", _NODE_ONLY, run_id, endpoint], cwd=ROOT, env=ENV,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert node.stdout is not None and node.stdout.readline() == "up\n"
+        agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
+                           "--connect", endpoint), ROOT)
+        agent.wait_line(lambda s: "joined run" in s)
+    finally:
+        node.kill()  # kill -9: no run end announced
+        node.wait()
+        if node.stdout is not None:
+            node.stdout.close()
+    assert agent.wait() == 2, agent.text
+    assert f"the blackboard node of run {run_id} at {endpoint} went away without ending the run" in agent.text
+    assert "Traceback" not in agent.text
+
+
 CANNOT_JOIN = {
     # case: (extra args, needs a node of another run, expected message part)
     "unreachable": ([], False, "cannot reach the blackboard at {endpoint} within 1 s"),
