@@ -29,7 +29,7 @@ from blackboard.config import ZenohOptions, add_zenoh_arguments, zenoh_options_f
 
 HELP = "run one knowledge source here, joining a run on another machine (--connect ENDPOINT)"
 
-__all__ = ["HELP", "add_arguments", "main", "command_line", "parse_option", "format_option"]
+__all__ = ["HELP", "add_arguments", "main", "command_line", "parse_option", "format_option", "run_id_argument"]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +86,16 @@ def command_line(
     return argv
 
 
+def run_id_argument(text: str) -> str:
+    """argparse ``type`` of ``--run-id``: a valid key chunk (letters, digits, ``_``, ``-``)."""
+    from blackboard.hypothesis import validate_name
+
+    try:
+        return validate_name(text, "run id")
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
 def _positive(text: str) -> float:
     try:
         value = float(text)
@@ -102,7 +112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the knowledge source class, module:Class "
                              "(e.g. knowledge_sources.detector:LandmarkDetectorAgent)")
     parser.add_argument("--name", required=True, help="the agent's name in the run (e.g. detector-house)")
-    parser.add_argument("--run-id", required=True, metavar="RUN", help="the run to join (mapinterp run --run-id)")
+    parser.add_argument("--run-id", required=True, type=run_id_argument, metavar="RUN", help="the run to join (mapinterp run --run-id)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="an option of the knowledge source; VALUE is JSON or text (repeatable)")
     parser.add_argument("--connect-timeout", type=_positive, default=CONNECT_TIMEOUT_S, metavar="SECONDS",
@@ -135,7 +145,7 @@ def main(args: argparse.Namespace) -> int:
                          zenoh_options=ZenohOptions(config_file=options.config_file))
     stop = threading.Event()
     handled = (signal.SIGTERM, signal.SIGINT)
-    previous = {}
+    previous: dict[int, Any] = {}
     try:
         runner.start(wait_s=args.connect_timeout)  # Ctrl-C here: KeyboardInterrupt, exit 130
         # from now on SIGTERM and Ctrl-C only ask to stop: the agent leaves cleanly, exit 0

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from blackboard.config import add_zenoh_arguments, zenoh_options_from_args
+from knowledge_sources.commands.agent import run_id_argument
 
 HELP = "localize the vehicle: run the agent ensemble on a scenario over the blackboard"
 
@@ -31,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
                         help="give up (with an error naming the busy agents) after this long")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--run-id", default=None, metavar="RUN",
+    parser.add_argument("--run-id", default=None, type=run_id_argument, metavar="RUN",
                         help="the run's id, which remote agents give to join it (default: random)")
     parser.add_argument("--remote", action="append", default=[], metavar="AGENT",
                         help="do not start this agent of the mission here; wait for it to join from "

@@ -23,8 +23,9 @@ from blackboard.errors import AgentError
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
 from knowledge_sources.commands.agent import command_line, format_option, parse_option
-from knowledge_sources.mission import run_mission
+from knowledge_sources.mission import agent_plan, run_mission
 from knowledge_sources.results import load_results
+from models.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 AGENTS = "tests.blackboard.agents"
@@ -226,6 +227,7 @@ CANNOT_JOIN = {
     "bad-factory": (["--name", "x"], False, "cannot import factory"),
     "listen": (["--listen", "tcp/127.0.0.1:7447"], False, "use --connect, not --listen"),
     "bad-option": (["--option", "nokey"], False, "--option must be key=value"),
+    "bad-run-id": (["--run-id", "a/b"], False, "--run-id: run id must be 1-128 characters"),
 }
 
 
@@ -246,7 +248,7 @@ def test_agent_that_cannot_join_fails_clearly(procs, tmp_path: Path, extra: list
         code = agent.wait()
     assert code == 2, agent.text
     assert expected.format(endpoint=endpoint, run_id=run_id) in agent.text
-    assert agent.text.startswith("mapinterp agent: error: ") and "Traceback" not in agent.text
+    assert agent.text.splitlines()[-1].startswith("mapinterp agent: error: ") and "Traceback" not in agent.text
     assert time.monotonic() - started < PATIENCE_S
 
 
@@ -254,16 +256,24 @@ def test_agent_that_cannot_join_fails_clearly(procs, tmp_path: Path, extra: list
 
 
 @pytest.mark.slow
-def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("agents_first", [False, True], ids=["run-first", "agents-first"])
+def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path, agents_first: bool) -> None:
     endpoint, run_id = loopback_endpoint(), _run_id()
     out, trace = tmp_path / "r.json", tmp_path / "run.trace"
-    run = procs(_cli("run", str(small), "--listen", endpoint, "--run-id", run_id, "--remote", "detector-house",
-                     "--remote", "detector-tower", "--out", str(out), "--trace", str(trace), "--no-progress"),
-                tmp_path)
-    commands = _remote_commands(run, 2)  # copied from what the run printed
-    assert all(argv[argv.index("--run-id") + 1] == run_id and argv[argv.index("--connect") + 1] == endpoint
-               for argv in commands)
-    agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
+    run_argv = _cli("run", str(small), "--listen", endpoint, "--run-id", run_id, "--remote", "detector-house",
+                    "--remote", "detector-tower", "--out", str(out), "--trace", str(trace), "--no-progress")
+    if agents_first:  # started before the run: they keep trying to reach it
+        commands = [_cli(*command_line(factory, name, options, run_id=run_id, connect=endpoint)[1:])
+                    for factory, name, options in agent_plan(load_scenario(small)) if name.startswith("detector-")]
+        agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
+        run = procs(run_argv, tmp_path)
+        assert _remote_commands(run, 2) == commands  # what the run prints is what was started
+    else:
+        run = procs(run_argv, tmp_path)
+        commands = _remote_commands(run, 2)  # copied from what the run printed
+        assert all(argv[argv.index("--run-id") + 1] == run_id and argv[argv.index("--connect") + 1] == endpoint
+                   for argv in commands)
+        agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
     assert set(agents) == {"detector-house", "detector-tower"}
     assert run.wait() == 0, run.text
     for name, agent in agents.items():  # they stop by themselves at the end of the run
