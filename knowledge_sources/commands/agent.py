@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import signal
 import sys
 import threading
@@ -30,8 +29,6 @@ from blackboard.config import ZenohOptions, add_zenoh_arguments, zenoh_options_f
 HELP = "run one knowledge source here, joining a run on another machine (--connect ENDPOINT)"
 
 __all__ = ["HELP", "add_arguments", "main", "command_line", "parse_option", "format_option", "run_id_argument"]
-
-log = logging.getLogger(__name__)
 
 #: default of --connect-timeout: how long to keep trying to reach the blackboard
 CONNECT_TIMEOUT_S = 30.0
