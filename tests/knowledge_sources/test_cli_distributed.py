@@ -4,6 +4,7 @@ like local agents, and they stop by themselves when the run ends."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import queue
 import shlex
@@ -18,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from blackboard.config import ZenohOptions, loopback_endpoint
+from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
 from blackboard.errors import AgentError
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
@@ -134,11 +135,18 @@ def test_malformed_option_is_refused(text: str) -> None:
 # -- mapinterp agent against a Runtime of the test ------------------------------------------------------
 
 
-def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_path: Path) -> None:
-    """A remote Doubler feeds a local Echo: the run is quiescent only once both have worked."""
+@pytest.mark.parametrize("via_router", [False, True], ids=["node-listens", "via-a-zenoh-router"])
+def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_path: Path, via_router: bool) -> None:
+    """A remote Doubler feeds a local Echo: the run is quiescent only once both have worked. Either
+    the node listens where the agent connects, or both connect to a zenoh router (as to a zenohd)."""
     endpoint, run_id = loopback_endpoint(), _run_id()
     trace = tmp_path / "run.trace"
-    with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=trace) as rt:
+    router = open_session(zenoh_config(ZenohOptions(listen=[endpoint]), mode="router")) if via_router else None
+    options = ZenohOptions(connect=[endpoint]) if via_router else ZenohOptions(listen=[endpoint])
+    with contextlib.ExitStack() as stack:
+        if router is not None:
+            stack.callback(router.close)
+        rt = stack.enter_context(Runtime(run_id=run_id, zenoh=options, trace_path=trace))
         agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
                            "--connect", endpoint), ROOT)
         rt.add(f"{AGENTS}:Echo", name="echo")
@@ -148,7 +156,8 @@ def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_pa
         outcome = rt.run(timeout_s=PATIENCE_S)
         assert sorted(h.body["x"] for h in rt.hypotheses("echo")) == [2, 4, 6]
         assert outcome.agents == {"doubler": "ok", "echo": "ok"}
-    assert agent.wait() == 0, agent.text  # the node announced the end: the agent stopped by itself
+    # the run ended (then the router, if any, closed): the node announced it, the agent stopped by itself
+    assert agent.wait() == 0, agent.text
     assert "the run ended" in agent.text
     records = read_trace(trace)
     join = next(r for r in records if r["kind"] == "agent_join" and r["agent"] == "doubler")
