@@ -20,15 +20,15 @@ class LandmarkDetectorAgent(KnowledgeSource):
     from the blackboard and runs the detector registered for L's kind
     (:func:`models.detectors.default_registry`). It never reads the ``truth`` level.
 
-    Options: ``threshold`` (score for "present", default 0.55), ``absent_threshold`` (below it,
-    "absent", default 0.35; in between the answer is undecided), ``cache`` (frames and viewframes
+    Options: ``threshold`` (score for "present", default 0.65), ``absent_threshold`` (below it,
+    "absent", default 0.15; in between the answer is undecided), ``cache`` (frames and viewframes
     kept, default 64).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.QUERY,)
     produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
 
-    def __init__(self, name: str, *, threshold: float = 0.55, absent_threshold: float = 0.35, cache: int = 64,
+    def __init__(self, name: str, *, threshold: float = 0.65, absent_threshold: float = 0.15, cache: int = 64,
                  **options: Any) -> None:
         super().__init__(name, **options)
         self.threshold = float(threshold)

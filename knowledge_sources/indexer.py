@@ -16,11 +16,14 @@ log = logging.getLogger(__name__)
 
 
 class AssociativeIndexer(KnowledgeSource):
-    """Stores the viewframes of its bank (``index % banks == bank``) in a holographic memory and
-    posts, for each camera frame, the ranking of those viewframes by error variance.
+    """Stores the viewframes of its shard (``index % banks == bank``) in a banked holographic
+    memory (:class:`~models.associative.BankedMemory`, ``memory.bank_size`` viewframes per bank)
+    and posts, for each camera frame, the ranking of those viewframes by error variance. The
+    scheduler merges the rankings of all shards (variances are comparable across banks).
 
-    Options: ``bank`` (int, default 0), ``banks`` (int, default 1). Memory parameters (size, edge
-    method, blur) come from the scenario through the ``map`` hypothesis. Camera frames that
+    Options: ``bank`` (this shard, default 0), ``banks`` (number of shards, default 1). Memory
+    parameters (size, edge method, blur, bank size, shift search) come from the scenario through
+    the ``map`` hypothesis. Camera frames that
     arrive before the bank is complete wait; viewframes missed as events are read back from the
     blackboard, so an indexer that joins late or restarts still indexes everything.
     """
@@ -64,7 +67,7 @@ class AssociativeIndexer(KnowledgeSource):
                 self._rank(h, board)
 
     def _build(self, body: dict[str, Any], board: Board) -> None:
-        from models.associative import HolographicMemory
+        from models.associative import BankedMemory
         from models.preprocess import preprocess
 
         spec = body["memory"]
@@ -76,7 +79,8 @@ class AssociativeIndexer(KnowledgeSource):
                 if got is None:
                     raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
                 self._images[k] = got.body["image"]
-        memory = HolographicMemory(int(spec["size"]), seed=self.bank, key_method=str(spec["key"]))
+        memory = BankedMemory(int(spec["size"]), bank_size=int(spec["bank_size"]), seed=self.bank,
+                              key_method=str(spec["key"]), max_shift=tuple(spec["max_shift"]))
         memory.write_many(
             (preprocess(self._images[k], size=spec["size"], edge=spec["edge"], blur_sigma=spec["blur_sigma"])
              for k in mine),
@@ -84,7 +88,7 @@ class AssociativeIndexer(KnowledgeSource):
         )
         self._memory = memory
         self._images.clear()
-        log.info("%s: bank %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
+        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
 
     def _rank(self, frame, board: Board) -> None:
         from models.preprocess import preprocess

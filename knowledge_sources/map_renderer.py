@@ -64,7 +64,10 @@ class MapRenderer(KnowledgeSource):
                     for i, lm in enumerate(scenario.landmarks)
                 ],
                 "route": [[float(x), float(y)] for x, y in scenario.route],
-                "visible": {str(vf.index): list(vf.description.visible) for vf in viewframes},
+                "visible": {
+                    str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
+                    for vf in viewframes
+                },
                 "memory": scenario.memory.model_dump(),
             },
             id="map",

@@ -5,8 +5,8 @@ benchmark call. It starts the knowledge sources
 
 * ``map-renderer`` (:class:`~knowledge_sources.map_renderer.MapRenderer`),
 * ``camera`` (:class:`~knowledge_sources.camera.Camera`),
-* ``indexer-<b>``, one :class:`~knowledge_sources.indexer.AssociativeIndexer` per memory bank
-  (``ceil(route points / memory.bank_size)`` banks),
+* ``indexer-<b>``, one :class:`~knowledge_sources.indexer.AssociativeIndexer` per shard of
+  viewframes (``ceil(route points / memory.shard_size)`` shards, each a set of memory banks),
 * ``detector-<kind>``, one :class:`~knowledge_sources.detector.LandmarkDetectorAgent` per
   landmark kind of the scenario,
 * ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`),
@@ -48,7 +48,7 @@ def agent_plan(
 ) -> list[tuple[str, str, dict[str, Any]]]:
     """The agents of a mission: ``(factory, name, options)`` triples, options being plain data."""
     sched = scenario.scheduler
-    banks = max(1, math.ceil(len(scenario.route) / scenario.memory.bank_size))
+    banks = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
         ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate}),
@@ -57,7 +57,7 @@ def agent_plan(
         plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{b}", {"bank": b, "banks": banks}))
     for kind in sorted({lm.kind for lm in scenario.landmarks}):
         plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
-                     {"threshold": sched.detector_threshold}))
+                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold}))
     plan.append((
         "knowledge_sources.scheduler:Scheduler",
         "scheduler",
@@ -65,6 +65,9 @@ def agent_plan(
             "strategy": strategy or sched.strategy,
             "candidates": sched.candidates,
             "accept": sched.accept,
+            "reliability": sched.reliability,
+            "beta": sched.beta,
+            "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
         },
     ))

@@ -48,7 +48,9 @@ class _Frame:
 
 class Scheduler(KnowledgeSource):
     """Options: ``strategy`` ("associative" or "prior"), ``candidates``, ``accept``,
-    ``reliability`` (assumed detector reliability), ``query_timeout_s``.
+    ``reliability`` (assumed detector reliability), ``beta`` (ranking weight sharpness),
+    ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
+    the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER)
@@ -61,8 +63,10 @@ class Scheduler(KnowledgeSource):
         *,
         strategy: str = "associative",
         candidates: int = 8,
-        accept: float = 0.75,
-        reliability: float = 0.9,
+        accept: float = 0.6,
+        reliability: float = 0.8,
+        beta: float = 3.0,
+        min_pixels: int = 60,
         query_timeout_s: float = 10.0,
         **options: Any,
     ) -> None:
@@ -73,6 +77,8 @@ class Scheduler(KnowledgeSource):
         self.candidates = int(candidates)
         self.accept = float(accept)
         self.reliability = float(reliability)
+        self.beta = float(beta)
+        self.min_pixels = int(min_pixels)
         self.query_timeout_s = float(query_timeout_s)
         self._map: dict[str, Any] | None = None
         self._frames: dict[int, _Frame] = {}
@@ -128,7 +134,8 @@ class Scheduler(KnowledgeSource):
         mp = self._ensure_map(board)
         merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
         st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
-        visible = {int(k): frozenset(v) for k, v in mp["visible"].items()}
+        visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
+                   for k, v in mp["visible"].items()}
         st.analysis = SceneAnalysis(
             st.ranking,
             visible,
@@ -136,6 +143,7 @@ class Scheduler(KnowledgeSource):
             candidates=self.candidates,
             accept=self.accept,
             reliability=self.reliability,
+            beta=self.beta,
             priors=mp["priors"],
         )
         self._advance(st, board)

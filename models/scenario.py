@@ -193,13 +193,30 @@ class SensorSpec(_Spec):
 
 
 class MemorySpec(_Spec):
-    """Associative memory settings."""
+    """Associative memory settings.
+
+    ``bank_size`` viewframes share one holographic memory (its capacity: measured top-1 is 1.0 up
+    to 16 patterns at N=128 and falls fast beyond 32); ``shard_size`` viewframes go to one
+    associative indexer agent, which holds them in as many banks as needed; ``max_shift`` is the
+    (rows, cols) search in memory pixels that absorbs pose jitter (16 columns at N=128 is about
+    7 degrees of heading at a 60 degree horizontal field of view). Defaults from bench/index.py and
+    the bundled scenarios (see BENCHMARKS.md).
+    """
 
     size: int = 128
     edge: Literal["canny", "sobel"] = "sobel"
-    blur_sigma: float = Field(default=2.0, gt=0)
-    bank_size: int = Field(default=512, ge=1)
-    key: str = "phase"
+    blur_sigma: float = Field(default=1.0, gt=0)
+    bank_size: int = Field(default=2, ge=1)
+    shard_size: int = Field(default=512, ge=1)
+    max_shift: tuple[int, int] = (2, 16)
+    key: Literal["phase", "quantized"] = "phase"
+
+    @field_validator("max_shift")
+    @classmethod
+    def _shift_range(cls, value: tuple[int, int]) -> tuple[int, int]:
+        if not all(0 <= v <= 16 for v in value):
+            raise ValueError("must be two integers in 0..16")
+        return value
 
     @field_validator("size")
     @classmethod
@@ -210,13 +227,25 @@ class MemorySpec(_Spec):
 
 
 class SchedulerSpec(_Spec):
-    """Hypothesis scheduler settings."""
+    """Scene-analysis scheduler and detector settings (the rule is documented in
+    :mod:`knowledge_sources.scene_analysis`). Defaults were tuned on simulated frames of the
+    bundled scenarios with other seeds than theirs (see BENCHMARKS.md)."""
 
     candidates: int = Field(default=8, ge=1)
-    accept: float = Field(default=0.75, ge=0, le=1)
-    detector_threshold: float = Field(default=0.5, ge=0, le=1)
+    accept: float = Field(default=0.6, gt=0, le=1)
+    reliability: float = Field(default=0.8, gt=0.5, lt=1)
+    beta: float = Field(default=3.0, gt=0)
+    min_pixels: int = Field(default=60, ge=1)
+    detector_threshold: float = Field(default=0.65, ge=0, le=1)
+    absent_threshold: float = Field(default=0.15, ge=0, le=1)
     query_timeout_s: float = Field(default=10.0, gt=0)
     strategy: Literal["associative", "prior"] = "associative"
+
+    @model_validator(mode="after")
+    def _thresholds(self) -> SchedulerSpec:
+        if self.absent_threshold > self.detector_threshold:
+            raise ValueError(f"absent_threshold must be <= detector_threshold ({self.detector_threshold})")
+        return self
 
 
 class ExpectSpec(_Spec):

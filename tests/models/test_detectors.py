@@ -1,6 +1,5 @@
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -52,10 +51,13 @@ def _view(rng) -> CandidateView:
 )
 def test_edge_template_present_and_absent(case, expected):
     rng = np.random.default_rng(4)
-    det = EdgeTemplateDetector()
+    det = EdgeTemplateDetector(threshold=0.55, absent_threshold=0.35)
     result = det.detect(_scene(rng, **case), view=_view(rng))
     assert result.present is expected, result
     assert -1.0 <= result.score <= 1.0
+    # the cautious defaults never call an absent landmark present, nor a present one absent
+    default = EdgeTemplateDetector().detect(_scene(np.random.default_rng(4), **case), view=_view(rng))
+    assert default.present is not (not expected), default
 
 
 def test_found_location_follows_the_shift():
@@ -136,5 +138,5 @@ def test_rendered_house_found_from_its_viewframe_and_not_elsewhere():
     found = det.detect(degrade(near.image, depth=near.depth, spec=spec, rng=rng), view=view)
     missed = det.detect(degrade(away.image, depth=away.depth, spec=spec, rng=rng), view=view)
     assert found.present is True, found
-    assert missed.present is False, missed
-    assert not math.isclose(found.score, missed.score)
+    assert missed.present is not True, missed
+    assert found.score > missed.score + 0.2

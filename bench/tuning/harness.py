@@ -1,0 +1,56 @@
+"""Offline tuning of the scheduler/detector parameters: real memory, real detectors, real SceneAnalysis,
+on simulated frames with seeds other than the bundled scenarios' (no overfitting to them)."""
+import os, sys, itertools, pickle, numpy as np
+os.environ.setdefault("PYOPENGL_PLATFORM","egl")
+from models.scenario import load_scenario
+from models.environment import build_environment
+from models.camera import CameraEmulator
+from models.viewframes import build_viewframes
+from models.sensor import simulate_frames
+from models.preprocess import preprocess
+from models.associative import BankedMemory
+from models.detectors import default_registry, CandidateView
+from knowledge_sources.scene_analysis import SceneAnalysis
+
+def prepare(path, seed):
+    sc = load_scenario(path)
+    env = build_environment(sc)
+    with CameraEmulator(env, sc.camera) as cam:
+        vfs = build_viewframes(sc, emulator=cam)
+        frames = simulate_frames(sc, cam, [v.pose for v in vfs], spec=sc.sensor.simulate, rng=seed)
+        fmasks = [cam.render(cam.pose_at(*f.truth)).mask for f in frames]
+    m = sc.memory
+    mem = BankedMemory(m.size, bank_size=m.bank_size, max_shift=m.max_shift)
+    mem.write_many([preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs], list(range(len(vfs))))
+    ranks = [mem.rank(preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma)) for f in frames]
+    truth = [int(np.argmin([np.hypot(v.pose.x-f.truth[0], v.pose.y-f.truth[1]) for v in vfs])) for f in frames]
+    idx = {lm.id: i for i, lm in enumerate(env.landmarks)}
+    kinds = {lm.id: lm.kind for lm in env.landmarks}
+    pixels = {v.index: {n: v.description.graph.nodes[n]["pixels"] for n in v.description.visible} for v in vfs}
+    # detector scores cache: (frame, landmark, viewframe) -> score/present
+    fvis = [{lm.id: int((fm == i).sum()) for i, lm in enumerate(env.landmarks)} for fm in fmasks]
+    return dict(fvis=fvis, name=sc.name, vfs=[(v.image, v.mask) for v in vfs], frames=[f.image for f in frames], ranks=ranks,
+                truth=truth, idx=idx, kinds=kinds, pixels=pixels)
+
+def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0.55, athr=0.35, candidates=8, accept=0.75, strategy="associative", priors=None, cache={}):
+    reg = default_registry(threshold=thr, absent_threshold=athr)
+    ok = 0; queries = 0
+    for fi, (rk, t) in enumerate(zip(d["ranks"], d["truth"])):
+        visible = {k: {lm for lm, px in pl.items() if px >= min_pixels} for k, pl in d["pixels"].items()}
+        sa = SceneAnalysis([(int(k), float(v)) for k, v in zip(rk.labels, rk.variances)], visible, strategy=strategy,
+                           candidates=candidates, accept=accept, reliability=reliability, priors=priors, beta=beta)
+        while (q := sa.next_question()) is not None:
+            key = (d["name"], fi, q.landmark, q.viewframe)
+            if key not in cache:
+                img, mask = d["vfs"][q.viewframe]
+                det = reg.for_kind(d["kinds"][q.landmark])
+                r = det.detect(d["frames"][fi], view=CandidateView.from_mask(img, mask, d["idx"][q.landmark]))
+                cache[key] = (r.score, r.location is None)
+            s, unsearched = cache[key]
+            present = None if unsearched else (True if s >= thr else (False if s < athr else None))
+            if oracle:
+                present = d["fvis"][fi][q.landmark] >= 10
+            sa.answer(q, present)
+        ok += sa.decision.viewframe == t; queries += sa.decision.queries
+    n = len(d["truth"])
+    return ok / n, queries / n
