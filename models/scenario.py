@@ -37,6 +37,7 @@ from pydantic import (
 )
 
 from blackboard.errors import ScenarioError
+from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT
 
 __all__ = [
     "ProceduralSpec",
@@ -206,9 +207,9 @@ class MemorySpec(_Spec):
     size: int = 128
     edge: Literal["canny", "sobel"] = "sobel"
     blur_sigma: float = Field(default=1.0, gt=0)
-    bank_size: int = Field(default=2, ge=1)
+    bank_size: int = Field(default=DEFAULT_BANK_SIZE, ge=1)
     shard_size: int = Field(default=512, ge=1)
-    max_shift: tuple[int, int] = (2, 16)
+    max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT
     key: Literal["phase", "quantized"] = "phase"
 
     @field_validator("max_shift")
