@@ -50,6 +50,8 @@ _ACTIVITY_BATCH = 64
 _IDLE_GRACE_S = 0.002
 #: between two attempts to reach the node while :meth:`AgentRunner.start` waits for it
 _RETRY_S = 0.2
+#: how long :meth:`AgentRunner.stop` waits for the node to acknowledge the agent's leaving
+_LEAVE_TIMEOUT_S = 2.0
 
 
 def node_token_key(keys: RunKeys) -> str:
@@ -199,8 +201,21 @@ class AgentRunner:
             except Exception:  # the agent's own code
                 logger.exception("agent %s: shutdown raised", self.name)
             self._flush(state="stopped")
+            self._leave()
         self._close_session()
         self.done.set()
+
+    def _leave(self) -> None:
+        """Tell the node this agent stops, and wait for its answer: the liveliness token dropped
+        next is then never taken for a death (a token's undeclaration may overtake a status put)."""
+        if self._session is None or self.node_lost:
+            return
+        try:
+            for _ in self._session.get(self.keys.request, payload=encode({"op": "leave", "agent": self.name}),
+                                       timeout=_LEAVE_TIMEOUT_S, congestion_control=zenoh.CongestionControl.BLOCK):
+                pass
+        except (zenoh.ZError, CodecError) as err:
+            logger.warning("agent %s: could not say goodbye to the node: %s", self.name, err)
 
     def kill(self) -> None:
         """Drop the session abruptly (tests: an agent that dies); no shutdown, no goodbye."""

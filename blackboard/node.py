@@ -470,6 +470,12 @@ class BlackboardNode:
             return
         if op == "join":
             self._reply(query, self._join(agent, request))
+        elif op == "leave":  # a clean stop: the token dropped next is no death
+            state = self.agents.get(agent)
+            if state is not None and state.live:
+                with self._lock:
+                    state.state = "stopped"
+            self._reply(query, {"ok": True})
         elif op in ("update", "retract"):
             self._deferred.append(_Deferred(_after(agent, sent, request.get("after")), self._change,
                                             (query, op, agent, request)))
