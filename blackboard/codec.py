@@ -14,6 +14,8 @@ Example::
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterable
 from typing import Any
 
 import msgpack
@@ -30,6 +32,7 @@ DEFAULT_MAX_BYTES = 64 * 1024 * 1024
 MAX_DEPTH = 32
 _MAX_NDIM = 32
 _KINDS = frozenset("biufcSU")
+_CONTAINERS = (dict, list, tuple)
 
 
 def _default(obj: Any) -> Any:
@@ -74,20 +77,46 @@ def _find_bad(obj: Any, path: str, depth: int = 0) -> tuple[str, str] | None:
     return path, f"cannot encode {type(obj).__name__}"
 
 
-def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
+_local = threading.local()
+
+
+def _packer() -> msgpack.Packer:
+    """This thread's reusable packer (a Packer is not thread-safe; making one per call costs
+    as much as packing a 1 KB message)."""
+    packer = getattr(_local, "packer", None)
+    if packer is None:
+        packer = _local.packer = msgpack.Packer(default=_default, use_bin_type=True, strict_types=False)
+    return packer
+
+
+def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES, check: Iterable[tuple[Any, int]] | None = None) -> bytes:
     """Encode nested dicts/lists/scalars/bytes/numpy arrays to msgpack bytes.
+
+    ``check``: the parts of ``obj`` that may hold non-str map keys or deep nesting, each with
+    its depth in ``obj`` (e.g. ``[(body, 2)]`` for a message whose envelope the caller built
+    from str keys); None checks all of ``obj``. Errors are the same either way.
 
     Raises:
         CodecError: an unsupported value (``.key`` is its path, e.g. ``body.image``), map keys
             that are not str, nesting deeper than :data:`MAX_DEPTH`, or a result over ``max_bytes``.
     """
     try:
-        data = msgpack.packb(obj, default=_default, use_bin_type=True, strict_types=False)
+        data = _packer().pack(obj)
     except (TypeError, ValueError, OverflowError) as err:
+        _local.packer = None  # never reuse a packer an error left in an unknown state
         found = _find_bad(obj, "")
         key, why = found if found else (None, str(err))
         raise CodecError(f"cannot encode: {why}", key=key or None) from None
-    if not _containers_ok(obj, 0):  # non-str map keys, too deep: msgpack itself would accept them
+    if check is None:
+        ok = _containers_ok(obj, 0, True)
+    else:  # as the walk of all of obj would see them: only exact dict/list/tuple are visited inside
+        ok = True
+        for part, depth in check:
+            if type(part) in _CONTAINERS and not _containers_ok(part, depth, True):
+                ok = False
+                break
+    if not ok:
+        # non-str map keys, too deep: msgpack itself would accept them
         found = _find_bad(obj, "")
         key, why = found if found else (None, "invalid structure")
         raise CodecError(f"cannot encode: {why}", key=key or None)
@@ -96,28 +125,28 @@ def encode(obj: Any, *, max_bytes: int = DEFAULT_MAX_BYTES) -> bytes:
     return data
 
 
-def _containers_ok(obj: Any, depth: int, *, keys: bool = True) -> bool:
+def _containers_ok(obj: Any, depth: int, keys: bool) -> bool:
     """True if maps have str keys (when ``keys``) and nesting is within :data:`MAX_DEPTH`;
     visits containers only (the hot path of every message)."""
     if depth > MAX_DEPTH:
         return False
     kind = type(obj)
     if kind is dict:
-        for k, v in obj.items():
-            if keys and type(k) is not str:
-                return False
-            if type(v) in _CONTAINERS and not _containers_ok(v, depth + 1, keys=keys):
-                return False
-    elif kind in _CONTAINERS:
-        for v in obj:
-            if type(v) in _CONTAINERS and not _containers_ok(v, depth + 1, keys=keys):
-                return False
-    elif isinstance(obj, (dict, list, tuple)):  # subclasses: the slow, general walk
-        return _find_bad(obj, "") is None
+        if keys:
+            for k in obj:
+                if type(k) is not str:
+                    return False
+        obj = obj.values()
+    elif kind is not list and kind is not tuple:
+        if isinstance(obj, (dict, list, tuple)):  # subclasses: the slow, general walk
+            return _find_bad(obj, "") is None  # (only ever at the top: nested ones are exact types)
+        return True
+    depth += 1
+    for v in obj:
+        kind = type(v)
+        if (kind is dict or kind is list or kind is tuple) and not _containers_ok(v, depth, keys):
+            return False
     return True
-
-
-_CONTAINERS = (dict, list, tuple)
 
 
 def _ext_hook(code: int, data: bytes) -> Any:
@@ -162,6 +191,6 @@ def decode(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, key: str | None =
         )
     except Exception as err:  # msgpack raises many types (ExtraData, ValueError, UnpackValueError, ...)
         raise CodecError(f"malformed message: {type(err).__name__}: {err}", key=key) from None
-    if not _containers_ok(obj, 0, keys=False):
+    if not _containers_ok(obj, 0, False):
         raise CodecError(f"message nested deeper than {MAX_DEPTH}", key=key)
     return obj

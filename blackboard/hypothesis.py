@@ -28,11 +28,26 @@ __all__ = ["Hypothesis", "validate_name", "new_id", "NAME_PATTERN"]
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,128}")
 
 
+#: names already validated (levels, agents: a handful per run; ids are not remembered)
+_KNOWN_NAMES: set[str] = set()
+_MAX_KNOWN_NAMES = 4096
+
+
 def validate_name(value: object, what: str) -> str:
     """Return ``value`` if it is a valid chunk name, else raise ``ValueError`` naming ``what``."""
     if not isinstance(value, str) or NAME_PATTERN.fullmatch(value) is None:
         raise ValueError(f"{what} must be 1-128 characters of [A-Za-z0-9_-], got {value!r}")
     return value
+
+
+def _check_known_name(value: object, what: str) -> None:
+    """:func:`validate_name` for names that recur (levels, agents), remembered once valid."""
+    if value in _KNOWN_NAMES and type(value) is str:
+        return
+    validate_name(value, what)
+    if len(_KNOWN_NAMES) >= _MAX_KNOWN_NAMES:
+        _KNOWN_NAMES.clear()
+    _KNOWN_NAMES.add(value)  # type: ignore[arg-type]
 
 
 _PROCESS_TOKEN = os.urandom(6).hex()
@@ -74,24 +89,16 @@ class Hypothesis:
     deadline_s: float | None = None
 
     def __post_init__(self) -> None:
-        validate_name(self.id, "hypothesis id")
-        validate_name(self.level, "level")
-        validate_name(self.source, "source")
-        if self.addressed_to is not None:
-            validate_name(self.addressed_to, "addressed_to")
-        if not isinstance(self.credibility, (int, float)) or not 0.0 <= float(self.credibility) <= 1.0:
-            raise ValueError(f"credibility must be a number in [0, 1], got {self.credibility!r}")
-        if not isinstance(self.version, int) or self.version < 1:
-            raise ValueError(f"version must be an integer >= 1, got {self.version!r}")
-        if not isinstance(self.body, dict):
-            raise ValueError(f"body must be a dict, got {type(self.body).__name__}")
-        if self.deadline_s is not None and not float(self.deadline_s) > 0:
-            raise ValueError(f"deadline_s must be > 0, got {self.deadline_s!r}")
-        links = tuple(self.links)
-        for link in links:
-            validate_name(link, "link")
-        object.__setattr__(self, "links", links)
-        object.__setattr__(self, "credibility", float(self.credibility))
+        _check_fields(self.__dict__)
+
+    @classmethod
+    def _make(cls, fields: dict[str, Any]) -> Hypothesis:
+        """A validated instance from all its fields (the fast path of :meth:`new` and
+        :meth:`from_record`: no per-field frozen ``__setattr__``); same checks as ``__init__``."""
+        _check_fields(fields)
+        self = object.__new__(cls)
+        self.__dict__.update(fields)
+        return self
 
     @classmethod
     def new(
@@ -107,18 +114,18 @@ class Hypothesis:
         deadline_s: float | None = None,
     ) -> Hypothesis:
         """A version-1 hypothesis with a fresh id (``<source>-<hex>``) unless ``id`` is given."""
-        return cls(
-            id=new_id(source) if id is None else id,
-            level=level,
-            source=source,
-            credibility=credibility,
-            links=tuple(links),
-            version=1,
-            timestamp=time.time(),
-            body=body,
-            addressed_to=addressed_to,
-            deadline_s=None if deadline_s is None else float(deadline_s),
-        )
+        return cls._make({
+            "id": new_id(source) if id is None else id,
+            "level": level,
+            "source": source,
+            "credibility": credibility,
+            "links": links,
+            "version": 1,
+            "timestamp": time.time(),
+            "body": body,
+            "addressed_to": addressed_to,
+            "deadline_s": None if deadline_s is None else float(deadline_s),
+        })
 
     def evolve(self, *, body: dict | None = None, credibility: float | None = None) -> Hypothesis:
         """The next version: ``body`` is merged into the current body (top-level keys)."""
@@ -151,19 +158,49 @@ class Hypothesis:
         if not isinstance(record, dict):
             raise CodecError(f"hypothesis record must be a map, got {type(record).__name__}", key=key)
         try:
-            return cls(
-                id=record["id"],
-                level=record["level"],
-                source=record["source"],
-                credibility=record["credibility"],
-                links=tuple(record.get("links", ())),
-                version=record["version"],
-                timestamp=float(record["timestamp"]),
-                body=record["body"],
-                addressed_to=record.get("addressed_to"),
-                deadline_s=record.get("deadline_s"),
-            )
+            get = record.get
+            return cls._make({
+                "id": record["id"],
+                "level": record["level"],
+                "source": record["source"],
+                "credibility": record["credibility"],
+                "links": get("links", ()),
+                "version": record["version"],
+                "timestamp": float(record["timestamp"]),
+                "body": record["body"],
+                "addressed_to": get("addressed_to"),
+                "deadline_s": get("deadline_s"),
+            })
         except KeyError as err:
             raise CodecError(f"hypothesis record lacks field {err.args[0]!r}", key=key) from None
         except (TypeError, ValueError) as err:
             raise CodecError(f"bad hypothesis record: {err}", key=key) from None
+
+
+def _check_fields(fields: dict[str, Any]) -> None:
+    """Validate the fields of a :class:`Hypothesis` in place (``links`` becomes a tuple,
+    ``credibility`` a float); raise ``ValueError`` naming the first bad one."""
+    validate_name(fields["id"], "hypothesis id")
+    _check_known_name(fields["level"], "level")
+    _check_known_name(fields["source"], "source")
+    addressed_to = fields["addressed_to"]
+    if addressed_to is not None:
+        _check_known_name(addressed_to, "addressed_to")
+    credibility = fields["credibility"]
+    if not isinstance(credibility, (int, float)) or not 0.0 <= float(credibility) <= 1.0:
+        raise ValueError(f"credibility must be a number in [0, 1], got {credibility!r}")
+    version = fields["version"]
+    if not isinstance(version, int) or version < 1:
+        raise ValueError(f"version must be an integer >= 1, got {version!r}")
+    body = fields["body"]
+    if not isinstance(body, dict):
+        raise ValueError(f"body must be a dict, got {type(body).__name__}")
+    deadline_s = fields["deadline_s"]
+    if deadline_s is not None and not float(deadline_s) > 0:
+        raise ValueError(f"deadline_s must be > 0, got {deadline_s!r}")
+    links = fields["links"]
+    links = links if type(links) is tuple else tuple(links)
+    for link in links:
+        validate_name(link, "link")
+    fields["links"] = links
+    fields["credibility"] = float(credibility)

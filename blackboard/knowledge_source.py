@@ -127,6 +127,7 @@ class Board:
         self._keys = keys
         self.agent = agent
         self._produces = None if produces is None else frozenset(produces)
+        self._levels_ok: set[str] = set()  # levels that passed _check_level (checked once)
         self._max = max_message_bytes
         self._lock = threading.Lock()
         self.sent = 0  # one-hop posts published so far (quiescence accounting)
@@ -135,9 +136,13 @@ class Board:
         self.seen_from: dict[str, int] = {}
 
     def _check_level(self, level: str) -> None:
+        if type(level) is str and level in self._levels_ok:
+            return
         validate_name(level, "level")
         if self._produces is not None and level not in self._produces:
             raise DeclarationError(self.agent, level, f"not declared in produces {sorted(self._produces)}")
+        if len(self._levels_ok) < 1024:
+            self._levels_ok.add(level)
 
     def post(
         self,
@@ -164,9 +169,9 @@ class Board:
         hyp = Hypothesis.new(level, body, source=self.agent, links=tuple(links), credibility=credibility,
                              id=id, addressed_to=addressed_to, deadline_s=deadline_s)
         key = self._keys.hypothesis(level, hyp.id)
-        with self._lock:
+        with self._lock:  # the envelope is ours (str keys, validated names): only the body needs the walk
             data = encode({"op": "post", "hyp": hyp.to_record(), "sender": self.agent, "n": self.sent + 1},
-                          max_bytes=self._max)
+                          max_bytes=self._max, check=((hyp.body, 2),))
             try:
                 self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
             except zenoh.ZError as err:
