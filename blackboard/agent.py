@@ -36,7 +36,7 @@ from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
-__all__ = ["AgentRunner", "node_token_key", "run_end_key"]
+__all__ = ["AgentRunner", "node_token_key", "run_end_key", "ACTIVITY_ROW", "ACTIVITY_CODES"]
 
 logger = logging.getLogger(__name__)
 
@@ -52,6 +52,14 @@ _IDLE_GRACE_S = 0.002
 _RETRY_S = 0.2
 #: how long :meth:`AgentRunner.stop` waits for the node to acknowledge the agent's leaving
 _LEAVE_TIMEOUT_S = 2.0
+
+
+#: an activity row, as an agent sends it in its status: ``(code, level, id, version, event, rating, t, extra)``
+#: with code ``"s"`` (activation_start, extra None), ``"f"`` (activation_finish, extra duration_s) or
+#: ``"o"`` (activation_obviated, extra reason); errors travel as full dict records
+ACTIVITY_ROW = ("code", "level", "id", "version", "event", "rating", "t", "extra")
+ACTIVITY_CODES = {"s": ("activation_start", None), "f": ("activation_finish", "duration_s"),
+                  "o": ("activation_obviated", "reason")}
 
 
 def node_token_key(keys: RunKeys) -> str:
@@ -97,7 +105,7 @@ class AgentRunner:
         self._recv: dict[str, int] = {}
         self._timeouts = 0
         self._failures = 0
-        self._activity: list[dict] = []
+        self._activity: list[tuple | dict] = []
         self._probe: int | None = None
         self._dead: str | None = None
         self._session: zenoh.Session | None = None
@@ -245,6 +253,8 @@ class AgentRunner:
             except queue.Empty:
                 if self._agenda:
                     self._run_one()
+                    if len(self._activity) >= _ACTIVITY_BATCH:
+                        self._flush(state="busy")
                     continue
                 try:  # under a stream of posts, do not report idle between every two of them
                     item = self._inbox.get(timeout=_IDLE_GRACE_S)
@@ -333,13 +343,14 @@ class AgentRunner:
     def _run_one(self) -> None:
         neg_rating, _, event = heapq.heappop(self._agenda)
         hyp = event.hypothesis
-        record = {"level": hyp.level, "id": hyp.id, "version": hyp.version, "event": event.kind.value,
-                  "rating": -neg_rating if neg_rating != -float("inf") else None, "t": time.time()}
+        # activity rows (see ACTIVITY_ROW): compact on the wire, made into trace records by the node
+        head = (hyp.level, hyp.id, hyp.version, event.kind.value,
+                -neg_rating if neg_rating != -float("inf") else None, time.time())
         why = self._obviated(event)
         if why is not None:
-            self._activity.append({**record, "kind": "activation_obviated", "reason": why})
+            self._activity.append(("o", *head, why))
             return
-        self._activity.append({**record, "kind": "activation_start"})
+        self._activity.append(("s", *head, None))
         started = time.perf_counter()
         try:
             if event.kind is EventKind.TIMEOUT:
@@ -349,8 +360,7 @@ class AgentRunner:
         except Exception as err:  # the agent's own code: trace it, keep going
             self._failed(event, "act", err, started=started)
             return
-        self._activity.append({**record, "kind": "activation_finish", "t": time.time(),
-                               "duration_s": time.perf_counter() - started})
+        self._activity.append(("f", *head[:5], time.time(), time.perf_counter() - started))
 
     def _failed(self, event: Event, where: str, err: Exception, *, started: float | None = None) -> None:
         self._failures += 1
@@ -375,8 +385,9 @@ class AgentRunner:
             return
         message = {"agent": self.name, "state": state, "recv": self._recv, "sent": self.board.sent,
                    "timeouts": self._timeouts, "probe": self._probe, "activity": self._activity, "reason": reason}
-        try:
-            self._session.put(self.keys.status, encode(message), congestion_control=zenoh.CongestionControl.BLOCK)
+        try:  # every part is ours (str keys, flat rows): nothing for the encoder's walk to find
+            self._session.put(self.keys.status, encode(message, check=()),
+                              congestion_control=zenoh.CongestionControl.BLOCK)
         except (zenoh.ZError, CodecError) as err:
             logger.error("agent %s: cannot report status: %s", self.name, err)
         self._activity = []

@@ -35,7 +35,7 @@ from typing import Any
 
 import zenoh
 
-from blackboard.agent import NODE_SENDER, node_token_key, run_end_key
+from blackboard.agent import ACTIVITY_CODES, ACTIVITY_ROW, NODE_SENDER, node_token_key, run_end_key
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
 from blackboard.errors import CodecError
@@ -53,6 +53,8 @@ _MAX_UNREPORTED = 100_000
 END_GRACE_S = 5.0
 _ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
                                         TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
+_ROW_CODES = {code: (TraceKind(kind), extra) for code, (kind, extra) in ACTIVITY_CODES.items()}
+_ROW_FIELDS = ACTIVITY_ROW[1:7]
 
 
 @dataclass
@@ -128,6 +130,7 @@ class BlackboardNode:
         self._lock = threading.Lock()
         self._store: dict[str, tuple[Hypothesis, bytes]] = {}
         self.agents: dict[str, AgentState] = {}
+        self._any_exclusive = False
         self._level_counts: Counter[str] = Counter()
         self._received: Counter[str] = Counter()
         self._pending: dict[str, _Pending] = {}
@@ -323,6 +326,8 @@ class BlackboardNode:
         state = self.agents.get(agent)
         if state is not None and level not in state.produces:
             return f"level not declared in produces {list(state.produces)}"
+        if not self._any_exclusive:  # no agent ever declared an exclusive level: nothing to scan
+            return None
         owner = next((a.name for a in self.agents.values() if a.live and level in a.exclusive and a.name != agent), None)
         if owner is not None:
             return f"level is written exclusively by agent {owner!r}"
@@ -388,11 +393,7 @@ class BlackboardNode:
             return
         if agent is None:
             return
-        for record in message.get("activity") or ():
-            kind = _ACTIVITY_KINDS.get(record.pop("kind", None))
-            if kind is not None:
-                self.stats[kind.value] += 1
-                self._trace_write(kind, agent=agent.name, **record)
+        self._on_activity(agent.name, message.get("activity") or ())
         with self._lock:
             agent.status = message
         state = message.get("state")
@@ -401,6 +402,28 @@ class BlackboardNode:
             self._check_presence()
         elif state == "stopped" and agent.live:
             agent.state = "stopped"
+
+    def _on_activity(self, agent: str, records: Any) -> None:
+        """Count and trace an agent's activity: rows (:data:`~blackboard.agent.ACTIVITY_ROW`) or
+        dict records; a trace record is made only when there is a trace."""
+        stats, tracing = self.stats, self._trace is not None
+        for record in records:
+            if type(record) is list and len(record) == 8:
+                code = _ROW_CODES.get(record[0])
+                if code is None:
+                    continue
+                kind, extra = code
+                stats[kind.value] += 1
+                if tracing:
+                    fields = dict(zip(_ROW_FIELDS, record[1:7]))
+                    if extra is not None:
+                        fields[extra] = record[7]
+                    self._trace_write(kind, agent=agent, **fields)
+            elif isinstance(record, dict):
+                kind = _ACTIVITY_KINDS.get(record.pop("kind", None))
+                if kind is not None:
+                    stats[kind.value] += 1
+                    self._trace_write(kind, agent=agent, **record)
 
     def _on_live(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -513,6 +536,7 @@ class BlackboardNode:
         with self._lock:
             self.agents[name] = AgentState(name, decl["consumes"], decl["produces"], decl["exclusive"],
                                            pid=request.get("pid"))
+        self._any_exclusive = self._any_exclusive or bool(decl["exclusive"])
         self._changes += 1
         self._trace_write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
                           **{k: list(v) for k, v in decl.items()})
