@@ -1,4 +1,4 @@
-"""The camera: posts the mission's camera frames once the map is complete."""
+"""The camera: posts the mission's camera frames once the map is indexed."""
 
 from __future__ import annotations
 
@@ -17,10 +17,12 @@ log = logging.getLogger(__name__)
 class Camera(KnowledgeSource):
     """Reads the scenario's camera images, or simulates them along the route, and posts each on
     ``sensor_frame``, all at once or paced at ``rate_hz``. The true pose, when known, goes to the separate ``truth`` level, which no
-    agent consumes: it is there for evaluation only.
+    agent consumes: it is there for evaluation only. The mission starts when every associative
+    indexer shard has posted ``index`` (the vehicle drives once its map is prepared), so no frame
+    waits for a memory still being built.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.MAP,)
+    consumes: ClassVar[tuple[str, ...]] = (levels.INDEX,)
     produces: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
     exclusive: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
 
@@ -30,6 +32,8 @@ class Camera(KnowledgeSource):
         if rate_hz is not None and not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.rate_hz = rate_hz
+        self._ready: set[int] = set()
+        self._started = False
 
     def precondition(self, event: Event) -> float | None:
         return 1.0 if event.kind is EventKind.POSTED else None
@@ -38,7 +42,15 @@ class Camera(KnowledgeSource):
         from models.scenario import load_scenario
         from models.sensor import sensor_frames
 
-        scenario = load_scenario(event.hypothesis.body["path"])
+        body = event.hypothesis.body
+        self._ready.add(int(body["bank"]))
+        if self._started or len(self._ready) < int(body["banks"]):
+            return
+        self._started = True
+        mp = board.get("map")
+        if mp is None:
+            raise LookupError("the map is indexed but not on the blackboard")
+        scenario = load_scenario(mp.body["path"])
         frames = sensor_frames(scenario)
         start = time.perf_counter()
         for f in frames:
@@ -48,7 +60,7 @@ class Camera(KnowledgeSource):
                     time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
             fid = levels.frame_id(f.index)
             board.post(levels.SENSOR_FRAME, {"frame": f.index, "image": f.image, "source": f.source},
-                       id=fid, links=(event.hypothesis.id,))
+                       id=fid, links=("map",))
             if f.truth is not None:
                 board.post(levels.TRUTH, {"frame": f.index, "pose": list(f.truth)}, id=f"truth-{f.index:06d}",
                            links=(fid,))

@@ -18,7 +18,8 @@ log = logging.getLogger(__name__)
 class AssociativeIndexer(KnowledgeSource):
     """Stores the viewframes of its shard (``index % banks == bank``) in a banked holographic
     memory (:class:`~models.associative.BankedMemory`, ``memory.bank_size`` viewframes per bank)
-    and posts, for each camera frame, the ranking of those viewframes by error variance. The
+    and posts ``index`` once its shard is stored, then, for each camera frame, the ranking of
+    those viewframes by error variance. The
     scheduler merges the rankings of all shards (variances are comparable across banks).
 
     Options: ``bank`` (this shard, default 0), ``banks`` (number of shards, default 1). Memory
@@ -29,7 +30,7 @@ class AssociativeIndexer(KnowledgeSource):
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
-    produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
+    produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
 
     def __init__(self, name: str, *, bank: int = 0, banks: int = 1, **options: Any) -> None:
         super().__init__(name, **options)
@@ -88,6 +89,8 @@ class AssociativeIndexer(KnowledgeSource):
         )
         self._memory = memory
         self._images.clear()
+        board.post(levels.INDEX, {"bank": self.bank, "banks": self.banks, "viewframes": len(mine)},
+                   id=f"index-{self.bank}", links=("map",))
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
 
     def _rank(self, frame, board: Board) -> None:

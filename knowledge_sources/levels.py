@@ -9,6 +9,7 @@ viewframe      map renderer                ``index``, ``pose`` [x, y, z, heading
                                            ``description`` (symbolic, plain data)
 map            map renderer                ``viewframes`` count, ``priors`` P(L), ``landmarks``,
                                            ``route`` [[x, y], ...], ``visible`` {index: [ids]}
+index          associative indexer(s)      ``bank``, ``banks``, ``viewframes``: this shard is stored
 sensor_frame   camera                      ``frame``, ``image`` (H, W, 3) uint8
 truth          camera                      ``frame``, ``pose`` [x, y, heading_deg] (evaluation only:
                                            no agent consumes it)
@@ -23,12 +24,13 @@ position       scheduler                   the frame's decision (see :mod:`knowl
 
 from __future__ import annotations
 
-__all__ = ["SCENARIO", "VIEWFRAME", "MAP", "SENSOR_FRAME", "TRUTH", "RANKING", "QUERY", "ANSWER", "POSITION",
+__all__ = ["SCENARIO", "VIEWFRAME", "MAP", "INDEX", "SENSOR_FRAME", "TRUTH", "RANKING", "QUERY", "ANSWER", "POSITION",
            "frame_id", "viewframe_id"]
 
 SCENARIO = "scenario"
 VIEWFRAME = "viewframe"
 MAP = "map"
+INDEX = "index"
 SENSOR_FRAME = "sensor_frame"
 TRUTH = "truth"
 RANKING = "ranking"
