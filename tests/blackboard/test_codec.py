@@ -140,3 +140,41 @@ def test_encode_names_the_bad_key(value: dict, path: str) -> None:
 def test_encode_size_limit() -> None:
     with pytest.raises(CodecError, match="exceeds the limit"):
         encode({"a": np.zeros(1000)}, max_bytes=1000)
+
+
+def _message(body: dict) -> dict:
+    """A post as Board.post builds it: the envelope is ours, the body is the user's (depth 2)."""
+    return {"op": "post", "hyp": {"id": "h1", "links": ["a"], "body": body}, "sender": "s", "n": 1}
+
+
+BODIES = {
+    "plain": {"x": 1, "a": np.arange(4, dtype=np.int16), "nested": {"l": [1, [2, {"k": "v"}]]}},
+    "non-str key": {"m": {3: 1}},
+    "non-str key at the top": {5: 1},
+    "too deep": {"d": eval("[" * MAX_DEPTH + "]" * MAX_DEPTH)},
+    "just deep enough": {"d": eval("[" * (MAX_DEPTH - 3) + "]" * (MAX_DEPTH - 3))},
+    "object": {"x": object()},
+    "huge int": {"n": 2**70},
+    "dict subclass": {"o": __import__("collections").OrderedDict(a=1)},
+}
+
+
+@pytest.mark.parametrize("body", BODIES.values(), ids=BODIES.keys())
+def test_encode_checking_the_body_only_is_the_same(body: dict) -> None:
+    """``check=[(body, 2)]`` (what a post uses) gives the same bytes, or the same error, as the full walk."""
+    outcomes = []
+    for check in (None, [(body, 2)]):
+        try:
+            outcomes.append(encode(_message(body), check=check))
+        except CodecError as err:
+            outcomes.append((err.message, err.key))
+    assert outcomes[0] == outcomes[1]
+
+
+def test_encoder_recovers_after_an_error() -> None:
+    """The per-thread packer is not reused in an unknown state after a failed encode."""
+    good = {"a": [1, 2, {"b": bytes(100)}]}
+    expected = encode(good)
+    with pytest.raises(CodecError):
+        encode({"a": [1, 2, object()]})
+    assert encode(good) == expected and decode(expected) == good

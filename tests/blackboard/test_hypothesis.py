@@ -84,3 +84,35 @@ def test_run_keys() -> None:
     assert keys.split("mapinterp/r1/@ctl/status") == ("@ctl", "status")  # never a level: @ is refused
     with pytest.raises(ValueError):
         RunKeys("a/b")
+
+
+@pytest.mark.parametrize("change", BAD.values(), ids=BAD.keys())
+def test_from_record_refuses_what_the_constructor_refuses(change: dict) -> None:
+    """The fast path of from_record validates exactly as the constructor, with the same message."""
+    fields = {"id": "h1", "level": "answer", "source": "s", "credibility": 0.5, "links": (), "version": 1,
+              "timestamp": 0.0, "body": {}, **change}
+    with pytest.raises(ValueError) as direct:
+        Hypothesis(**fields)
+    with pytest.raises(CodecError) as fast:
+        Hypothesis.from_record({**fields, "links": list(fields["links"])}, key="k")
+    assert fast.value.message == f"bad hypothesis record: {direct.value}"
+
+
+def test_fast_construction_equals_the_constructor() -> None:
+    h = Hypothesis.new("answer", {"x": 1}, source="s", links=["a", "b"], credibility=1, deadline_s=2)
+    direct = Hypothesis(**{f: getattr(h, f) for f in h.__dataclass_fields__})
+    assert h == direct and h.body == direct.body and type(h.links) is tuple and type(h.credibility) is float
+    assert Hypothesis.from_record(h.to_record()) == h
+    with pytest.raises(AttributeError):  # still frozen
+        h.version = 3  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("bad", ["a b", "", "x" * 129, 3, "lvl/x"])
+def test_known_names_never_admit_a_bad_one(bad: object) -> None:
+    """Names are remembered once valid; a bad one is refused however many good ones came first."""
+    for i in range(3):
+        Hypothesis.new(f"level{i}", {}, source="known")
+    with pytest.raises(ValueError, match="level"):
+        Hypothesis.new(bad, {}, source="known")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="source"):
+        Hypothesis.new("level0", {}, source=bad, id="h1")  # type: ignore[arg-type]
