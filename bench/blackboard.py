@@ -218,9 +218,13 @@ def main(argv: list[str] | None = None) -> int:
         _bare_consumer(endpoint, key, int(n), lambda: print("ready", flush=True), results)
         Path(out).write_text(json.dumps(results))
         return 0
+    load_before = os.getloadavg()[0]
     rows = run(quick=args.quick)
     report = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                          "zenoh": getattr(zenoh, "__version__", "?")}, "rows": rows}
+                          "zenoh": getattr(zenoh, "__version__", "?"),
+                          # the machine is shared: its load says how far absolute numbers can be trusted
+                          "load_1min_before_after": [round(load_before, 2), round(os.getloadavg()[0], 2)]},
+              "rows": rows}
     print(json.dumps(report, indent=2))
     if not args.json_only:
         print(_table(rows))

@@ -42,7 +42,7 @@ def validate_name(value: object, what: str) -> str:
 
 def _check_known_name(value: object, what: str) -> None:
     """:func:`validate_name` for names that recur (levels, agents), remembered once valid."""
-    if value in _KNOWN_NAMES and type(value) is str:
+    if type(value) is str and value in _KNOWN_NAMES:
         return
     validate_name(value, what)
     if len(_KNOWN_NAMES) >= _MAX_KNOWN_NAMES:

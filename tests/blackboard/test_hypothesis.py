@@ -39,6 +39,9 @@ BAD = {
     "bad link": {"links": ("ok", "no/pe")},
     "zero deadline": {"deadline_s": 0.0},
     "bad addressee": {"addressed_to": "x y"},
+    "unhashable level": {"level": ["answer"]},
+    "unhashable source": {"source": {"s": 1}},
+    "unhashable addressee": {"addressed_to": ["a"]},
 }
 
 
