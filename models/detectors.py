@@ -219,10 +219,12 @@ class DetectorRegistry:
 
 
 def default_registry(*, threshold: float = 0.65, absent_threshold: float = 0.15) -> DetectorRegistry:
-    """Detectors for the bundled landmark kinds: houses and other boxes by outline, towers by
-    their vertical edges."""
+    """Detectors for the bundled landmark kinds: houses and barns (wide boxes) by their outline,
+    towers and silos (tall, narrow) by their vertical edges; any other kind by the box outline."""
     t = {"threshold": threshold, "absent_threshold": absent_threshold}
     reg = DetectorRegistry(fallback=EdgeTemplateDetector(name="box-outline", **t))
     reg.register("house", EdgeTemplateDetector(name="house-outline", **t))
+    reg.register("barn", EdgeTemplateDetector(name="barn-outline", **t))
     reg.register("tower", EdgeTemplateDetector(name="tower-vertical-edges", axis="x", min_pixels=12, **t))
+    reg.register("silo", EdgeTemplateDetector(name="silo-vertical-edges", axis="x", min_pixels=12, **t))
     return reg

@@ -99,9 +99,9 @@ def test_edge_image_range_and_orientation(axis):
 
 def test_registry_protocol_and_fallback():
     reg = default_registry()
-    assert {"house", "tower"} <= set(reg.kinds)
+    assert {"house", "barn", "tower", "silo"} <= set(reg.kinds)  # every kind of the bundled scenarios
     assert isinstance(reg.for_kind("house"), LandmarkDetector)
-    assert reg.for_kind("silo").name == "box-outline"  # no own detector: the box fallback
+    assert reg.for_kind("windmill").name == "box-outline"  # no own detector: the box fallback
     with pytest.raises(KeyError, match="silo"):
         DetectorRegistry().for_kind("silo")
     with pytest.raises(TypeError, match="LandmarkDetector"):
