@@ -1,11 +1,16 @@
-"""Activity records of agents: compact rows on the wire, the same trace records as before."""
+"""Activity records of agents: compact rows on the wire, the same trace records as before
+(over real zenoh sessions on loopback, in-process and across processes)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+import zenoh
 
+from blackboard.codec import decode, encode
+from blackboard.config import ZenohOptions, open_session, zenoh_config
+from blackboard.keys import RunKeys
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
 
@@ -70,3 +75,43 @@ def test_activity_of_a_burst_is_complete(run_id: str, n: int, tmp_path: Path) ->
         ids = [r["id"] for r in records if r["kind"] == kind and r["agent"] == "tally"]
         assert sorted(ids) == sorted(r["id"] for r in records if r["kind"] == "post" and r["level"] == "item")
     assert outcome.stats["activation_finish"] == n + 1  # the items and the burster's 'go'
+
+
+def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) -> None:
+    """An agent of an older version (dict records) and a current one (rows) give the same trace
+    records; a row of an unknown kind is ignored, never a crash."""
+    keys = RunKeys(run_id)
+    trace = tmp_path / "t.trace"
+    head = {"level": "number", "id": "h-1", "version": 1, "event": "posted", "rating": 0.5, "t": 12.5}
+    with Runtime(run_id=run_id, trace_path=trace) as rt:
+        raw = open_session(zenoh_config(ZenohOptions(), mode="client", connect=[rt.node.endpoint]))
+        try:
+            def request(message: dict) -> dict:
+                replies = list(raw.get(keys.request, payload=encode(message), timeout=10))
+                return decode(replies[0].ok.payload.to_bytes())
+
+            assert request({"op": "join", "agent": "old", "consumes": [], "produces": [], "exclusive": []})["ok"]
+            activity = [
+                {**head, "kind": "activation_start"},  # an older agent
+                {**head, "kind": "activation_finish", "t": 13.0, "duration_s": 0.5},
+                ["s", *head.values(), None],  # a current one
+                ["f", *list(head.values())[:5], 13.0, 0.5],
+                ["o", *head.values(), "superseded by version 2"],
+                ["?", *head.values(), None],  # unknown: ignored
+            ]
+            raw.put(keys.status, encode({"agent": "old", "state": "busy", "recv": {}, "sent": 0, "timeouts": 0,
+                                         "probe": None, "activity": activity, "reason": None}),
+                    congestion_control=zenoh.CongestionControl.BLOCK)
+            assert request({"op": "leave", "agent": "old"})["ok"]
+            rt.post("number", {"x": 1})
+            outcome = rt.run(timeout_s=10)
+        finally:
+            raw.close()
+    assert outcome.quiescent
+    records = [r for r in read_trace(trace) if r.get("agent") == "old" and r["kind"].startswith("activation_")]
+    stripped = [{k: v for k, v in r.items() if k != "seq"} for r in records]
+    start = {"t": 12.5, "kind": "activation_start", "agent": "old", **{k: v for k, v in head.items() if k != "t"}}
+    finish = {**start, "kind": "activation_finish", "t": 13.0, "duration_s": 0.5}
+    obviated = {**start, "kind": "activation_obviated", "reason": "superseded by version 2"}
+    assert stripped == [start, finish, start, finish, obviated]
+    assert [list(r) for r in stripped] == [list(r) for r in (start, finish, start, finish, obviated)]
