@@ -83,8 +83,14 @@ def test_burst_of_10000_posts_loses_nothing(run_id: str, tmp_path: Path) -> None
         rt.post("go", {"n": n, "size": 1024})
         outcome = rt.run(timeout_s=120)
         tally = rt.source("tally")
-        assert tally.seen == set(range(n)) and tally.activations == n
-        assert len(rt.hypotheses("item")) == n and outcome.stats["post"] == n + 1
+        stored = len(rt.hypotheses("item"))
+        if tally.seen != set(range(n)) or tally.activations != n:  # say why, not only that
+            errors = [r for r in read_trace(tmp_path / "t.trace")
+                      if r["kind"] in ("activation_error", "rejected", "agent_dead", "timeout")]
+            pytest.fail(f"tally saw {len(tally.seen)} of {n} items ({tally.activations} activations), "
+                        f"{stored} stored, outcome {outcome.quiescent=} {outcome.agents=} {outcome.stats=}; "
+                        f"errors in the trace: {errors[:5]}")
+        assert stored == n and outcome.stats["post"] == n + 1
     records = read_trace(tmp_path / "t.trace")
     assert sum(r["kind"] == "post" for r in records) == n + 1
     assert sum(r["kind"] == "activation_finish" and r["agent"] == "tally" for r in records) == n
