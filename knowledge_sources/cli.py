@@ -46,7 +46,12 @@ EXIT_BROKEN_PIPE = 141
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """Build the argument parser; only the chosen sub-command's module is imported."""
-    parser = argparse.ArgumentParser(prog="mapinterp", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="mapinterp",
+        description="Localize a ground vehicle on a terrain map from its camera images, with agents "
+                    "cooperating on a zenoh blackboard.",
+        epilog="Run 'mapinterp COMMAND --help' for a command's options.",
+    )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more logging (-vv for debug)")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
