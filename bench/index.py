@@ -146,14 +146,23 @@ def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple
             frames = sensor_frames(sc, emulator=em, poses=poses)
         truth = [min(range(len(poses)), key=lambda i: math.hypot(poses[i].x - f.truth[0], poses[i].y - f.truth[1]))
                  for f in frames]
-        pats = [preprocess(v.image) for v in vfs]
-        queries = [preprocess(f.image) for f in frames]
+        m = sc.memory  # the scenario's own preprocessing (size, edge method, blur)
+        pats = [preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs]
+        queries = [preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for f in frames]
         matrix = np.stack([p.ravel() for p in pats])
         ncc = sum(int(np.argmax(matrix @ q.ravel())) == t for q, t in zip(queries, truth))
         row = {"scenario": sc.name, "viewframes": len(vfs), "frames": len(frames), "ncc": ncc}
+        # NCC given the same heading search as the memory: the best over horizontal shifts of the query
+        cols = max(ms[1] for ms in shifts)
+        best = np.full((len(queries), len(pats)), -np.inf)
+        for dc in range(-cols, cols + 1):
+            qs = np.stack([np.roll(q, dc, axis=1).ravel() for q in queries])
+            best = np.maximum(best, qs @ matrix.T)
+        shifted = best.argmax(axis=1)
+        row[f"ncc shift=0,{cols}"] = int(sum(int(k) == t for k, t in zip(shifted, truth)))
         for b in bank_sizes:
             for ms in shifts:
-                mem = BankedMemory(128, bank_size=b, max_shift=ms)
+                mem = BankedMemory(m.size, bank_size=b, max_shift=ms)
                 mem.write_many(pats, range(len(pats)))
                 row[f"memory b={b} shift={ms[0]},{ms[1]}"] = sum(mem.rank(q).best == t for q, t in zip(queries, truth))
         rows.append(row)
@@ -243,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.scenarios is None:
         root = Path(__file__).resolve().parent.parent / "scenarios"
         args.scenarios = [] if args.quick else [str(root / f"{n}.yaml") for n in ("hills", "contours", "jacksboro")]
-    scen = scenario_top1(args.scenarios, bank_sizes=[1, 4, 8], shifts=[(0, 0), (1, 2), (2, 6)]) if args.scenarios else []
+    scen = scenario_top1(args.scenarios, bank_sizes=[1, DEFAULT_BANK_SIZE, 4, 8],
+                         shifts=[(0, 0), (2, 6), DEFAULT_MAX_SHIFT]) if args.scenarios else []
     doc = {
         "machine": {"cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "python": platform.python_version(),
                     "numpy": np.__version__, "opencv": cv2.__version__},
