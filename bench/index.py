@@ -58,27 +58,13 @@ from baselines import HolographicIndex, NCCIndex, OrbBowIndex  # noqa: E402
 
 from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT, HolographicMemory  # noqa: E402
 from models.preprocess import preprocess  # noqa: E402
+from models.synthetic import scene  # noqa: E402
 
 logger = logging.getLogger("bench.index")
 
 SHAPE = (120, 160)
 
 
-def scene(rng: np.random.Generator, shape: tuple[int, int] = SHAPE) -> np.ndarray:
-    """A synthetic edge-rich gray image of shape ``shape`` (uint8)."""
-    h, w = shape
-    img = np.full(shape, rng.uniform(60, 190), np.float32)
-    for _ in range(int(rng.integers(6, 12))):
-        c = float(rng.uniform(0, 255))
-        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
-        kind = int(rng.integers(3))
-        if kind == 0:
-            cv2.rectangle(img, (x, y), (x + int(rng.integers(8, 60)), y + int(rng.integers(8, 50))), c, -1)
-        elif kind == 1:
-            cv2.line(img, (x, y), (int(rng.integers(0, w)), int(rng.integers(0, h))), c, int(rng.integers(1, 4)))
-        else:
-            cv2.circle(img, (x, y), int(rng.integers(4, 25)), c, -1)
-    return img.astype(np.uint8)
 
 
 def perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float) -> np.ndarray:

@@ -11,23 +11,9 @@ from blackboard.errors import AssociativeMemoryError
 from models.associative import BankedMemory, HolographicMemory, Ranking, merge_rankings, reliability
 from models.keys import make_key
 from models.preprocess import normalise, preprocess
+from models.synthetic import scene
 
 
-def _scene(rng: np.random.Generator, shape: tuple[int, int] = (120, 160)) -> np.ndarray:
-    """A synthetic edge-rich gray image: random rectangles, discs and lines."""
-    h, w = shape
-    img = np.full(shape, rng.uniform(60, 190), np.float32)
-    for _ in range(int(rng.integers(6, 12))):
-        c = float(rng.uniform(0, 255))
-        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
-        kind = int(rng.integers(3))
-        if kind == 0:
-            cv2.rectangle(img, (x, y), (x + int(rng.integers(8, 60)), y + int(rng.integers(8, 50))), c, -1)
-        elif kind == 1:
-            cv2.line(img, (x, y), (int(rng.integers(0, w)), int(rng.integers(0, h))), c, int(rng.integers(1, 4)))
-        else:
-            cv2.circle(img, (x, y), int(rng.integers(4, 25)), c, -1)
-    return img
 
 
 def _perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float, gain: float) -> np.ndarray:
@@ -134,7 +120,7 @@ def test_error_variance_is_the_variance_of_the_error_matrix(max_shift: tuple[int
 )
 def test_top1_under_perturbation(case: str, shift: float, noise: float, gain: float) -> None:
     rng = np.random.default_rng(5)
-    images = [_scene(rng) for _ in range(12)]
+    images = [scene(rng) for _ in range(12)]
     mem = BankedMemory(128)
     mem.write_many([preprocess(im) for im in images], range(12))
     hits = [mem.rank(preprocess(_perturb(im, rng, shift=shift, noise=noise, gain=gain))).best == i for i, im in enumerate(images)]
@@ -143,7 +129,7 @@ def test_top1_under_perturbation(case: str, shift: float, noise: float, gain: fl
 
 def test_banked_and_single_memory_agree_on_small_sets() -> None:
     rng = np.random.default_rng(6)
-    images = [_scene(rng) for _ in range(10)]
+    images = [scene(rng) for _ in range(10)]
     pats = [preprocess(im, size=64) for im in images]
     single = HolographicMemory(64)
     single.write_many(pats, range(10))
@@ -248,7 +234,7 @@ def test_banks_of_one_reduce_to_ncc_of_whitened_patterns() -> None:
     # <R, P_h> = sum w |FP_h|^2 exp(i (phi_h - phi_Q)): with whitened patterns (flat envelope),
     # one pattern per bank is the NCC of the patterns (module docstring, "Capacity")
     rng = np.random.default_rng(9)
-    images = [_scene(rng) for _ in range(6)]
+    images = [scene(rng) for _ in range(6)]
     pats = [preprocess(im, size=64) for im in images]
     mem = BankedMemory(64, bank_size=1, max_shift=0)
     mem.write_many(pats, range(6))
@@ -266,7 +252,7 @@ def test_shift_search_on_the_best_candidates_matches_the_full_search(monkeypatch
     # blurred patterns (as preprocessed images are) keep part of their zero-shift similarity
     # when shifted, so the true one is among the best candidates that the search refines
     rng = np.random.default_rng(10)
-    pats = [preprocess(_scene(rng), size=32) for _ in range(40)]
+    pats = [preprocess(scene(rng), size=32) for _ in range(40)]
     mem = BankedMemory(32, bank_size=2, max_shift=(1, 1))
     mem.write_many(pats, range(40))
     queries = [np.roll(pats[i], (1, -1), axis=(0, 1)) for i in (3, 17, 38)]
