@@ -74,6 +74,11 @@ class ZenohOptions:
             self.config_file = Path(self.config_file)
 
 
+#: zenoh's limit on a blocked put before it closes the transport, and ours (microseconds)
+BLOCK_WAIT_KEY = "transport/link/tx/queue/congestion_control/block/wait_before_close"
+BLOCK_WAIT_BEFORE_CLOSE_US = 60_000_000
+
+
 def zenoh_config(
     options: ZenohOptions | None = None,
     *,
@@ -101,6 +106,10 @@ def zenoh_config(
     else:
         config = zenoh.Config()
         config.insert_json5("scouting/multicast/enabled", "false")
+        # A put with CongestionControl.BLOCK that waits longer than this CLOSES the transport (zenoh
+        # 1.x; default 5 s), losing every hypothesis behind it: under heavy load a burst can stall
+        # that long on a loaded machine. A minute keeps delivery lossless yet bounded (never a hang).
+        config.insert_json5(BLOCK_WAIT_KEY, str(BLOCK_WAIT_BEFORE_CLOSE_US))
     config.insert_json5("mode", json.dumps(mode))
     listen_eps = [*options.listen, *(listen or [])] if mode != "client" else []
     connect_eps = [*options.connect, *(connect or [])]

@@ -7,8 +7,11 @@ import json
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from blackboard.config import (
+    BLOCK_WAIT_BEFORE_CLOSE_US,
+    BLOCK_WAIT_KEY,
     ZenohOptions,
     add_zenoh_arguments,
     free_port,
@@ -30,6 +33,14 @@ def test_defaults_listen_on_loopback_only(mode: str) -> None:
     assert _get(config, "listen/endpoints") == ["tcp/127.0.0.1:0"]
     assert _get(config, "scouting/multicast/enabled") is False
     assert _get(config, "mode") == mode
+
+
+@pytest.mark.parametrize("mode", ["router", "peer", "client"])
+def test_blocked_puts_do_not_close_the_transport_after_zenohs_5_s(mode: str) -> None:
+    # zenoh closes a transport when a BLOCK put waits longer than this; its 5 s default lost the tail
+    # of a 10,000-post burst on a heavily loaded machine (the agent looked dead, the run ended)
+    assert zenoh.Config().get_json(BLOCK_WAIT_KEY) == "5000000"  # zenoh's own default, what we change
+    assert _get(zenoh_config(ZenohOptions(), mode=mode), BLOCK_WAIT_KEY) == BLOCK_WAIT_BEFORE_CLOSE_US >= 30_000_000
 
 
 def test_client_never_listens() -> None:
