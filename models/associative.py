@@ -249,6 +249,20 @@ def _search(matrix: NDArray[np.float32], queries: NDArray[np.float32], scale: ND
     return c
 
 
+
+def _config_state(mem: HolographicMemory | BankedMemory) -> dict[str, Any]:
+    """The configuration part of a memory's :meth:`state` (plain data)."""
+    return {"size": mem.size, "seed": mem.seed, "key_method": mem.key_method, "max_shift": list(mem.max_shift)}
+
+
+def _config_from_state(state: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+    """``(size, keyword arguments)`` of a memory's constructor from its :meth:`state`."""
+    return int(state["size"]), {
+        "seed": int(state["seed"]),
+        "key_method": str(state["key_method"]),
+        "max_shift": tuple(int(v) for v in state["max_shift"]),
+    }
+
 class HolographicMemory:
     """One memory bank of size N x N, stored in the frequency domain.
 
@@ -433,10 +447,7 @@ class HolographicMemory:
     def state(self) -> dict[str, Any]:
         """Plain data (ints, str, numpy arrays) from which :meth:`from_state` rebuilds the bank."""
         return {
-            "size": self.size,
-            "seed": self.seed,
-            "key_method": self.key_method,
-            "max_shift": list(self.max_shift),
+            **_config_state(self),
             "labels": self.labels.copy(),
             "prototype_spectra": self._fprotos[: self._count].copy(),
             "spectrum": np.stack([self._spectrum.real, self._spectrum.imag], axis=-1),
@@ -446,12 +457,8 @@ class HolographicMemory:
     def from_state(cls, state: dict[str, Any]) -> HolographicMemory:
         """Rebuild a bank from :meth:`state`; raises AssociativeMemoryError on malformed data."""
         try:
-            mem = cls(
-                int(state["size"]),
-                seed=int(state["seed"]),
-                key_method=str(state["key_method"]),
-                max_shift=tuple(int(v) for v in state["max_shift"]),
-            )
+            size, config = _config_from_state(state)
+            mem = cls(size, **config)
             n = mem.size
             labels = np.asarray(state["labels"], dtype=np.int64).ravel()
             protos = np.asarray(state["prototype_spectra"], dtype=np.float32)
@@ -580,10 +587,7 @@ class BankedMemory:
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
         return {
-            "size": self.size,
-            "seed": self.seed,
-            "key_method": self.key_method,
-            "max_shift": list(self.max_shift),
+            **_config_state(self),
             "bank_size": self.bank_size,
             "banks": [b.state() for b in self.banks],
         }
@@ -592,13 +596,8 @@ class BankedMemory:
     def from_state(cls, state: dict[str, Any]) -> BankedMemory:
         """Rebuild from :meth:`state`."""
         try:
-            mem = cls(
-                int(state["size"]),
-                bank_size=int(state["bank_size"]),
-                seed=int(state["seed"]),
-                key_method=str(state["key_method"]),
-                max_shift=tuple(int(v) for v in state["max_shift"]),
-            )
+            size, config = _config_from_state(state)
+            mem = cls(size, bank_size=int(state["bank_size"]), **config)
             banks = [HolographicMemory.from_state(b) for b in state["banks"]]
         except (KeyError, TypeError, ValueError) as err:
             raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
