@@ -1,6 +1,6 @@
 """Offline tuning of the scheduler/detector parameters: real memory, real detectors, real SceneAnalysis,
 on simulated frames with seeds other than the bundled scenarios' (no overfitting to them)."""
-import os, sys, itertools, pickle, numpy as np
+import os
 os.environ.setdefault("PYOPENGL_PLATFORM","egl")
 from models.scenario import load_scenario
 from models.environment import build_environment
@@ -10,7 +10,12 @@ from models.sensor import simulate_frames
 from models.preprocess import preprocess
 from models.associative import BankedMemory
 from models.detectors import default_registry, CandidateView
+from knowledge_sources.results import nearest_viewframe
 from knowledge_sources.scene_analysis import SceneAnalysis
+
+#: detector scores by (scenario, frame, landmark, viewframe): the grid re-thresholds the same
+#: scores, so each detection runs once per process
+_SCORES: dict[tuple, tuple[float, bool]] = {}
 
 def prepare(path, seed):
     sc = load_scenario(path)
@@ -23,20 +28,21 @@ def prepare(path, seed):
     mem = BankedMemory(m.size, bank_size=m.bank_size, max_shift=m.max_shift)
     mem.write_many([preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs], list(range(len(vfs))))
     ranks = [mem.rank(preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma)) for f in frames]
-    truth = [int(np.argmin([np.hypot(v.pose.x-f.truth[0], v.pose.y-f.truth[1]) for v in vfs])) for f in frames]
+    truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]  # the results' criterion
     idx = {lm.id: i for i, lm in enumerate(env.landmarks)}
     kinds = {lm.id: lm.kind for lm in env.landmarks}
     pixels = {v.index: {n: v.description.graph.nodes[n]["pixels"] for n in v.description.visible} for v in vfs}
-    # detector scores cache: (frame, landmark, viewframe) -> score/present
+    # pixels of each landmark at each frame's true pose: for the oracle (ceiling) run only
     fvis = [{lm.id: int((fm == i).sum()) for i, lm in enumerate(env.landmarks)} for fm in fmasks]
     return dict(fvis=fvis, name=sc.name, vfs=[(v.image, v.mask) for v in vfs], frames=[f.image for f in frames], ranks=ranks,
                 truth=truth, idx=idx, kinds=kinds, pixels=pixels)
 
-def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0.55, athr=0.35, candidates=8, accept=0.75, strategy="associative", priors=None, cache={}):
+def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0.55, athr=0.35, candidates=8, accept=0.75, strategy="associative", priors=None):
     reg = default_registry(threshold=thr, absent_threshold=athr)
+    cache = _SCORES
+    visible = {k: {lm for lm, px in pl.items() if px >= min_pixels} for k, pl in d["pixels"].items()}
     ok = 0; queries = 0
     for fi, (rk, t) in enumerate(zip(d["ranks"], d["truth"])):
-        visible = {k: {lm for lm, px in pl.items() if px >= min_pixels} for k, pl in d["pixels"].items()}
         sa = SceneAnalysis([(int(k), float(v)) for k, v in zip(rk.labels, rk.variances)], visible, strategy=strategy,
                            candidates=candidates, accept=accept, reliability=reliability, priors=priors, beta=beta)
         while (q := sa.next_question()) is not None:
@@ -47,6 +53,7 @@ def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0
                 r = det.detect(d["frames"][fi], view=CandidateView.from_mask(img, mask, d["idx"][q.landmark]))
                 cache[key] = (r.score, r.location is None)
             s, unsearched = cache[key]
+            # the detector's own three-way rule, re-applied to the cached score for this grid point
             present = None if unsearched else (True if s >= thr else (False if s < athr else None))
             if oracle:
                 present = d["fvis"][fi][q.landmark] >= 10

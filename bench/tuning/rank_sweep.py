@@ -1,4 +1,4 @@
-import sys, pickle, time, numpy as np
+import sys, pickle, time
 sys.path.insert(0, __import__("os").path.dirname(__file__))
 from models.preprocess import preprocess
 from models.associative import BankedMemory
