@@ -114,8 +114,7 @@ def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noi
 def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple[int, int]]) -> list[dict]:
     """Top-1 on rendered route viewframes against the scenario's camera frames (real renders,
     simulated sensor; truth = the route point nearest the true pose), for NCC and the memory."""
-    import math
-
+    from knowledge_sources.results import nearest_viewframe
     from models.associative import BankedMemory
     from models.camera import CameraEmulator
     from models.environment import build_environment
@@ -130,8 +129,7 @@ def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple
             vfs = build_viewframes(sc, emulator=em)
             poses = route_poses(sc, em.environment.terrain)
             frames = sensor_frames(sc, emulator=em, poses=poses)
-        truth = [min(range(len(poses)), key=lambda i: math.hypot(poses[i].x - f.truth[0], poses[i].y - f.truth[1]))
-                 for f in frames]
+        truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]
         m = sc.memory  # the scenario's own preprocessing (size, edge method, blur)
         pats = [preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs]
         queries = [preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for f in frames]

@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,6 +68,7 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
 
     Raises :class:`~blackboard.errors.ScenarioError` when the scenario has no ``sensor`` block.
     """
+    from knowledge_sources.results import nearest_viewframe
     from models.associative import BankedMemory
     from models.camera import CameraEmulator
     from models.environment import build_environment
@@ -87,7 +87,8 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
     def pattern(image: np.ndarray) -> np.ndarray:
         return preprocess(image, size=spec.size, edge=spec.edge, blur_sigma=spec.blur_sigma)
 
-    memory = BankedMemory(spec.size, bank_size=spec.bank_size, seed=scenario.seed, key_method=spec.key)
+    memory = BankedMemory(spec.size, bank_size=spec.bank_size, seed=scenario.seed, key_method=spec.key,
+                          max_shift=tuple(spec.max_shift))
     memory.write_many([pattern(vf.image) for vf in viewframes], [vf.index for vf in viewframes])
     rows = []
     for frame in frames:
@@ -96,8 +97,7 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
         variances = [by_label[vf.index] for vf in viewframes]
         truth = None
         if frame.truth is not None:
-            x, y = frame.truth[0], frame.truth[1]
-            truth = min(range(len(poses)), key=lambda i: math.hypot(poses[i].x - x, poses[i].y - y))
+            truth = nearest_viewframe(frame.truth[0], frame.truth[1], scenario.route)
         rows.append(TableRow(frame.index, frame.source, variances, int(ranking.labels[0]), ranking.reliability, truth))
     return viewframes, rows
 
