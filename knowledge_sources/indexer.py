@@ -68,8 +68,8 @@ class AssociativeIndexer(KnowledgeSource):
                 self._rank(h, board)
 
     def _build(self, body: dict[str, Any], board: Board) -> None:
-        from models.associative import BankedMemory
-        from models.preprocess import preprocess
+        from models.associative import memory_from_spec
+        from models.preprocess import preprocess_with
 
         spec = body["memory"]
         self._spec = spec
@@ -80,13 +80,8 @@ class AssociativeIndexer(KnowledgeSource):
                 if got is None:
                     raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
                 self._images[k] = got.body["image"]
-        memory = BankedMemory(int(spec["size"]), bank_size=int(spec["bank_size"]), seed=self.bank,
-                              key_method=str(spec["key"]), max_shift=tuple(spec["max_shift"]))
-        memory.write_many(
-            (preprocess(self._images[k], size=spec["size"], edge=spec["edge"], blur_sigma=spec["blur_sigma"])
-             for k in mine),
-            mine,
-        )
+        memory = memory_from_spec(spec, seed=self.bank)
+        memory.write_many((preprocess_with(self._images[k], memory=spec) for k in mine), mine)
         self._memory = memory
         self._images.clear()
         board.post(levels.INDEX, {"bank": self.bank, "banks": self.banks, "viewframes": len(mine)},
@@ -94,11 +89,9 @@ class AssociativeIndexer(KnowledgeSource):
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
 
     def _rank(self, frame, board: Board) -> None:
-        from models.preprocess import preprocess
+        from models.preprocess import preprocess_with
 
-        spec = self._spec
-        pattern = preprocess(frame.body["image"], size=spec["size"], edge=spec["edge"], blur_sigma=spec["blur_sigma"])
-        ranking = self._memory.rank(pattern)
+        ranking = self._memory.rank(preprocess_with(frame.body["image"], memory=self._spec))
         board.post(
             levels.RANKING,
             {

@@ -56,10 +56,9 @@ def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses)
 def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image: np.ndarray | None, *,
                memory: dict[str, Any]) -> Figure:
     """A camera frame beside the chosen viewframe, and both edge images as the memory sees them."""
-    from models.preprocess import preprocess
+    from models.preprocess import preprocess_with
 
     fig, axes = plt.subplots(2, 2, figsize=(8, 6.4))
-    opts = {"size": memory["size"], "edge": memory["edge"], "blur_sigma": memory["blur_sigma"]}
     panels = [(camera_image, f"camera frame {frame['frame']}")]
     chosen = frame["viewframe"]
     panels.append((viewframe_image, f"viewframe {chosen}" if chosen is not None else "not localized"))
@@ -69,7 +68,7 @@ def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image:
         ax.set_title(title)
     for ax, (img, title) in zip(axes[1], panels):
         if img is not None:
-            ax.imshow(preprocess(img, **opts), cmap="gray")
+            ax.imshow(preprocess_with(img, memory=memory), cmap="gray")
         ax.set_title("edges: " + title)
     for ax in axes.ravel():
         ax.set_xticks([])

@@ -69,26 +69,25 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
     Raises :class:`~blackboard.errors.ScenarioError` when the scenario has no ``sensor`` block.
     """
     from knowledge_sources.results import nearest_viewframe
-    from models.associative import BankedMemory
+    from models.associative import memory_from_spec
     from models.camera import CameraEmulator
     from models.environment import build_environment
-    from models.preprocess import preprocess
+    from models.preprocess import preprocess_with
     from models.sensor import sensor_frames
     from models.viewframes import build_viewframes, route_poses
 
     if scenario.sensor is None:
         raise ScenarioError(scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate")
-    spec = scenario.memory
+    spec = scenario.memory.model_dump()
     with CameraEmulator(build_environment(scenario), scenario.camera) as emulator:
         viewframes = build_viewframes(scenario, emulator=emulator)
         poses = route_poses(scenario, emulator.environment.terrain)
         frames = sensor_frames(scenario, emulator=emulator, poses=poses)
 
     def pattern(image: np.ndarray) -> np.ndarray:
-        return preprocess(image, size=spec.size, edge=spec.edge, blur_sigma=spec.blur_sigma)
+        return preprocess_with(image, memory=spec)
 
-    memory = BankedMemory(spec.size, bank_size=spec.bank_size, seed=scenario.seed, key_method=spec.key,
-                          max_shift=tuple(spec.max_shift))
+    memory = memory_from_spec(spec, seed=scenario.seed)
     memory.write_many([pattern(vf.image) for vf in viewframes], [vf.index for vf in viewframes])
     rows = []
     for frame in frames:
