@@ -81,6 +81,8 @@ class Scheduler(KnowledgeSource):
         self.min_pixels = int(min_pixels)
         self.query_timeout_s = float(query_timeout_s)
         self._map: dict[str, Any] | None = None
+        self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
+        self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
         self._frames: dict[int, _Frame] = {}
 
     def precondition(self, event: Event) -> float | None:
@@ -93,7 +95,7 @@ class Scheduler(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
         if h.level == levels.MAP:
-            self._map = h.body
+            self._set_map(h.body)
         elif h.level == levels.RANKING:
             self._on_ranking(h, board)
         elif h.level == levels.ANSWER:
@@ -111,12 +113,19 @@ class Scheduler(KnowledgeSource):
         st.analysis.answer(question, None)
         self._advance(st, board)
 
+    def _set_map(self, body: dict[str, Any]) -> None:
+        """Keep the map and what the questions need of it, derived once."""
+        self._map = body
+        self._landmarks = {lm["id"]: lm for lm in body["landmarks"]}
+        self._visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
+                         for k, v in body["visible"].items()}
+
     def _ensure_map(self, board: Board) -> dict[str, Any]:
         if self._map is None:
             got = board.get("map")
             if got is None:
                 raise RuntimeError("a ranking arrived but the map is not on the blackboard")
-            self._map = got.body
+            self._set_map(got.body)
         return self._map
 
     def _on_ranking(self, h: Hypothesis, board: Board) -> None:
@@ -134,11 +143,9 @@ class Scheduler(KnowledgeSource):
         mp = self._ensure_map(board)
         merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
         st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
-        visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
-                   for k, v in mp["visible"].items()}
         st.analysis = SceneAnalysis(
             st.ranking,
-            visible,
+            self._visible,
             strategy=self.strategy,
             candidates=self.candidates,
             accept=self.accept,
@@ -166,8 +173,7 @@ class Scheduler(KnowledgeSource):
         mp = self._map
         question = st.analysis.next_question()
         if question is not None:
-            landmarks = {lm["id"]: lm for lm in mp["landmarks"]}
-            lm = landmarks[question.landmark]
+            lm = self._landmarks[question.landmark]
             q = board.post(
                 levels.QUERY,
                 {
