@@ -22,12 +22,16 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT, BankedMemory
+from models.associative import BankedMemory
 from models.preprocess import preprocess
+from models.scenario import MemorySpec
 
 __all__ = ["HolographicIndex", "NCCIndex", "OrbBowIndex"]
 
 logger = logging.getLogger(__name__)
+
+#: the shipped memory and preprocessing defaults
+_DEFAULTS = MemorySpec()
 
 
 def _gray_u8(image: NDArray) -> NDArray[np.uint8]:
@@ -44,11 +48,11 @@ class HolographicIndex:
 
     def __init__(
         self,
-        size: int = 128,
+        size: int = _DEFAULTS.size,
         *,
-        blur_sigma: float = 2.0,
-        bank_size: int = DEFAULT_BANK_SIZE,
-        max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT,
+        blur_sigma: float = _DEFAULTS.blur_sigma,
+        bank_size: int = _DEFAULTS.bank_size,
+        max_shift: tuple[int, int] = _DEFAULTS.max_shift,
         seed: int = 0,
     ) -> None:
         self.size, self.blur_sigma = size, blur_sigma
@@ -72,7 +76,7 @@ class NCCIndex:
 
     name = "ncc"
 
-    def __init__(self, size: int = 128, *, blur_sigma: float = 2.0) -> None:
+    def __init__(self, size: int = _DEFAULTS.size, *, blur_sigma: float = _DEFAULTS.blur_sigma) -> None:
         self.size, self.blur_sigma = size, blur_sigma
         self.matrix = np.zeros((0, size * size), np.float32)
         self.labels = np.zeros(0, np.int64)

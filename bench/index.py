@@ -20,8 +20,9 @@ true one). For the memory also the bandwidth floor ``floor_ms`` (median time of 
 ``ratio`` = rank_ms / floor_ms. A capacity sweep stores H = 4 .. 256 patterns in ONE bank and
 reports top-1 and recall quality (cosine of the recall with the true prototype). Finally, top-1
 counts on the bundled route scenarios (rendered viewframes, simulated camera frames) for NCC and
-the memory at several bank sizes and shift searches; the defaults
-(``models.associative.DEFAULT_BANK_SIZE``, ``DEFAULT_MAX_SHIFT``) come from these two.
+the memory at several bank sizes and shift searches; the defaults (``bank_size`` and
+``max_shift`` of :class:`models.scenario.MemorySpec`) come from these two. Preprocessing uses the
+scenario schema's defaults (``MemorySpec``: size, edge method, blur) unless an option says otherwise.
 
 BLAS runs on one thread (``OPENBLAS_NUM_THREADS=1`` unless set): the floor is single-threaded.
 
@@ -32,14 +33,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import logging
+import os
 import platform
 import statistics
 import sys
 import time
 from collections.abc import Callable
-
 from pathlib import Path
 
 # one BLAS thread: the bandwidth floor (numpy sum) is single-threaded too, and on a shared
@@ -56,9 +56,13 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from baselines import HolographicIndex, NCCIndex, OrbBowIndex  # noqa: E402
 
-from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT, HolographicMemory  # noqa: E402
+from models.associative import HolographicMemory  # noqa: E402
 from models.preprocess import preprocess  # noqa: E402
+from models.scenario import MemorySpec  # noqa: E402
 from models.synthetic import scene  # noqa: E402
+
+#: the shipped memory defaults
+DEFAULTS = MemorySpec()
 
 logger = logging.getLogger("bench.index")
 
@@ -173,7 +177,7 @@ def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, 
         store_s = time.perf_counter() - t0
         if hasattr(m, "rank_pattern"):
             pats = [(i, m.pattern(q)) for i, q in queries]
-            t_pre = _median_ms(lambda: m.pattern(queries[0][1]), 5)
+            t_pre = _median_ms(lambda m=m: m.pattern(queries[0][1]), 5)
             rank = m.rank_pattern
         else:
             pats, t_pre, rank = queries, 0.0, m.rank
@@ -188,7 +192,7 @@ def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, 
                "top1": hits / len(pats)}
         if isinstance(m, HolographicIndex):
             matrix = m.memory.ranking_matrix
-            floor = _median_ms(lambda: matrix.sum(), 7)
+            floor = _median_ms(lambda matrix=matrix: matrix.sum(), 7)
             row.update({"banks": len(m.memory.banks), "floor_ms": round(floor, 3),
                         "ratio": round(row["rank_ms"] / floor, 2)})
         out.append(row)
@@ -203,8 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
     parser.add_argument("--hs", type=int, nargs="+", default=None, help="stored viewframes (default 100 1000 5000)")
     parser.add_argument("--queries", type=int, default=None, help="perturbed queries per case (default 100, quick 40)")
-    parser.add_argument("--bank-size", type=int, default=DEFAULT_BANK_SIZE)
-    parser.add_argument("--max-shift", type=int, nargs=2, default=list(DEFAULT_MAX_SHIFT), metavar=("ROWS", "COLS"),
+    parser.add_argument("--bank-size", type=int, default=DEFAULTS.bank_size)
+    parser.add_argument("--max-shift", type=int, nargs=2, default=list(DEFAULTS.max_shift), metavar=("ROWS", "COLS"),
                         help="shift search of the memory, memory pixels")
     parser.add_argument("--shift", type=float, default=3.0, help="max shift of a query in image pixels")
     parser.add_argument("--noise", type=float, default=8.0, help="gaussian noise of a query, gray levels")
@@ -236,8 +240,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.scenarios is None:
         root = Path(__file__).resolve().parent.parent / "scenarios"
         args.scenarios = [] if args.quick else [str(root / f"{n}.yaml") for n in ("hills", "contours", "jacksboro")]
-    scen = scenario_top1(args.scenarios, bank_sizes=[1, DEFAULT_BANK_SIZE, 4, 8],
-                         shifts=[(0, 0), (2, 6), DEFAULT_MAX_SHIFT]) if args.scenarios else []
+    scen = scenario_top1(args.scenarios, bank_sizes=[1, DEFAULTS.bank_size, 4, 8],
+                         shifts=[(0, 0), (2, 6), DEFAULTS.max_shift]) if args.scenarios else []
     doc = {
         "machine": {"cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "python": platform.python_version(),
                     "numpy": np.__version__, "opencv": cv2.__version__},

@@ -46,7 +46,7 @@ from models.camera import CameraEmulator  # noqa: E402
 from models.environment import build_environment  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 from models.symbolic import describe  # noqa: E402
-from models.terrain import load_terrain  # noqa: E402
+from models.terrain_sources import load_terrain  # noqa: E402
 from models.viewframes import route_poses  # noqa: E402
 
 log = logging.getLogger("bench.render")

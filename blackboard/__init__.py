@@ -3,6 +3,8 @@
 Modules (imported explicitly; importing ``blackboard`` itself loads nothing heavy, because
 :mod:`blackboard.errors` is imported by every command):
 
+- :mod:`blackboard.errors`: :class:`BlackboardError`, the root of the blackboard's exceptions
+
 - :mod:`blackboard.hypothesis`: :class:`Hypothesis`, name validation (names are key chunks)
 - :mod:`blackboard.keys`: key expressions of a run, ``mapinterp/<run-id>/<level>/<id>``
 - :mod:`blackboard.codec`: msgpack with numpy arrays (no pickle) and size limits

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 
 from blackboard.agent import AgentRunner
 from blackboard.config import ZenohOptions
-from blackboard.errors import AgentError, MapinterpError
+from blackboard.errors import AgentError, BlackboardError
 
 __all__ = ["main"]
 
@@ -35,7 +35,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         runner = AgentRunner(source, run_id=spec["run_id"], connect=list(spec["connect"]), zenoh_options=options,
                              max_message_bytes=int(spec["max_message_bytes"]))
         runner.start()
-    except (MapinterpError, ValueError, KeyError, IndexError, TypeError) as err:
+    except (BlackboardError, ValueError, KeyError, IndexError, TypeError) as err:
         message = err.message if isinstance(err, AgentError) else str(err)  # the parent names the agent
         print(f"error: {message}", flush=True)
         return 2

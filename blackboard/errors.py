@@ -1,23 +1,19 @@
-"""The one exception hierarchy of mapinterp.
+"""The exception hierarchy of the blackboard (``blackboard/``).
 
-Every error a user can cause or meet derives from :class:`MapinterpError` and carries the
-context that names the culprit (file, field, agent, key) as attributes, so the command line
-can print one clear sentence instead of a traceback::
+Every error of the distributed blackboard derives from :class:`BlackboardError` and carries the
+context that names the culprit (agent, level, key, file) as attributes, so the command line can
+print one clear sentence instead of a traceback::
 
-    MapinterpError
-    ├── ScenarioError        a scenario file is malformed        (.path, .field)
-    ├── InputError           a data or image file is missing/bad (.path)
-    ├── RenderError          the offscreen renderer failed
-    ├── AssociativeMemoryError  bad memory configuration or input
-    ├── TraceError           a trace file cannot be read         (.path)
-    └── BlackboardError      the distributed blackboard
-        ├── CodecError       a message could not be encoded/decoded (.key)
-        ├── DeclarationError an agent posted outside its declared levels (.agent, .level)
-        ├── AgentError       an agent died, failed or timed out  (.agent)
-        └── TransportError   a zenoh session could not be opened or used
+    BlackboardError          root of the blackboard's errors
+    ├── CodecError           a message could not be encoded/decoded   (.key, .message)
+    ├── DeclarationError     an agent posted outside its declared levels (.agent, .level, .message)
+    ├── AgentError           an agent died, failed or timed out       (.agent, .message)
+    ├── TransportError       a zenoh session could not be opened or used
+    └── TraceError           a trace file cannot be read              (.path, .message)
 
-The hierarchy lives in ``blackboard`` because it is the lowest layer: ``models`` and
-``knowledge_sources`` import it from here, ``blackboard`` imports nothing of theirs.
+The blackboard imports nothing of ``models`` or ``knowledge_sources``, and the domain models have
+their own root (:class:`models.errors.ModelError`). To catch every mapinterp error in one
+``except``, use the tuple :data:`knowledge_sources.errors.MAPINTERP_ERRORS`.
 """
 
 from __future__ import annotations
@@ -25,66 +21,17 @@ from __future__ import annotations
 from pathlib import Path
 
 __all__ = [
-    "MapinterpError",
-    "ScenarioError",
-    "InputError",
-    "RenderError",
-    "AssociativeMemoryError",
-    "TraceError",
     "BlackboardError",
     "CodecError",
     "DeclarationError",
     "AgentError",
     "TransportError",
+    "TraceError",
 ]
 
 
-class MapinterpError(Exception):
-    """Root of every mapinterp error."""
-
-
-class ScenarioError(MapinterpError):
-    """A scenario file is malformed.
-
-    ``str(err)`` reads ``scenarios/x.yaml: landmarks[3].height: must be > 0``.
-    """
-
-    def __init__(self, path: str | Path | None, field: str | None, message: str) -> None:
-        self.path = None if path is None else Path(path)
-        self.field = field
-        self.message = message
-        where = [str(p) for p in (self.path, field) if p]
-        super().__init__(": ".join([*where, message]))
-
-
-class InputError(MapinterpError):
-    """A data file (DEM, contours, camera image) is missing or unreadable."""
-
-    def __init__(self, path: str | Path | None, message: str) -> None:
-        self.path = None if path is None else Path(path)
-        self.message = message
-        super().__init__(f"{self.path}: {message}" if self.path else message)
-
-
-class RenderError(MapinterpError):
-    """The offscreen renderer could not be created or failed to render."""
-
-
-class AssociativeMemoryError(MapinterpError):
-    """Bad configuration of, or input to, the associative memory."""
-
-
-class TraceError(MapinterpError):
-    """A trace file cannot be opened or read."""
-
-    def __init__(self, path: str | Path | None, message: str) -> None:
-        self.path = None if path is None else Path(path)
-        self.message = message
-        super().__init__(f"{self.path}: {message}" if self.path else message)
-
-
-class BlackboardError(MapinterpError):
-    """Errors of the distributed blackboard."""
+class BlackboardError(Exception):
+    """Root of the blackboard's errors."""
 
 
 class CodecError(BlackboardError):
@@ -117,3 +64,12 @@ class AgentError(BlackboardError):
 
 class TransportError(BlackboardError):
     """A zenoh session could not be opened, configured or used."""
+
+
+class TraceError(BlackboardError):
+    """A trace file cannot be opened or read."""
+
+    def __init__(self, path: str | Path | None, message: str) -> None:
+        self.path = None if path is None else Path(path)
+        self.message = message
+        super().__init__(f"{self.path}: {message}" if self.path else message)

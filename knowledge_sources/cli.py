@@ -1,8 +1,9 @@
 """The ``mapinterp`` command.
 
 Sub-commands live one per module in :mod:`knowledge_sources.commands` and are imported only
-when chosen. A :class:`~blackboard.errors.MapinterpError` (a user's mistake: a malformed
-scenario, a missing image, a dead agent) is printed as one sentence naming the culprit, with
+when chosen. A mapinterp error (any of :data:`~knowledge_sources.errors.MAPINTERP_ERRORS`: a
+:class:`~models.errors.ModelError` such as a malformed scenario or a missing image, or a
+:class:`~blackboard.errors.BlackboardError` such as a dead agent) is printed as one sentence naming the culprit, with
 exit status 2, never as a traceback; ``--debug`` shows the traceback. Output piped into a
 reader that stops early (``mapinterp trace run.trace --timeline | head``) ends quietly with
 status 141, as a command killed by SIGPIPE would.
@@ -17,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from blackboard.errors import MapinterpError
+from knowledge_sources.errors import MAPINTERP_ERRORS
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -85,7 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         os.close(devnull)
         return EXIT_BROKEN_PIPE
-    except MapinterpError as err:
+    except MAPINTERP_ERRORS as err:
         if args.debug:
             raise
         print(f"mapinterp {args.command}: error: {err}", file=sys.stderr)

@@ -8,10 +8,13 @@ from typing import Any, ClassVar
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from models.scenario import SchedulerSpec
 
 __all__ = ["LandmarkDetectorAgent"]
 
 log = logging.getLogger(__name__)
+
+_DEFAULTS = SchedulerSpec()
 
 
 class LandmarkDetectorAgent(KnowledgeSource):
@@ -20,16 +23,24 @@ class LandmarkDetectorAgent(KnowledgeSource):
     from the blackboard and runs the detector registered for L's kind
     (:func:`models.detectors.default_registry`). It never reads the ``truth`` level.
 
-    Options: ``threshold`` (score for "present", default 0.65), ``absent_threshold`` (below it,
-    "absent", default 0.15; in between the answer is undecided), ``cache`` (frames and viewframes
-    kept, default 64).
+    Options: ``threshold`` (score for "present"), ``absent_threshold`` (below it, "absent"; in
+    between the answer is undecided), both defaulting to the scenario schema's
+    ``scheduler.detector_threshold`` and ``scheduler.absent_threshold``; ``cache`` (frames and
+    viewframes kept, default 64).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.QUERY,)
     produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
 
-    def __init__(self, name: str, *, threshold: float = 0.65, absent_threshold: float = 0.15, cache: int = 64,
-                 **options: Any) -> None:
+    def __init__(
+        self,
+        name: str,
+        *,
+        threshold: float = _DEFAULTS.detector_threshold,
+        absent_threshold: float = _DEFAULTS.absent_threshold,
+        cache: int = 64,
+        **options: Any,
+    ) -> None:
         super().__init__(name, **options)
         self.threshold = float(threshold)
         self.absent_threshold = float(absent_threshold)

@@ -30,12 +30,13 @@ from pathlib import Path
 from typing import Any
 
 from blackboard.config import ZenohOptions
-from blackboard.errors import AgentError, ScenarioError
+from blackboard.errors import AgentError
 from blackboard.knowledge_source import Event
 from blackboard.runtime import Runtime
 from knowledge_sources import levels
 from knowledge_sources.results import frame_record, summarize
 from knowledge_sources.scheduler import detector_name
+from models.errors import ScenarioError
 from models.scenario import Scenario, load_scenario
 
 __all__ = ["run_mission", "agent_plan"]

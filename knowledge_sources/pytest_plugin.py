@@ -104,7 +104,7 @@ class ScenarioItem(pytest.Item):
             raise ExpectationMissed(misses)
 
     def repr_failure(self, excinfo, style=None):
-        from blackboard.errors import MapinterpError
+        from knowledge_sources.errors import MAPINTERP_ERRORS
 
         if isinstance(excinfo.value, ExpectationMissed):
             rows = [("expectation", "wanted", "got", "missed by"), *excinfo.value.misses]
@@ -115,7 +115,7 @@ class ScenarioItem(pytest.Item):
                 s = self.results["summary"]
                 lines.append(f"  summary: {s}")
             return "\n".join(lines)
-        if isinstance(excinfo.value, MapinterpError):
+        if isinstance(excinfo.value, MAPINTERP_ERRORS):
             return f"scenario {self.path.name}: {excinfo.value}"
         return super().repr_failure(excinfo, style=style)
 

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from blackboard.errors import InputError
+from models.errors import InputError
 
 __all__ = ["nearest_viewframe", "frame_record", "summarize", "write_results", "load_results"]
 
@@ -103,7 +103,7 @@ def write_results(path: str | Path, results: dict[str, Any]) -> Path:
 
 
 def load_results(path: str | Path) -> dict[str, Any]:
-    """Read a results file; :class:`~blackboard.errors.InputError` names the file and the problem."""
+    """Read a results file; :class:`~models.errors.InputError` names the file and the problem."""
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "results file not found")

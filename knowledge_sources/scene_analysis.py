@@ -45,12 +45,17 @@ from typing import Literal
 
 import numpy as np
 
+from models.scenario import SchedulerSpec
+
 __all__ = ["Question", "Decision", "SceneAnalysis", "ranking_weights"]
 
 Strategy = Literal["associative", "prior"]
 
+#: the defaults (strategy, candidates, accept, reliability, beta): the scenario schema's
+_DEFAULTS = SchedulerSpec()
 
-def ranking_weights(variances: Sequence[float] | np.ndarray, *, beta: float = 3.0) -> np.ndarray:
+
+def ranking_weights(variances: Sequence[float] | np.ndarray, *, beta: float = _DEFAULTS.beta) -> np.ndarray:
     """Candidate weights from error variances (lower variance, higher weight).
 
     Parameters
@@ -117,6 +122,10 @@ class SceneAnalysis:
         Assumed probability ``q`` that a detector's "present" is right, in (0.5, 1).
     priors : mapping landmark -> P(L), optional
         A-priori landmark probabilities; the ``prior`` strategy's question order follows them.
+    beta : float
+        Sharpness of the ranking weights (:func:`ranking_weights`).
+
+    Every default is the scenario schema's (:class:`models.scenario.SchedulerSpec`).
 
     Use: call :meth:`next_question`; when it returns a :class:`Question`, answer it with
     :meth:`answer`; when it returns ``None``, :meth:`decision` holds the result.
@@ -124,12 +133,12 @@ class SceneAnalysis:
 
     ranking: Sequence[tuple[int, float]]
     visible: Mapping[int, frozenset[str] | set[str]]
-    strategy: Strategy = "associative"
-    candidates: int = 8
-    accept: float = 0.75
-    reliability: float = 0.9
+    strategy: Strategy = _DEFAULTS.strategy
+    candidates: int = _DEFAULTS.candidates
+    accept: float = _DEFAULTS.accept
+    reliability: float = _DEFAULTS.reliability
     priors: Mapping[str, float] | None = None
-    beta: float = 3.0
+    beta: float = _DEFAULTS.beta
     _weights: dict[int, float] = field(init=False, repr=False)
     _rank: dict[int, int] = field(init=False, repr=False)
     _likelihood: dict[int, float] = field(init=False, repr=False)

@@ -20,10 +20,14 @@ from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.scene_analysis import Question, SceneAnalysis
+from models.scenario import SchedulerSpec
 
 __all__ = ["Scheduler", "detector_name"]
 
 log = logging.getLogger(__name__)
+
+#: the defaults of every option: the scenario schema's ``scheduler`` settings
+_DEFAULTS = SchedulerSpec()
 
 
 def detector_name(kind: str) -> str:
@@ -50,7 +54,8 @@ class Scheduler(KnowledgeSource):
     """Options: ``strategy`` ("associative" or "prior"), ``candidates``, ``accept``,
     ``reliability`` (assumed detector reliability), ``beta`` (ranking weight sharpness),
     ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
-    the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``.
+    the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``; each defaults
+    to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER)
@@ -61,13 +66,13 @@ class Scheduler(KnowledgeSource):
         self,
         name: str,
         *,
-        strategy: str = "associative",
-        candidates: int = 8,
-        accept: float = 0.6,
-        reliability: float = 0.8,
-        beta: float = 3.0,
-        min_pixels: int = 60,
-        query_timeout_s: float = 10.0,
+        strategy: str = _DEFAULTS.strategy,
+        candidates: int = _DEFAULTS.candidates,
+        accept: float = _DEFAULTS.accept,
+        reliability: float = _DEFAULTS.reliability,
+        beta: float = _DEFAULTS.beta,
+        min_pixels: int = _DEFAULTS.min_pixels,
+        query_timeout_s: float = _DEFAULTS.query_timeout_s,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)

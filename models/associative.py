@@ -9,7 +9,7 @@ Formulas (N x N patterns, ``*`` circular convolution, ``(x)`` circular correlati
 The memory is kept in the frequency domain, ``FM = sum_h rfft2(K_h) rfft2(P_h)``, so a write
 is one complex multiply-add and a recall one complex multiply and one ``irfft2``; storage order
 does not matter (a sum). Because keys have a flat spectrum, ``K_q (x) K_h`` is a delta for the
-same pattern and noise for a different one (see :mod:`models.keys`), so R is the prototype of
+same pattern and noise for a different one (see :mod:`models.memory_keys`), so R is the prototype of
 Q plus crosstalk from the others.
 
 **Error variance, comparable across banks.** Prototypes are zero mean and unit energy. The
@@ -34,15 +34,13 @@ ranking is ONE float32 matrix product of that (H, D) matrix with the query vecto
 power ``w |FM|**2``. The recall R is never formed (:meth:`HolographicMemory.recall` still
 gives it, and the tests check the identity against the direct sums).
 
-**Shifts.** The key is shift-equivariant (:mod:`models.keys`): a camera turned by a degree
+**Shifts.** The key is shift-equivariant (:mod:`models.memory_keys`): a camera turned by a degree
 recalls its viewframe shifted by a few pixels, which the zero-lag error variance punishes.
 With ``max_shift = (rows, cols)`` the recall is compared with each prototype at every circular
 shift up to that size and v_h is the smallest error variance (``max_shift = 0``: the plain
 formula). A shift is a phase ramp, so the L searched shifts make the query vector an (D, L)
-matrix: the ranking reads the prototype matrix once, with L times the arithmetic. Default
-(2, 6): 65 shifts, for camera frames up to ~3 degrees off the route heading (the simulated
-sensor's jitter); on the Table A scenario already (1, 2) puts every minimum on the diagonal.
-To keep the ranking bound by memory bandwidth, every prototype is scored at zero shift (one
+matrix: the ranking reads the prototype matrix once, with L times the arithmetic. The default
+is the scenario schema's (:class:`models.scenario.MemorySpec`). To keep the ranking bound by memory bandwidth, every prototype is scored at zero shift (one
 matrix-vector product) and only the :data:`SHIFT_SEARCH_TOP` (32) best are searched over the
 shifts; their variances can only fall, so the others' order is unaffected, but a prototype
 ranked below 32nd at zero shift is not rescued (and keeps its zero-shift variance).
@@ -56,14 +54,12 @@ the number large). A ranking of fewer than two entries has reliability 0.
 
 **Capacity.** Every stored pattern adds crosstalk of the same energy as the signal; the
 margin of the true prototype shrinks as sqrt(N_eff / H), N_eff the number of effectively
-independent pixels (652 at N = 128, blur 2, with the whitening of :mod:`models.preprocess`).
-Measured (``bench/index.py``): one bank holds only about 8-16 perturbed synthetic viewframes
-at N = 128 before top-1 drops, far fewer than "some hundreds", and fewer still for the views
-along a route, which resemble each other so that their crosstalk is structured rather than
-noise (on the bundled scenarios, bank size 8 gets 2-12 frames of 22-30 wrong that bank size 1
-gets right). :class:`BankedMemory` therefore splits the viewframes over banks of
-``bank_size`` (default :data:`DEFAULT_BANK_SIZE` = 4). The ranking cost hardly depends on the
-bank size (above; a bank adds one power vector of N (N/2 + 1) floats, 1/(2 bank_size) of its
+independent pixels (N**2 / (2 pi sigma**2) with the whitening of :mod:`models.preprocess`). One
+bank therefore holds few patterns before its top-1 drops, and fewer still of the views along a
+route, which resemble each other so that their crosstalk is structured rather than noise (the
+measurements are in BENCHMARKS.md, "Associative memory"). :class:`BankedMemory` therefore splits
+the viewframes over banks of ``bank_size`` (default: the scenario schema's). The ranking cost
+hardly depends on the bank size (above; a bank adds one power vector of N (N/2 + 1) floats, 1/(2 bank_size) of its
 prototype rows). With a bank size of 1 the memory reduces (up to the key normalisation) to the
 cross-correlation of the whitened patterns (the NCC baseline) plus the shift search: banking
 trades the holographic superposition away for accuracy. Each bank is a
@@ -82,12 +78,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from blackboard.errors import AssociativeMemoryError
-from models.keys import KEY_METHODS, key_spectrum
+from models.errors import AssociativeMemoryError
+from models.memory_keys import KEY_METHODS, key_spectrum
+from models.scenario import MemorySpec
 
 __all__ = [
-    "DEFAULT_BANK_SIZE",
-    "DEFAULT_MAX_SHIFT",
     "SHIFT_SEARCH_TOP",
     "Ranking",
     "reliability",
@@ -99,13 +94,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: default number of viewframes per bank: consecutive route views are so alike that their
-#: crosstalk is structured, not noise; on simulated route frames top-1 is 0.92 with 2 per bank,
-#: 0.86 with 4, 0.77 with 8 (bench/tuning/rank_sweep.py; random patterns allow 16, bench/index.py)
-DEFAULT_BANK_SIZE = 2
-#: default shift search (rows, cols) of the recall against the prototypes, in memory pixels:
-#: 16 columns at N=128 absorb about 7 degrees of heading error (3 degrees jitter, 2 sigma)
-DEFAULT_MAX_SHIFT = (2, 16)
+#: the memory defaults (size, key method, bank size, shift search): the scenario schema's
+_DEFAULTS = MemorySpec()
 #: the shift search refines this many best zero-shift candidates of a ranking
 SHIFT_SEARCH_TOP = 32
 
@@ -272,9 +262,9 @@ class HolographicMemory:
     size : int
         Side N of the patterns and of the memory.
     seed : int
-        Seed of the keys' random phase (see :func:`models.keys.make_key`).
+        Seed of the keys' random phase (see :func:`models.memory_keys.make_key`).
     key_method : str
-        K-GEN method, one of :data:`models.keys.KEY_METHODS`.
+        K-GEN method, one of :data:`models.memory_keys.KEY_METHODS`.
     max_shift : int or (rows, cols)
         The recall is compared with each prototype at every circular shift up to this many
         memory pixels (see the module docstring, "Shifts"); 0 compares at zero lag only.
@@ -282,11 +272,11 @@ class HolographicMemory:
 
     def __init__(
         self,
-        size: int = 128,
+        size: int = _DEFAULTS.size,
         *,
         seed: int = 0,
-        key_method: str = "phase",
-        max_shift: int | tuple[int, int] = DEFAULT_MAX_SHIFT,
+        key_method: str = _DEFAULTS.key,
+        max_shift: int | tuple[int, int] = _DEFAULTS.max_shift,
     ) -> None:
         if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 4:
             raise AssociativeMemoryError(f"size must be an integer >= 4, got {size!r}")
@@ -341,8 +331,8 @@ class HolographicMemory:
         """
         if self._match is None:
             n = self.size
-            fp = self._fprotos[: self._count].reshape(self._count, n, n // 2 + 1, 2)
-            fp = fp[..., 0].astype(np.complex128) + 1j * fp[..., 1]
+            pairs = self._fprotos[: self._count].reshape(self._count, n, n // 2 + 1, 2)
+            fp = pairs[..., 0].astype(np.complex128) + 1j * pairs[..., 1]
             self._match = np.ascontiguousarray(_interleave(fp * np.conj(self._spectrum)[None]))
         return self._match
 
@@ -503,12 +493,12 @@ class BankedMemory:
 
     def __init__(
         self,
-        size: int = 128,
+        size: int = _DEFAULTS.size,
         *,
-        bank_size: int = DEFAULT_BANK_SIZE,
+        bank_size: int = _DEFAULTS.bank_size,
         seed: int = 0,
-        key_method: str = "phase",
-        max_shift: int | tuple[int, int] = DEFAULT_MAX_SHIFT,
+        key_method: str = _DEFAULTS.key,
+        max_shift: int | tuple[int, int] = _DEFAULTS.max_shift,
     ) -> None:
         if isinstance(bank_size, bool) or not isinstance(bank_size, (int, np.integer)) or bank_size < 1:
             raise AssociativeMemoryError(f"bank_size must be an integer >= 1, got {bank_size!r}")
@@ -578,6 +568,7 @@ class BankedMemory:
             return merge_rankings([])
         key = self.banks[0].query_key(pattern)
         matrix = self.ranking_matrix
+        assert self._bank_power is not None and self._row_bank is not None  # set with the matrix
         power = (np.abs(key) ** 2).ravel().astype(np.float32)
         energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
         scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
@@ -619,6 +610,6 @@ def memory_from_spec(memory: Mapping[str, Any], *, seed: int = 0) -> BankedMemor
     run`` and ``mapinterp table`` rank alike."""
     try:
         return BankedMemory(int(memory["size"]), bank_size=int(memory["bank_size"]), seed=seed,
-                            key_method=str(memory["key"]), max_shift=tuple(int(v) for v in memory["max_shift"]))
+                            key_method=str(memory["key"]), max_shift=(int(memory["max_shift"][0]), int(memory["max_shift"][1])))
     except (KeyError, TypeError, ValueError) as err:
         raise AssociativeMemoryError(f"memory settings: malformed: {err}") from err

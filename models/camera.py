@@ -40,11 +40,11 @@ from typing import TYPE_CHECKING  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
-from pyrender.shader_program import ShaderProgramCache  # noqa: E402
 import trimesh  # noqa: E402
+from pyrender.shader_program import ShaderProgramCache  # noqa: E402
 
-from blackboard.errors import RenderError  # noqa: E402
 from models.environment import KIND_COLORS, EnvironmentModel, outside_frustum  # noqa: E402
+from models.errors import RenderError  # noqa: E402
 
 if TYPE_CHECKING:
     from models.scenario import CameraSpec
@@ -284,8 +284,8 @@ class CameraEmulator:
         levels = self.environment.tile_levels(
             pose.position, pose.rotation(), tan_half_fov=(self._tan_x, self._tan_y), far=self.camera.far
         )
-        for t in np.nonzero(levels != self._current_levels)[0]:
-            old, new = self._current_levels[t], levels[t]
+        for t in np.nonzero(levels != self._current_levels)[0].tolist():
+            old, new = int(self._current_levels[t]), int(levels[t])
             if old >= 0:
                 self.scene.deactivate(self._terrain_nodes[(t, old)])
             if new >= 0:

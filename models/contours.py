@@ -16,7 +16,7 @@ import numpy as np
 from scipy.interpolate import griddata
 from scipy.ndimage import gaussian_filter
 
-from blackboard.errors import InputError
+from models.errors import InputError
 from models.terrain import Terrain
 
 __all__ = ["ContourLine", "load_contours", "contours_to_dem", "dem_to_contours", "save_contours"]

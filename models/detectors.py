@@ -14,12 +14,11 @@ cross-correlation it does not reward a weak, noisy patch (an empty sky) whose sh
 align, because the camera's edge energy there must also match the template's. The answer is
 *present* when the best score reaches ``threshold``, *absent* below ``absent_threshold``, and
 *undecided* (``present=None``) in between or when the landmark covers too few pixels in the
-viewframe for a template to mean anything. Measured on simulated frames of a procedural scene
-(153 labelled pairs): area under the ROC curve 0.89 for this score against 0.87 for masked
-normalised cross-correlation; multi-scale search and silhouette-outline templates did not help.
-The default thresholds (0.65 present, 0.15 absent) were tuned with the scheduler, on simulated frames
-of the bundled scenarios with other seeds: a false "absent" discards the right viewframe, so
-"absent" is called only when the evidence is clearly missing.
+viewframe for a template to mean anything. The default thresholds are the scenario schema's
+(``scheduler.detector_threshold`` and ``scheduler.absent_threshold`` of
+:class:`models.scenario.SchedulerSpec`), chosen with the scheduler on simulated frames of the
+bundled scenarios with other seeds (BENCHMARKS.md): a false "absent" discards the right
+viewframe, so "absent" is called only when the evidence is clearly missing.
 
 Detectors are pluggable: anything with the :class:`LandmarkDetector` protocol can be registered
 for a landmark kind in a :class:`DetectorRegistry`.
@@ -30,10 +29,12 @@ Images are ``(H, W)`` or ``(H, W, 3)`` arrays indexed ``(row, col)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
+
+from models.scenario import SchedulerSpec
 
 __all__ = [
     "CandidateView",
@@ -44,6 +45,9 @@ __all__ = [
     "default_registry",
     "edge_image",
 ]
+
+#: the default thresholds: the scenario schema's ``scheduler`` settings
+_DEFAULTS = SchedulerSpec()
 
 
 @dataclass(frozen=True)
@@ -130,9 +134,11 @@ class EdgeTemplateDetector:
     ----------
     name : str
     threshold : float
-        Score at or above which the landmark is present.
+        Score at or above which the landmark is present (default: the scenario schema's
+        ``scheduler.detector_threshold``).
     absent_threshold : float
-        Score below which it is absent; in between, the answer is undecided.
+        Score below which it is absent; in between, the answer is undecided (default:
+        ``scheduler.absent_threshold``).
     search : int
         Half-size in pixels of the search window around the expected place, plus
         ``search_fraction`` of the image width.
@@ -146,8 +152,8 @@ class EdgeTemplateDetector:
     """
 
     name: str = "edge-template"
-    threshold: float = 0.65
-    absent_threshold: float = 0.15
+    threshold: float = _DEFAULTS.detector_threshold
+    absent_threshold: float = _DEFAULTS.absent_threshold
     search: int = 6
     search_fraction: float = 0.06
     dilate: int = 2
@@ -218,13 +224,18 @@ class DetectorRegistry:
         return sorted(self.detectors)
 
 
-def default_registry(*, threshold: float = 0.65, absent_threshold: float = 0.15) -> DetectorRegistry:
+def default_registry(
+    *, threshold: float = _DEFAULTS.detector_threshold, absent_threshold: float = _DEFAULTS.absent_threshold
+) -> DetectorRegistry:
     """Detectors for the bundled landmark kinds: houses and barns (wide boxes) by their outline,
     towers and silos (tall, narrow) by their vertical edges; any other kind by the box outline."""
-    t = {"threshold": threshold, "absent_threshold": absent_threshold}
-    reg = DetectorRegistry(fallback=EdgeTemplateDetector(name="box-outline", **t))
-    reg.register("house", EdgeTemplateDetector(name="house-outline", **t))
-    reg.register("barn", EdgeTemplateDetector(name="barn-outline", **t))
-    reg.register("tower", EdgeTemplateDetector(name="tower-vertical-edges", axis="x", min_pixels=12, **t))
-    reg.register("silo", EdgeTemplateDetector(name="silo-vertical-edges", axis="x", min_pixels=12, **t))
+
+    def detector(name: str, **options: Any) -> EdgeTemplateDetector:
+        return EdgeTemplateDetector(name=name, threshold=threshold, absent_threshold=absent_threshold, **options)
+
+    reg = DetectorRegistry(fallback=detector("box-outline"))
+    reg.register("house", detector("house-outline"))
+    reg.register("barn", detector("barn-outline"))
+    reg.register("tower", detector("tower-vertical-edges", axis="x", min_pixels=12))
+    reg.register("silo", detector("silo-vertical-edges", axis="x", min_pixels=12))
     return reg

@@ -28,9 +28,10 @@ from functools import cached_property
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
-from blackboard.errors import ScenarioError
+from models.errors import ScenarioError
 from models.landmarks import Landmark, place_landmarks, raised_dem
-from models.terrain import Terrain, load_terrain
+from models.terrain import Terrain
+from models.terrain_sources import load_terrain
 
 __all__ = [
     "TileMesh",

@@ -43,12 +43,16 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from models.scenario import MemorySpec
+
 __all__ = ["KEY_METHODS", "make_key", "key_spectrum"]
 
 #: accepted values of ``method``
 KEY_METHODS: tuple[str, ...] = ("phase", "quantized")
 
 _QUANT_LEVELS = 4
+#: the default method: the scenario schema's ``memory.key``
+_METHOD = MemorySpec().key
 
 
 @lru_cache(maxsize=32)
@@ -74,7 +78,7 @@ def _check(pattern: ArrayLike, seed: int, method: str) -> NDArray[np.float64]:
     return p
 
 
-def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = "phase") -> NDArray[np.complex128]:
+def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) -> NDArray[np.complex128]:
     """The key's spectrum ``rfft2(make_key(pattern))``, of shape (N, N // 2 + 1).
 
     Magnitude ``N / sqrt(N*N - 1)`` on every bin but DC (0), so that the key has unit energy and
@@ -103,7 +107,7 @@ def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = "phase") ->
     return fk * (n / np.sqrt(n * n - 1.0))
 
 
-def make_key(pattern: ArrayLike, *, seed: int = 0, method: str = "phase") -> NDArray[np.float32]:
+def make_key(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) -> NDArray[np.float32]:
     """K-GEN: the noise-like key of a pattern (see the module docstring for the construction).
 
     Parameters

@@ -14,12 +14,11 @@ pipeline, identical for both sides, is::
   are reflected, so the image frame itself produces no edge.
 * **whiten** (default on): the edge image's spectrum is set to unit magnitude (its phase is
   kept). Edge maps are non-negative lines whose energy sits in a few low frequencies, so
-  without it a 128 x 128 pattern has only ~65 effectively independent pixels (participation
-  ratio of the power spectrum) and the holographic memory's crosstalk wins from about ten
-  stored patterns on; whitened and then blurred, the spectrum is the gaussian envelope alone
-  and N_eff = N**2 / (2 pi sigma**2) (652 at N = 128, sigma = 2). Measured by
-  ``bench/index.py``. The blur is then applied in the frequency domain (circular,
-  as the memory is).
+  without it a pattern has few effectively independent pixels (participation ratio of the
+  power spectrum) and the holographic memory's crosstalk wins after a few stored patterns;
+  whitened and then blurred, the spectrum is the gaussian envelope alone and
+  N_eff = N**2 / (2 pi sigma**2) (measurements in BENCHMARKS.md). The blur is then applied
+  in the frequency domain (circular, as the memory is).
 * **blur**: a gaussian of ``blur_sigma`` memory pixels spreads each edge over its
   neighbourhood, which makes the comparison tolerant to shifts of about ``blur_sigma`` pixels
   (and lowers the number of effectively independent pixels, hence the memory's capacity).
@@ -39,12 +38,16 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from models.scenario import MemorySpec
+
 __all__ = ["EDGE_METHODS", "preprocess", "preprocess_with", "normalise"]
 
 logger = logging.getLogger(__name__)
 
 #: accepted values of ``edge``
 EDGE_METHODS: tuple[str, ...] = ("sobel", "scharr", "laplacian", "canny", "none")
+#: the defaults (size, edge, blur_sigma): the scenario schema's memory settings
+_DEFAULTS = MemorySpec()
 
 
 def _gray(image: NDArray) -> NDArray[np.float32]:
@@ -77,7 +80,7 @@ def _canny(gray: NDArray[np.float32]) -> NDArray[np.float32]:
     return (cv2.Canny(dx, dy, 0.5 * hi, hi, L2gradient=True) > 0).astype(np.float32)
 
 
-def _whiten_blur(edges: NDArray[np.float32], sigma: float) -> NDArray[np.float64]:
+def _whiten_blur(edges: np.ndarray, sigma: float) -> NDArray[np.float64]:
     """Unit spectral magnitude, then a circular gaussian blur of ``sigma`` pixels."""
     n_rows, n_cols = edges.shape
     f = np.fft.rfft2(edges.astype(np.float64))
@@ -109,9 +112,9 @@ def normalise(pattern: ArrayLike) -> NDArray[np.float32]:
 def preprocess(
     image: ArrayLike,
     *,
-    size: int = 128,
-    edge: str = "sobel",
-    blur_sigma: float = 2.0,
+    size: int = _DEFAULTS.size,
+    edge: str = _DEFAULTS.edge,
+    blur_sigma: float = _DEFAULTS.blur_sigma,
     whiten: bool = True,
 ) -> NDArray[np.float32]:
     """Turn an image into a memory pattern.
@@ -148,13 +151,14 @@ def preprocess(
     if not np.all(np.isfinite(img)):
         raise ValueError("image must not contain NaN or infinite values")
 
-    gray = _gray(img)
+    gray: np.ndarray = _gray(img)
     size = int(size)
     if gray.shape != (size, size):
         shrinking = gray.shape[0] >= size and gray.shape[1] >= size
         gray = cv2.resize(gray, (size, size), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
 
     border = cv2.BORDER_REFLECT_101
+    edges: np.ndarray
     if edge in ("sobel", "scharr"):
         ksize = 3 if edge == "sobel" else cv2.FILTER_SCHARR
         gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=ksize, borderType=border)

@@ -15,6 +15,15 @@ and what is wrong (``scenarios/x.yaml: landmarks[3].height: must be > 0``). Rela
 
 World coordinates are metres, x east, y north, z up; see :mod:`models.terrain` for the DEM
 grid convention and :mod:`models.camera` for the pinhole convention.
+
+**Every default is defined here, once.** The optional blocks (``memory``, ``scheduler``,
+``sensor.simulate``) are the settings of the associative memory and preprocessing, of the
+scene-analysis scheduler and the landmark detectors, and of the simulated camera; the classes and
+functions that use them (:mod:`models.preprocess`, :mod:`models.associative`,
+:mod:`models.memory_keys`, :mod:`models.detectors`, :mod:`knowledge_sources.scene_analysis`, the
+agents) take their default values from these specs (``MemorySpec().blur_sigma`` ...) and write
+none of their own. Why each default was chosen is in BENCHMARKS.md ("Choosing the memory and
+scheduler defaults").
 """
 
 from __future__ import annotations
@@ -35,9 +44,9 @@ from pydantic import (
     field_validator,
     model_validator,
 )
+from pydantic_core import ErrorDetails
 
-from blackboard.errors import ScenarioError
-from models.associative import DEFAULT_BANK_SIZE, DEFAULT_MAX_SHIFT
+from models.errors import ScenarioError
 
 __all__ = [
     "ProceduralSpec",
@@ -194,22 +203,26 @@ class SensorSpec(_Spec):
 
 
 class MemorySpec(_Spec):
-    """Associative memory settings.
+    """Associative memory and preprocessing settings.
 
-    ``bank_size`` viewframes share one holographic memory (its capacity: measured top-1 is 1.0 up
-    to 16 patterns at N=128 and falls fast beyond 32); ``shard_size`` viewframes go to one
-    associative indexer agent, which holds them in as many banks as needed; ``max_shift`` is the
-    (rows, cols) search in memory pixels that absorbs pose jitter (16 columns at N=128 is about
-    7 degrees of heading at a 60 degree horizontal field of view). Defaults from bench/index.py and
-    the bundled scenarios (see BENCHMARKS.md).
+    ``size`` is the side N of the memory patterns; ``edge`` and ``blur_sigma`` (memory pixels) the
+    edge operator and gaussian blur of :func:`models.preprocess.preprocess`; ``bank_size``
+    viewframes share one holographic memory (a *bank*: consecutive route views are alike, so their
+    crosstalk is structured and a bank holds few of them); ``shard_size`` viewframes go to one
+    associative indexer agent (a *shard*), which holds them in as many banks as needed;
+    ``max_shift`` is the (rows, cols) search in memory pixels that absorbs pose jitter (16 columns
+    at N=128 is about 7 degrees of heading at a 60 degree horizontal field of view); ``key`` the
+    K-GEN method of :mod:`models.memory_keys`. Example::
+
+        memory: {size: 128, blur_sigma: 1.0, bank_size: 2, shard_size: 512, max_shift: [2, 16]}
     """
 
     size: int = 128
     edge: Literal["canny", "sobel"] = "sobel"
     blur_sigma: float = Field(default=1.0, gt=0)
-    bank_size: int = Field(default=DEFAULT_BANK_SIZE, ge=1)
+    bank_size: int = Field(default=2, ge=1)
     shard_size: int = Field(default=512, ge=1)
-    max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT
+    max_shift: tuple[int, int] = (2, 16)
     key: Literal["phase", "quantized"] = "phase"
 
     @field_validator("max_shift")
@@ -228,9 +241,19 @@ class MemorySpec(_Spec):
 
 
 class SchedulerSpec(_Spec):
-    """Scene-analysis scheduler and detector settings (the rule is documented in
-    :mod:`knowledge_sources.scene_analysis`). Defaults were tuned on simulated frames of the
-    bundled scenarios with other seeds than theirs (see BENCHMARKS.md)."""
+    """Scene-analysis scheduler and landmark detector settings (the rule is documented in
+    :mod:`knowledge_sources.scene_analysis`).
+
+    ``candidates`` best viewframes of the ranking are verified; the best is accepted at posterior
+    ``accept``; ``reliability`` is the detectors' assumed reliability, ``beta`` the sharpness of
+    the ranking weights; a landmark is asked about only where it covers at least ``min_pixels``
+    pixels of the viewframe; a detector answers *present* from ``detector_threshold`` and *absent*
+    below ``absent_threshold``; an unanswered query times out after ``query_timeout_s``. The
+    defaults were chosen on simulated frames of the bundled scenarios with other seeds than theirs
+    (BENCHMARKS.md). Example::
+
+        scheduler: {candidates: 8, accept: 0.6, min_pixels: 60, detector_threshold: 0.65}
+    """
 
     candidates: int = Field(default=8, ge=1)
     accept: float = Field(default=0.6, gt=0, le=1)
@@ -346,7 +369,7 @@ def _field_path(loc: tuple[Any, ...]) -> str:
     return out
 
 
-def _message(err: dict[str, Any]) -> str:
+def _message(err: ErrorDetails) -> str:
     kind = err["type"]
     if kind == "value_error":
         msg = str(err.get("ctx", {}).get("error", err["msg"]))

@@ -21,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from blackboard.errors import InputError
+from models.errors import InputError
 from models.scenario import Scenario, SimulateSpec
 
 __all__ = [
@@ -61,7 +61,7 @@ class SensorFrame:
 def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray:
     """Read a PNG/JPEG camera image, gray or colour, any size, as ``(height, width, 3)`` uint8 RGB.
 
-    Raises :class:`~blackboard.errors.InputError` naming the file when it is missing or unreadable.
+    Raises :class:`~models.errors.InputError` naming the file when it is missing or unreadable.
     """
     path = Path(path)
     if not path.is_file():
@@ -70,7 +70,7 @@ def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray
     if data is None or data.size == 0:
         raise InputError(path, "not a readable image (PNG or JPEG expected)")
     if data.dtype != np.uint8:
-        data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+        data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if data.ndim == 2:
         rgb = cv2.cvtColor(data, cv2.COLOR_GRAY2RGB)
     elif data.shape[2] == 4:
@@ -87,7 +87,7 @@ def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
     """The scenario's ``sensor.frames``, read and resized to the camera size."""
     cam = scenario.camera
     frames = []
-    for i, spec in enumerate(scenario.sensor.frames or []):
+    for i, spec in enumerate((scenario.sensor.frames if scenario.sensor else None) or []):
         image = load_frame_image(spec.image, width=cam.width, height=cam.height)
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
         frames.append(SensorFrame(i, image, truth, str(spec.image)))
@@ -122,16 +122,17 @@ def degrade(
         raise ValueError(f"image must have shape (H, W, 3), not {image.shape}")
     rng = np.random.default_rng(rng)
     h, w = image.shape[:2]
-    img = image.astype(np.float32) / 255.0
+    img: np.ndarray = image.astype(np.float32) / 255.0
     if spec.texture > 0:
         # surface albedo variation (grass, soil, walls): fine-grained, on surfaces only, not the sky
-        field = rng.standard_normal((max(2, h // 4), max(2, w // 4))).astype(np.float32)
+        field: np.ndarray = rng.standard_normal((max(2, h // 4), max(2, w // 4))).astype(np.float32)
         field = cv2.resize(field, (w, h), interpolation=cv2.INTER_CUBIC)
         field = cv2.GaussianBlur(field, (0, 0), 1.0)
-        field /= max(float(field.std()), 1e-6)
+        field = field / max(float(field.std()), 1e-6)
         surface = np.ones((h, w), np.float32) if depth is None else (np.asarray(depth) > 0).astype(np.float32)
         img *= np.clip(1.0 + spec.texture * 0.25 * field * surface, 0.5, 1.5)[..., None]
     if spec.haze > 0:
+        amount: np.ndarray
         if depth is None:
             amount = np.full((h, w), spec.haze, np.float32)
         else:
@@ -167,13 +168,13 @@ def simulate_frames(
     ``spec.jitter_deg`` degrees; the emulator renders it under varied lighting, then
     :func:`degrade` applies the photometric differences. ``truth`` holds the pose.
     """
-    spec = spec or scenario.sensor.simulate
+    spec = spec or (scenario.sensor.simulate if scenario.sensor else None)
     if spec is None:
         raise ValueError("spec must be given when the scenario has no sensor.simulate block")
     if rng is None:
         rng = spec.seed if spec.seed is not None else scenario.seed
     rng = np.random.default_rng(rng)
-    frames = []
+    frames: list[SensorFrame] = []
     n = len(poses)
     for i, pose in enumerate(poses):
         if i % spec.stride:

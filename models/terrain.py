@@ -4,25 +4,18 @@ Grid convention (a contract other tools render against): DEM cell (r, c) has its
 ``x = c * cell_size``, ``y = r * cell_size``; x east, y north, z up, metres. Row 0 is the
 southern edge (y = 0), so the array is *not* image-oriented: show it with ``origin="lower"``.
 F(x, y) is the bilinear interpolation of the bare DEM, clamped at the border.
+
+Building the terrain a scenario names (a DEM file, contours, ...) is :mod:`models.terrain_sources`.
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 
-from blackboard.errors import InputError, ScenarioError
-
-if TYPE_CHECKING:
-    from models.scenario import TerrainSpec
-
-__all__ = ["Terrain", "procedural_terrain", "sample_terrain", "load_terrain"]
-
-log = logging.getLogger(__name__)
+__all__ = ["Terrain", "procedural_terrain", "sample_terrain"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -46,7 +39,8 @@ class Terrain:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the grid."""
-        return self.heights.shape  # type: ignore[return-value]
+        rows, cols = self.heights.shape
+        return int(rows), int(cols)
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
@@ -131,51 +125,7 @@ def sample_terrain(name: str, *, cell_size: float) -> Terrain:
         raise ValueError(f"unknown sample DEM {name!r}")
     from matplotlib import cbook
 
-    with cbook.get_sample_data("jacksboro_fault_dem.npz") as dem:
+    sample: Any = cbook.get_sample_data("jacksboro_fault_dem.npz")  # an NpzFile
+    with sample as dem:
         heights = np.asarray(dem["elevation"], dtype=np.float64)[::-1].copy()
     return Terrain(heights=heights, cell_size=float(cell_size))
-
-
-def _load_dem(path: Path, cell_size: float) -> Terrain:
-    try:
-        heights = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError(path, f"cannot read DEM as a .npy array: {exc}") from None
-    if not isinstance(heights, np.ndarray) or heights.ndim != 2 or min(heights.shape) < 2:
-        raise InputError(path, f"DEM must be a 2-D array of at least 2x2 cells, got shape {np.shape(heights)}")
-    if not np.issubdtype(heights.dtype, np.number) or not np.all(np.isfinite(heights)):
-        raise InputError(path, "DEM heights must be finite numbers")
-    return Terrain(heights=heights.astype(np.float64), cell_size=cell_size)
-
-
-def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
-    """Build the terrain a scenario names (``dem``, ``procedural``, ``contours`` or ``sample``).
-
-    Relative paths resolve against ``base_dir``; ``seed`` seeds a procedural terrain without
-    its own seed. Raises :class:`InputError` for an unreadable DEM or contour file.
-    """
-    def resolve(p: Path) -> Path:
-        return p if p.is_absolute() else Path(base_dir) / p
-
-    if spec.dem is not None:
-        terrain = _load_dem(resolve(spec.dem), spec.cell_size)
-    elif spec.procedural is not None:
-        p = spec.procedural
-        terrain = procedural_terrain(
-            size=p.size, relief=p.relief, cell_size=spec.cell_size, rng=seed if p.seed is None else p.seed
-        )
-    elif spec.contours is not None:
-        from models.contours import contours_to_dem, load_contours
-
-        path = resolve(spec.contours)
-        lines = load_contours(path)
-        try:
-            terrain = contours_to_dem(lines, cell_size=spec.cell_size)
-        except ValueError as exc:
-            raise InputError(path, str(exc)) from None
-    elif spec.sample is not None:
-        terrain = sample_terrain(spec.sample, cell_size=spec.cell_size)
-    else:  # pragma: no cover - the spec validator forbids it
-        raise ScenarioError(None, "terrain", "needs exactly one source")
-    log.info("terrain %s x %s cells, %.0f..%.0f m", *terrain.shape, terrain.heights.min(), terrain.heights.max())
-    return terrain

@@ -1,17 +1,21 @@
 """Offline tuning of the scheduler/detector parameters: real memory, real detectors, real SceneAnalysis,
 on simulated frames with seeds other than the bundled scenarios' (no overfitting to them)."""
 import os
+
 os.environ.setdefault("PYOPENGL_PLATFORM","egl")
-from models.scenario import load_scenario
-from models.environment import build_environment
-from models.camera import CameraEmulator
-from models.viewframes import build_viewframes
-from models.sensor import simulate_frames
-from models.preprocess import preprocess
-from models.associative import BankedMemory
-from models.detectors import default_registry, CandidateView
 from knowledge_sources.results import nearest_viewframe
 from knowledge_sources.scene_analysis import SceneAnalysis
+from models.associative import BankedMemory
+from models.camera import CameraEmulator
+from models.detectors import CandidateView, default_registry
+from models.environment import build_environment
+from models.preprocess import preprocess
+from models.scenario import SchedulerSpec, load_scenario
+from models.sensor import simulate_frames
+from models.viewframes import build_viewframes
+
+#: the grid's starting point: the shipped scheduler and detector defaults
+_DEFAULTS = SchedulerSpec()
 
 #: detector scores by (scenario, frame, landmark, viewframe): the grid re-thresholds the same
 #: scores, so each detection runs once per process
@@ -37,11 +41,14 @@ def prepare(path, seed):
     return dict(fvis=fvis, name=sc.name, vfs=[(v.image, v.mask) for v in vfs], frames=[f.image for f in frames], ranks=ranks,
                 truth=truth, idx=idx, kinds=kinds, pixels=pixels)
 
-def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0.55, athr=0.35, candidates=8, accept=0.75, strategy="associative", priors=None):
+def evaluate(d, *, oracle=False, min_pixels=_DEFAULTS.min_pixels, beta=_DEFAULTS.beta,
+             reliability=_DEFAULTS.reliability, thr=_DEFAULTS.detector_threshold, athr=_DEFAULTS.absent_threshold,
+             candidates=_DEFAULTS.candidates, accept=_DEFAULTS.accept, strategy=_DEFAULTS.strategy, priors=None):
     reg = default_registry(threshold=thr, absent_threshold=athr)
     cache = _SCORES
     visible = {k: {lm for lm, px in pl.items() if px >= min_pixels} for k, pl in d["pixels"].items()}
-    ok = 0; queries = 0
+    ok = 0
+    queries = 0
     for fi, (rk, t) in enumerate(zip(d["ranks"], d["truth"])):
         sa = SceneAnalysis([(int(k), float(v)) for k, v in zip(rk.labels, rk.variances)], visible, strategy=strategy,
                            candidates=candidates, accept=accept, reliability=reliability, priors=priors, beta=beta)
@@ -58,6 +65,7 @@ def evaluate(d, *, oracle=False, min_pixels=24, beta=3.0, reliability=0.9, thr=0
             if oracle:
                 present = d["fvis"][fi][q.landmark] >= 10
             sa.answer(q, present)
-        ok += sa.decision.viewframe == t; queries += sa.decision.queries
+        ok += sa.decision.viewframe == t
+        queries += sa.decision.queries
     n = len(d["truth"])
     return ok / n, queries / n

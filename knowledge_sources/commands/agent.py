@@ -118,7 +118,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    """Join, work until the run ends (0) or Ctrl-C / SIGTERM (0); MapinterpError on failure."""
+    """Join, work until the run ends (0) or Ctrl-C / SIGTERM (0); a mapinterp error on failure."""
     from blackboard.agent import AgentRunner
     from blackboard.errors import AgentError, TransportError
     from blackboard.runtime import resolve_factory

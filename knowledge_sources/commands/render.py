@@ -14,7 +14,7 @@ from pathlib import Path
 
 import cv2
 
-from blackboard.errors import InputError
+from models.errors import InputError
 
 __all__ = ["HELP", "add_arguments", "main"]
 

@@ -27,11 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     import matplotlib.pyplot as plt
 
-    from blackboard.errors import InputError
     from knowledge_sources.report import plot_frame, plot_positions, plot_queries, plot_rankings
     from knowledge_sources.results import load_results
     from models.camera import CameraEmulator
     from models.environment import build_environment
+    from models.errors import InputError
     from models.scenario import load_scenario
     from models.sensor import sensor_frames
     from models.viewframes import build_viewframes

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from blackboard.errors import ScenarioError
+from models.errors import ScenarioError
 
 __all__ = ["HELP", "TableRow", "add_arguments", "error_variance_table", "format_table", "main"]
 
@@ -66,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
     """Render, store and rank: ``(viewframes, rows)`` for a loaded scenario with sensor frames.
 
-    Raises :class:`~blackboard.errors.ScenarioError` when the scenario has no ``sensor`` block.
+    Raises :class:`~models.errors.ScenarioError` when the scenario has no ``sensor`` block.
     """
     from knowledge_sources.results import nearest_viewframe
     from models.associative import memory_from_spec

@@ -7,10 +7,10 @@ import json
 import pytest
 import yaml
 
-from blackboard.errors import ScenarioError
 from blackboard.trace import read_trace
 from knowledge_sources.mission import agent_plan, run_mission
 from knowledge_sources.results import load_results, write_results
+from models.errors import ScenarioError
 from models.scenario import load_scenario
 
 pytestmark = pytest.mark.slow

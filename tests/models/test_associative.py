@@ -7,13 +7,11 @@ import msgpack
 import numpy as np
 import pytest
 
-from blackboard.errors import AssociativeMemoryError
 from models.associative import BankedMemory, HolographicMemory, Ranking, merge_rankings, reliability
-from models.keys import make_key
+from models.errors import AssociativeMemoryError
+from models.memory_keys import make_key
 from models.preprocess import normalise, preprocess
 from models.synthetic import scene
-
-
 
 
 def _perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float, gain: float) -> np.ndarray:
@@ -279,8 +277,8 @@ def test_memory_from_spec_reads_every_setting(settings) -> None:
 
 
 def test_memory_from_spec_refuses_malformed_settings() -> None:
-    from blackboard.errors import AssociativeMemoryError
     from models.associative import memory_from_spec
+    from models.errors import AssociativeMemoryError
 
     with pytest.raises(AssociativeMemoryError, match="memory settings"):
         memory_from_spec({"size": 64, "bank_size": 2, "key": "phase"})  # no max_shift

@@ -110,7 +110,7 @@ def test_views_are_reproducible_and_lighting_changes_only_the_image(flat):
 
 
 def test_closed_emulator_refuses_to_render():
-    from blackboard.errors import RenderError
+    from models.errors import RenderError
 
     terrain = Terrain(heights=np.zeros((3, 3)), cell_size=10.0)
     cam = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)

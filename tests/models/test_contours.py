@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from blackboard.errors import InputError
 from models.contours import contours_to_dem, dem_to_contours, load_contours, save_contours
+from models.errors import InputError
 from models.terrain import Terrain
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.keys import KEY_METHODS, key_spectrum, make_key
+from models.memory_keys import KEY_METHODS, key_spectrum, make_key
 from models.preprocess import normalise
 
 

@@ -6,8 +6,9 @@ from pathlib import Path
 
 import pytest
 import yaml
+from pydantic import ValidationError
 
-from blackboard.errors import MapinterpError, ScenarioError
+from models.errors import ModelError, ScenarioError
 from models.scenario import Scenario, load_scenario, scenario_from_dict
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
@@ -100,7 +101,7 @@ def test_malformed_scenario_names_file_field_and_problem(tmp_path, field, value,
         load_scenario(path)
     assert str(info.value).startswith(f"{path}: {message}")
     assert info.value.path == path
-    assert isinstance(info.value, MapinterpError)
+    assert isinstance(info.value, ModelError)
 
 
 def test_duplicate_landmark_ids(tmp_path):
@@ -157,5 +158,5 @@ def test_path_is_not_an_input_field():
 
 def test_scenario_is_frozen():
     s = scenario_from_dict(VALID)
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError):
         s.seed = 3

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from blackboard.errors import InputError
+from models.errors import InputError
 from models.scenario import SimulateSpec, scenario_from_dict
 from models.sensor import degrade, load_frame_image, sensor_frames, simulate_frames
 

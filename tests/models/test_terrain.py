@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 from matplotlib import cbook
 
-from blackboard.errors import InputError
+from models.errors import InputError
 from models.scenario import TerrainSpec
-from models.terrain import Terrain, load_terrain, procedural_terrain, sample_terrain
+from models.terrain import Terrain, procedural_terrain, sample_terrain
+from models.terrain_sources import load_terrain
 
 
 @pytest.fixture

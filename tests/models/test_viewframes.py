@@ -58,7 +58,7 @@ def test_build_viewframes_renders_and_describes_each_point():
 
 
 def test_route_outside_the_terrain_is_a_scenario_error():
-    from blackboard.errors import ScenarioError
+    from models.errors import ScenarioError
 
     s = _scenario([[100, 100], [900, 100]])
     with pytest.raises(ScenarioError, match=r"route\[1\]: \(900, 100\) is outside the terrain \(x 0..630"):

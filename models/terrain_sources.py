@@ -1,0 +1,68 @@
+"""The terrain a scenario names: a DEM file, procedural hills, contour lines or a sample DEM.
+
+:func:`load_terrain` dispatches on the scenario's ``terrain`` block; the grid convention is that
+of :mod:`models.terrain`. It sits above :mod:`models.terrain` and :mod:`models.contours` (which
+builds a :class:`~models.terrain.Terrain` from contour lines), so neither imports the other back.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from models.contours import contours_to_dem, load_contours
+from models.errors import InputError, ScenarioError
+from models.terrain import Terrain, procedural_terrain, sample_terrain
+
+if TYPE_CHECKING:
+    from models.scenario import TerrainSpec
+
+__all__ = ["load_terrain"]
+
+log = logging.getLogger(__name__)
+
+
+def _load_dem(path: Path, cell_size: float) -> Terrain:
+    try:
+        heights = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(path, f"cannot read DEM as a .npy array: {exc}") from None
+    if not isinstance(heights, np.ndarray) or heights.ndim != 2 or min(heights.shape) < 2:
+        raise InputError(path, f"DEM must be a 2-D array of at least 2x2 cells, got shape {np.shape(heights)}")
+    if not np.issubdtype(heights.dtype, np.number) or not np.all(np.isfinite(heights)):
+        raise InputError(path, "DEM heights must be finite numbers")
+    return Terrain(heights=heights.astype(np.float64), cell_size=cell_size)
+
+
+def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
+    """Build the terrain a scenario names (``dem``, ``procedural``, ``contours`` or ``sample``).
+
+    Relative paths resolve against ``base_dir``; ``seed`` seeds a procedural terrain without
+    its own seed. Raises :class:`InputError` for an unreadable DEM or contour file.
+    """
+    def resolve(p: Path) -> Path:
+        return p if p.is_absolute() else Path(base_dir) / p
+
+    if spec.dem is not None:
+        terrain = _load_dem(resolve(spec.dem), spec.cell_size)
+    elif spec.procedural is not None:
+        p = spec.procedural
+        terrain = procedural_terrain(
+            size=p.size, relief=p.relief, cell_size=spec.cell_size, rng=seed if p.seed is None else p.seed
+        )
+    elif spec.contours is not None:
+        path = resolve(spec.contours)
+        lines = load_contours(path)
+        try:
+            terrain = contours_to_dem(lines, cell_size=spec.cell_size)
+        except ValueError as exc:
+            raise InputError(path, str(exc)) from None
+    elif spec.sample is not None:
+        terrain = sample_terrain(spec.sample, cell_size=spec.cell_size)
+    else:  # pragma: no cover - the spec validator forbids it
+        raise ScenarioError(None, "terrain", "needs exactly one source")
+    log.info("terrain %s x %s cells, %.0f..%.0f m", *terrain.shape, terrain.heights.min(), terrain.heights.max())
+    return terrain
