@@ -352,6 +352,7 @@ class AgentRunner:
             return
         self._activity.append(("s", *head, None))
         started = time.perf_counter()
+        assert self.board is not None  # work is queued only after start() made the board
         try:
             if event.kind is EventKind.TIMEOUT:
                 self.source.on_timeout(hyp, event.reason, self.board)

@@ -244,7 +244,7 @@ class Board:
             for reply in replies:
                 if reply.ok is not None:
                     out.append(reply.ok.payload.to_bytes())
-                else:
+                elif reply.err is not None:
                     logger.warning("agent %s: error reply to %s: %s", self.agent, selector,
                                    reply.err.payload.to_string())
             return out

@@ -28,9 +28,9 @@ import queue
 import threading
 import time
 from collections import Counter
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Callable, Iterable
 from typing import Any
 
 import zenoh
@@ -254,7 +254,7 @@ class BlackboardNode:
             self._trace.write(kind, **fields)
 
     def _work(self) -> None:
-        handlers = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
+        handlers: dict[str, Callable[[Any], None]] = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
                     "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
                     "await": self._waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
                     "await_join": self._await_join, "end": self._on_end}
@@ -420,10 +420,10 @@ class BlackboardNode:
                         fields[extra] = record[7]
                     self._trace_write(kind, agent=agent, **fields)
             elif isinstance(record, dict):
-                kind = _ACTIVITY_KINDS.get(record.pop("kind", None))
-                if kind is not None:
-                    stats[kind.value] += 1
-                    self._trace_write(kind, agent=agent, **record)
+                old_kind = _ACTIVITY_KINDS.get(record.pop("kind", None))
+                if old_kind is not None:
+                    stats[old_kind.value] += 1
+                    self._trace_write(old_kind, agent=agent, **record)
 
     def _on_live(self, sample: zenoh.Sample) -> None:
         name = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -546,7 +546,8 @@ class BlackboardNode:
     def _run_deferred(self) -> None:
         if not self._deferred:
             return
-        ready, waiting = [], []
+        ready: list[_Deferred] = []
+        waiting: list[_Deferred] = []
         for d in self._deferred:
             (ready if all(self._received[a] >= n for a, n in d.after.items()) else waiting).append(d)
         if not ready:

@@ -173,7 +173,7 @@ def describe(
         raise ValueError(f"mask holds landmark index {len(counts) - 1} but only {len(landmarks)} landmarks given")
     g = nx.DiGraph()
     eye = np.array([pose.x, pose.y, pose.z])
-    for i in np.nonzero(counts >= min_pixels)[0]:
+    for i in np.nonzero(counts >= min_pixels)[0].tolist():
         lm = landmarks[i]
         rows, cols = np.nonzero(mask == i)
         fraction = None

@@ -1,6 +1,9 @@
-import sys, pickle
+import pickle
+import sys
+
 sys.path.insert(0, __import__("os").path.dirname(__file__))
 from harness import evaluate
+
 data = pickle.load(open("/tmp/tune_data.pkl", "rb"))
 n = [len(d["truth"]) for d in data]
 def total(**kw):

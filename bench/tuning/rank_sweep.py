@@ -1,14 +1,23 @@
-import sys, pickle, time
+import pickle
+import sys
+import time
+
 sys.path.insert(0, __import__("os").path.dirname(__file__))
-from models.preprocess import preprocess
 from models.associative import BankedMemory
+from models.preprocess import preprocess
+
 data = pickle.load(open("/tmp/tune_data.pkl", "rb"))
 for size, sigma, bank, ms in [(128,1.0,4,(2,16)),(128,1.0,2,(2,16)),(128,1.0,1,(2,16)),(128,1.5,2,(2,16)),(128,0.7,2,(2,16)),(128,1.0,2,(3,16)),(64,0.5,2,(1,8)),(128,1.0,8,(2,16))]:
-    ok = 0; tot = 0; t = 0
+    ok, tot, t = 0, 0, 0.0
     for d in data:
         P = [preprocess(img, size=size, blur_sigma=sigma) for img, _ in d["vfs"]]
-        mem = BankedMemory(size, bank_size=bank, max_shift=ms); mem.write_many(P, list(range(len(P))))
+        mem = BankedMemory(size, bank_size=bank, max_shift=ms)
+        mem.write_many(P, list(range(len(P))))
         for f, tr in zip(d["frames"], d["truth"]):
-            q = preprocess(f, size=size, blur_sigma=sigma); t0 = time.perf_counter(); r = mem.rank(q); t += time.perf_counter() - t0
-            ok += int(r.labels[0]) == tr; tot += 1
+            q = preprocess(f, size=size, blur_sigma=sigma)
+            t0 = time.perf_counter()
+            r = mem.rank(q)
+            t += time.perf_counter() - t0
+            ok += int(r.labels[0]) == tr
+            tot += 1
     print(f"N {size} sigma {sigma} bank {bank} shift {ms}: ranking top1 {ok/tot:.3f}  {1000*t/tot:.1f} ms/query")

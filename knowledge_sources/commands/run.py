@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(parser)
 
 
-def render_summary(results: dict[str, Any]) -> "Any":
+def render_summary(results: dict[str, Any]) -> Any:
     """A rich table of a results dict: one row per frame, then the summary."""
     from rich.table import Table
 
