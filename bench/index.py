@@ -119,24 +119,17 @@ def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple
     """Top-1 on rendered route viewframes against the scenario's camera frames (real renders,
     simulated sensor; truth = the route point nearest the true pose), for NCC and the memory."""
     from knowledge_sources.results import nearest_viewframe
-    from models.associative import BankedMemory
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
-    from models.scenario import load_scenario
-    from models.sensor import sensor_frames
-    from models.viewframes import build_viewframes, route_poses
+    from models.index import ViewframeIndex
+    from models.world import World
 
     rows = []
     for path in paths:
-        sc = load_scenario(path)
-        with CameraEmulator(build_environment(sc), sc.camera) as em:
-            vfs = build_viewframes(sc, emulator=em)
-            poses = route_poses(sc, em.environment.terrain)
-            frames = sensor_frames(sc, emulator=em, poses=poses)
+        with World.from_scenario(path) as world:
+            sc, vfs, frames = world.scenario, world.viewframes, world.sensor_frames
         truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]
-        m = sc.memory  # the scenario's own preprocessing (size, edge method, blur)
-        pats = [preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs]
-        queries = [preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for f in frames]
+        own = ViewframeIndex(sc.memory)  # the scenario's own preprocessing (size, edge method, blur)
+        pats = [own.pattern(v.image) for v in vfs]
+        queries = [own.pattern(f.image) for f in frames]
         matrix = np.stack([p.ravel() for p in pats])
         ncc = sum(int(np.argmax(matrix @ q.ravel())) == t for q, t in zip(queries, truth))
         row = {"scenario": sc.name, "viewframes": len(vfs), "frames": len(frames), "ncc": ncc}
@@ -150,9 +143,10 @@ def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple
         row[f"ncc shift=0,{cols}"] = int(sum(int(k) == t for k, t in zip(shifted, truth)))
         for b in bank_sizes:
             for ms in shifts:
-                mem = BankedMemory(m.size, bank_size=b, max_shift=ms)
-                mem.write_many(pats, range(len(pats)))
-                row[f"memory b={b} shift={ms[0]},{ms[1]}"] = sum(mem.rank(q).best == t for q, t in zip(queries, truth))
+                index = ViewframeIndex(sc.memory.model_copy(update={"bank_size": b, "max_shift": ms}))
+                index.add_patterns(pats, range(len(pats)))
+                row[f"memory b={b} shift={ms[0]},{ms[1]}"] = sum(
+                    index.rank_pattern(q).best == t for q, t in zip(queries, truth))
         rows.append(row)
         logger.info("%s", row)
     return rows

@@ -24,10 +24,8 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-from models.camera import CameraEmulator  # noqa: E402
-from models.environment import build_environment  # noqa: E402
 from models.scenario import scenario_from_dict  # noqa: E402
-from models.viewframes import route_poses  # noqa: E402
+from models.world import World  # noqa: E402
 
 SCENARIO = ROOT / "scenarios" / "table_a.yaml"
 OUT = ROOT / "scenarios" / "data" / "table_a"
@@ -48,12 +46,10 @@ def main() -> int:
     scenario = scenario_from_dict(data, path=SCENARIO)
     rng = np.random.default_rng(scenario.seed)
     OUT.mkdir(parents=True, exist_ok=True)
-    env = build_environment(scenario)
     truths = []
-    with CameraEmulator(env, scenario.camera) as cam:
-        for i, (pose, (fwd, left, dh, light, gain, offset, noise)) in enumerate(
-            zip(route_poses(scenario, env.terrain), PERTURB)
-        ):
+    with World(scenario) as world:
+        cam = world.emulator
+        for i, (pose, (fwd, left, dh, light, gain, offset, noise)) in enumerate(zip(world.poses, PERTURB)):
             th = math.radians(pose.heading_deg)
             x = pose.x + fwd * math.cos(th) - left * math.sin(th)
             y = pose.y + fwd * math.sin(th) + left * math.cos(th)

@@ -13,8 +13,10 @@ whole route (after one warm-up pass that builds and uploads the tile meshes it n
 * ``full`` - the baseline: the same tiles, culling and shader but every tile at full DEM
   resolution (``levels=1``).
 
-A viewframe here is what :func:`models.viewframes.build_viewframes` makes: the colour pass, the
-segmentation pass (mask and depth) and the symbolic description. Reported per configuration:
+A viewframe here is what :func:`models.viewframes.render_viewframes` makes (the loop below is
+that function's, timed, with the triangle count): the colour pass, the segmentation pass (mask
+and depth) and the symbolic description. The environment, emulator and route poses come from a
+:class:`models.world.World` of the scenario. Reported per configuration:
 ``vf_per_s`` (viewframes per second over the timed passes), ``ms_per_vf``, ``triangles`` (mean
 terrain triangles drawn per view), ``warmup_s`` (first pass, building meshes), and for ``lod``
 the fidelity against ``full``: ``depth_err_m`` (median over views of the median |depth
@@ -42,12 +44,11 @@ sys.path[:] = [str(_HERE.parent)] + [p for p in sys.path if Path(p or ".").resol
 
 import numpy as np  # noqa: E402
 
-from models.camera import CameraEmulator  # noqa: E402
-from models.environment import build_environment  # noqa: E402
+from models.camera_emulator import CameraEmulator  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 from models.symbolic import describe  # noqa: E402
 from models.terrain_sources import load_terrain  # noqa: E402
-from models.viewframes import route_poses  # noqa: E402
+from models.world import World  # noqa: E402
 
 log = logging.getLogger("bench.render")
 
@@ -74,9 +75,8 @@ def bench_scenario(path: Path, repeat: int) -> dict:
                  "size": f"{scenario.camera.width}x{scenario.camera.height}"}
     views: dict = {}
     for name, lod in (("lod", {}), ("full", {"levels": 1})):
-        env = build_environment(scenario, terrain=terrain, **lod)
-        with CameraEmulator(env, scenario.camera) as cam:
-            poses = route_poses(scenario, env.terrain)
+        with World(scenario, terrain=terrain, **lod) as world:
+            env, cam, poses = world.environment, world.emulator, world.poses
             warm, _, _ = _pass(cam, poses)
             total, tri = 0.0, 0
             for _ in range(repeat):

@@ -39,8 +39,7 @@ class Camera(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.scenario import load_scenario
-        from models.sensor import sensor_frames
+        from models.world import World
 
         body = event.hypothesis.body
         self._ready.add(int(body["bank"]))
@@ -50,8 +49,8 @@ class Camera(KnowledgeSource):
         mp = board.get("map")
         if mp is None:
             raise LookupError("the map is indexed but not on the blackboard")
-        scenario = load_scenario(mp.body["path"])
-        frames = sensor_frames(scenario)
+        with World.from_scenario(mp.body["path"]) as world:
+            frames = world.sensor_frames
         start = time.perf_counter()
         for f in frames:
             if self.rate_hz is not None:

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import logging
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+
+if TYPE_CHECKING:
+    from models.index import ViewframeIndex
 
 __all__ = ["AssociativeIndexer"]
 
@@ -16,8 +19,9 @@ log = logging.getLogger(__name__)
 
 
 class AssociativeIndexer(KnowledgeSource):
-    """Stores the viewframes of its shard (``index % banks == bank``) in a banked holographic
-    memory (:class:`~models.associative.BankedMemory`, ``memory.bank_size`` viewframes per bank)
+    """Stores the viewframes of its shard (``index % banks == bank``) in a
+    :class:`~models.index.ViewframeIndex` (a banked holographic memory, ``memory.bank_size``
+    viewframes per bank, with the scenario's preprocessing)
     and posts ``index`` once its shard is stored, then, for each camera frame, the ranking of
     those viewframes by error variance. The
     scheduler merges the rankings of all shards (variances are comparable across banks).
@@ -39,8 +43,7 @@ class AssociativeIndexer(KnowledgeSource):
         self.bank = bank
         self.banks = banks
         self._images: dict[int, np.ndarray] = {}
-        self._memory = None
-        self._spec: dict[str, Any] | None = None
+        self._index: ViewframeIndex | None = None
         self._waiting: list[Any] = []
 
     def precondition(self, event: Event) -> float | None:
@@ -54,7 +57,7 @@ class AssociativeIndexer(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
         if h.level == levels.VIEWFRAME:
-            if self._memory is None:
+            if self._index is None:
                 self._images[int(h.body["index"])] = h.body["image"]
         elif h.level == levels.MAP:
             self._build(h.body, board)
@@ -62,17 +65,14 @@ class AssociativeIndexer(KnowledgeSource):
             for frame in waiting:
                 self._rank(frame, board)
         elif h.level == levels.SENSOR_FRAME:
-            if self._memory is None:
+            if self._index is None:
                 self._waiting.append(h)
             else:
                 self._rank(h, board)
 
     def _build(self, body: dict[str, Any], board: Board) -> None:
-        from models.associative import memory_from_spec
-        from models.preprocess import preprocess_with
+        from models.index import ViewframeIndex
 
-        spec = body["memory"]
-        self._spec = spec
         mine = [k for k in range(int(body["viewframes"])) if k % self.banks == self.bank]
         for k in mine:
             if k not in self._images:
@@ -80,18 +80,17 @@ class AssociativeIndexer(KnowledgeSource):
                 if got is None:
                     raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
                 self._images[k] = got.body["image"]
-        memory = memory_from_spec(spec, seed=self.bank)
-        memory.write_many((preprocess_with(self._images[k], memory=spec) for k in mine), mine)
-        self._memory = memory
+        index = ViewframeIndex(body["memory"], seed=self.bank)
+        index.add((self._images[k] for k in mine), mine)
+        self._index = index
         self._images.clear()
         board.post(levels.INDEX, {"bank": self.bank, "banks": self.banks, "viewframes": len(mine)},
                    id=f"index-{self.bank}", links=("map",))
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
 
     def _rank(self, frame, board: Board) -> None:
-        from models.preprocess import preprocess_with
-
-        ranking = self._memory.rank(preprocess_with(frame.body["image"], memory=self._spec))
+        assert self._index is not None  # frames wait in _waiting until the index is built
+        ranking = self._index.rank(frame.body["image"])
         board.post(
             levels.RANKING,
             {

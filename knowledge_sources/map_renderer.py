@@ -29,13 +29,13 @@ class MapRenderer(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.scenario import load_scenario
-        from models.symbolic import landmark_priors
-        from models.viewframes import build_viewframes
+        from models.world import World
 
         source = event.hypothesis
-        scenario = load_scenario(source.body["path"])
-        viewframes = build_viewframes(scenario)
+        with World.from_scenario(source.body["path"]) as world:
+            scenario = world.scenario
+            viewframes = world.viewframes
+            priors = world.priors
         for vf in viewframes:
             p = vf.pose
             board.post(
@@ -50,8 +50,6 @@ class MapRenderer(KnowledgeSource):
                 id=levels.viewframe_id(vf.index),
                 links=(source.id,),
             )
-        ids = [lm.id for lm in scenario.landmarks]
-        priors = landmark_priors([vf.description for vf in viewframes], landmark_ids=ids)
         board.post(
             levels.MAP,
             {

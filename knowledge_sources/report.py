@@ -13,7 +13,7 @@ World coordinates are ``(x, y)`` metres, x east, y north; images are shown row 0
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import matplotlib
@@ -54,9 +54,9 @@ def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses)
 
 
 def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image: np.ndarray | None, *,
-               memory: dict[str, Any]) -> Figure:
-    """A camera frame beside the chosen viewframe, and both edge images as the memory sees them."""
-    from models.preprocess import preprocess_with
+               pattern: Callable[[np.ndarray], np.ndarray]) -> Figure:
+    """A camera frame beside the chosen viewframe, and both edge images as the memory sees them
+    (``pattern``: the index's preprocessing, :meth:`models.index.ViewframeIndex.pattern`)."""
 
     fig, axes = plt.subplots(2, 2, figsize=(8, 6.4))
     panels = [(camera_image, f"camera frame {frame['frame']}")]
@@ -68,7 +68,7 @@ def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image:
         ax.set_title(title)
     for ax, (img, title) in zip(axes[1], panels):
         if img is not None:
-            ax.imshow(preprocess_with(img, memory=memory), cmap="gray")
+            ax.imshow(pattern(img), cmap="gray")
         ax.set_title("edges: " + title)
     for ax in axes.ravel():
         ax.set_xticks([])

@@ -70,7 +70,7 @@ live in other processes and their rankings merge with :func:`merge_rankings`.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -89,7 +89,6 @@ __all__ = [
     "HolographicMemory",
     "BankedMemory",
     "merge_rankings",
-    "memory_from_spec",
 ]
 
 logger = logging.getLogger(__name__)
@@ -601,15 +600,3 @@ class BankedMemory:
         if len(mem._labels) != len(mem):
             raise AssociativeMemoryError("memory state: duplicate labels across banks")
         return mem
-
-
-def memory_from_spec(memory: Mapping[str, Any], *, seed: int = 0) -> BankedMemory:
-    """An empty :class:`BankedMemory` configured by a scenario's memory settings (``size``,
-    ``bank_size``, ``key``, ``max_shift``), given as plain data: ``MemorySpec.model_dump()`` or the
-    dict the ``map`` hypothesis carries. The one place that reads those settings, so ``mapinterp
-    run`` and ``mapinterp table`` rank alike."""
-    try:
-        return BankedMemory(int(memory["size"]), bank_size=int(memory["bank_size"]), seed=seed,
-                            key_method=str(memory["key"]), max_shift=(int(memory["max_shift"][0]), int(memory["max_shift"][1])))
-    except (KeyError, TypeError, ValueError) as err:
-        raise AssociativeMemoryError(f"memory settings: malformed: {err}") from err

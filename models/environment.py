@@ -14,7 +14,7 @@ The drawn ground approximates the bilinear F: it matches F at the DEM posts and 
 Landmark boxes are drawn reaching ``ground_margin`` metres below their base z0 so that they do
 not float where the drawn ground dips under F.
 
-Everything here is plain numpy: pyrender objects are made by :class:`models.camera.CameraEmulator`,
+Everything here is plain numpy: pyrender objects are made by :class:`models.camera_emulator.CameraEmulator`,
 because GL buffers belong to one renderer's context.
 """
 

@@ -12,7 +12,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.colors import LightSource  # noqa: E402
 
-from models.camera import Pose  # noqa: E402
+from models.camera_emulator import Pose  # noqa: E402
 from models.landmarks import Landmark  # noqa: E402
 from models.terrain import Terrain  # noqa: E402
 

@@ -1,5 +1,7 @@
 """Preprocessing shared by stored viewframes and camera images.
 
+With a scenario's memory settings it is :meth:`models.index.ViewframeIndex.pattern`.
+
 The synthetic viewframes carry no trustworthy gray levels, so only edges are compared. The
 pipeline, identical for both sides, is::
 
@@ -31,8 +33,6 @@ pipeline, identical for both sides, is::
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
-from typing import Any
 
 import cv2
 import numpy as np
@@ -40,7 +40,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from models.scenario import MemorySpec
 
-__all__ = ["EDGE_METHODS", "preprocess", "preprocess_with", "normalise"]
+__all__ = ["EDGE_METHODS", "preprocess", "normalise"]
 
 logger = logging.getLogger(__name__)
 
@@ -179,12 +179,3 @@ def preprocess(
     if not out.any():
         logger.debug("preprocess: featureless image of shape %s gives a zero pattern", img.shape)
     return out
-
-
-def preprocess_with(image: ArrayLike, *, memory: Mapping[str, Any]) -> NDArray[np.float32]:
-    """:func:`preprocess` with a scenario's memory settings (``size``, ``edge``, ``blur_sigma``),
-    given as plain data: ``MemorySpec.model_dump()`` or the dict the ``map`` hypothesis carries.
-    The viewframes and the camera images of one mission must be preprocessed alike; this is the
-    one place that reads those settings."""
-    return preprocess(image, size=int(memory["size"]), edge=str(memory["edge"]),
-                      blur_sigma=float(memory["blur_sigma"]))

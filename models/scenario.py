@@ -14,7 +14,7 @@ and what is wrong (``scenarios/x.yaml: landmarks[3].height: must be > 0``). Rela
     sensor: {simulate: {per_point: 1}}
 
 World coordinates are metres, x east, y north, z up; see :mod:`models.terrain` for the DEM
-grid convention and :mod:`models.camera` for the pinhole convention.
+grid convention and :mod:`models.camera_emulator` for the pinhole convention.
 
 **Every default is defined here, once.** The optional blocks (``memory``, ``scheduler``,
 ``sensor.simulate``) are the settings of the associative memory and preprocessing, of the

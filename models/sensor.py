@@ -5,6 +5,7 @@ A real camera's image differs from the synthetic viewframe of the nearest route 
 surface texture, haze, gain, gamma, sensor noise, optical blur). :func:`simulate_frames`
 produces such frames with the same camera emulator that renders the viewframes, then degrades
 them; everything is drawn from one seeded generator, so a scenario always yields the same frames.
+A scenario's frames (from files or simulated) are :attr:`models.world.World.sensor_frames`.
 
 Images are ``(H, W, 3)`` uint8 RGB arrays indexed ``(row, col)``; poses are in world
 ``(x, y, z)`` metres with heading counterclockwise from +x.
@@ -30,7 +31,6 @@ __all__ = [
     "frames_from_files",
     "degrade",
     "simulate_frames",
-    "sensor_frames",
 ]
 
 log = logging.getLogger(__name__)
@@ -199,30 +199,3 @@ def simulate_frames(
             frames.append(SensorFrame(len(frames), image, (float(x), float(y), float(heading)), "simulated"))
     log.info("simulated %d camera frames for scenario %s", len(frames), scenario.name)
     return frames
-
-
-def sensor_frames(scenario: Scenario, *, emulator=None, poses: Sequence | None = None) -> list[SensorFrame]:
-    """The scenario's camera frames: read from ``sensor.frames`` or simulated by ``sensor.simulate``.
-
-    ``emulator`` and ``poses`` (the route poses) are needed only for simulation; when omitted they
-    are built from the scenario.
-    """
-    if scenario.sensor is None:
-        return []
-    if scenario.sensor.frames:
-        return frames_from_files(scenario)
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
-    from models.viewframes import route_poses
-
-    own = emulator is None
-    if own:
-        emulator = CameraEmulator(build_environment(scenario), scenario.camera)
-    try:
-        if poses is None:
-            poses = route_poses(scenario, emulator.environment.terrain)
-        return simulate_frames(scenario, emulator, poses)
-    finally:
-        if own:
-            emulator.close()
-

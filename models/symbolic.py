@@ -37,7 +37,7 @@ import numpy as np
 from models.landmarks import Landmark
 
 if TYPE_CHECKING:
-    from models.camera import CameraEmulator, Pose
+    from models.camera_emulator import CameraEmulator, Pose
 
 __all__ = ["RELATIONS", "SymbolicDescription", "describe", "landmark_priors", "box_silhouette"]
 

@@ -1,32 +1,31 @@
 """A-priori viewframes V = {F2D^Vi}: the views the camera should see along the mission route.
 
 The camera at route point i stands at (x_i, y_i, F(x_i, y_i) + eye_height), heading towards
-route point i+1 (counterclockwise from +x); the last point keeps the previous heading.
+route point i+1 (counterclockwise from +x); the last point keeps the previous heading. A
+scenario's viewframes are :attr:`models.world.World.viewframes`.
 """
 
 from __future__ import annotations
 
-import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from models.camera import CameraEmulator, Pose
-from models.environment import build_environment
+from models.camera_emulator import CameraEmulator, Pose
 from models.scenario import Scenario
 from models.symbolic import SymbolicDescription, describe
 from models.terrain import Terrain
 
-__all__ = ["Viewframe", "route_headings", "route_poses", "build_viewframes"]
-
-log = logging.getLogger(__name__)
+__all__ = ["Viewframe", "route_headings", "route_poses", "render_viewframes"]
 
 
 @dataclass
 class Viewframe:
-    """A stored a-priori view: image uint8 (H, W, 3) RGB, depth float32 (H, W) metres,
-    mask int32 (H, W) landmark indices (-1 none), and its symbolic description."""
+    """A stored a-priori view: ``index`` is its viewframe index (the route point's number),
+    image uint8 (H, W, 3) RGB, depth float32 (H, W) metres, mask int32 (H, W) landmark indices
+    (-1 none), and its symbolic description."""
 
     index: int
     pose: Pose
@@ -53,24 +52,12 @@ def route_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
-def build_viewframes(scenario: Scenario, *, emulator: CameraEmulator | None = None) -> list[Viewframe]:
-    """Render and describe the viewframe at every route point.
-
-    Uses ``emulator`` (and its environment) when given; otherwise builds the environment and a
-    camera emulator for the scenario and closes it afterwards.
-    """
-    own = emulator is None
-    if emulator is None:
-        emulator = CameraEmulator(build_environment(scenario), scenario.camera)
-    try:
-        env = emulator.environment
-        frames = []
-        for i, pose in enumerate(route_poses(scenario, env.terrain)):
-            view = emulator.render(pose)
-            desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
-            frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc))
-        log.info("rendered %d viewframes of %s", len(frames), scenario.name)
-        return frames
-    finally:
-        if own:
-            emulator.close()
+def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[Viewframe]:
+    """Render and describe the viewframe at every pose (the route poses), numbered in order."""
+    env = emulator.environment
+    frames = []
+    for i, pose in enumerate(poses):
+        view = emulator.render(pose)
+        desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
+        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc))
+    return frames

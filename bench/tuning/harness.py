@@ -5,14 +5,10 @@ import os
 os.environ.setdefault("PYOPENGL_PLATFORM","egl")
 from knowledge_sources.results import nearest_viewframe
 from knowledge_sources.scene_analysis import SceneAnalysis
-from models.associative import BankedMemory
-from models.camera import CameraEmulator
 from models.detectors import CandidateView, default_registry
-from models.environment import build_environment
-from models.preprocess import preprocess
+from models.index import ViewframeIndex
 from models.scenario import SchedulerSpec, load_scenario
-from models.sensor import simulate_frames
-from models.viewframes import build_viewframes
+from models.world import World
 
 #: the grid's starting point: the shipped scheduler and detector defaults
 _DEFAULTS = SchedulerSpec()
@@ -21,17 +17,21 @@ _DEFAULTS = SchedulerSpec()
 #: scores, so each detection runs once per process
 _SCORES: dict[tuple, tuple[float, bool]] = {}
 
+def with_sensor_seed(sc, seed):
+    """The scenario with its simulated camera drawn from another seed (same frames as
+    ``simulate_frames(..., rng=seed)``)."""
+    simulate = sc.sensor.simulate.model_copy(update={"seed": seed})
+    return sc.model_copy(update={"sensor": sc.sensor.model_copy(update={"simulate": simulate})})
+
 def prepare(path, seed):
-    sc = load_scenario(path)
-    env = build_environment(sc)
-    with CameraEmulator(env, sc.camera) as cam:
-        vfs = build_viewframes(sc, emulator=cam)
-        frames = simulate_frames(sc, cam, [v.pose for v in vfs], spec=sc.sensor.simulate, rng=seed)
+    sc = with_sensor_seed(load_scenario(path), seed)
+    with World(sc) as world:
+        env, vfs, frames = world.environment, world.viewframes, world.sensor_frames
+        cam = world.emulator
         fmasks = [cam.render(cam.pose_at(*f.truth)).mask for f in frames]
-    m = sc.memory
-    mem = BankedMemory(m.size, bank_size=m.bank_size, max_shift=m.max_shift)
-    mem.write_many([preprocess(v.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma) for v in vfs], list(range(len(vfs))))
-    ranks = [mem.rank(preprocess(f.image, size=m.size, edge=m.edge, blur_sigma=m.blur_sigma)) for f in frames]
+    index = ViewframeIndex(sc.memory)
+    index.add([v.image for v in vfs], [v.index for v in vfs])
+    ranks = [index.rank(f.image) for f in frames]
     truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]  # the results' criterion
     idx = {lm.id: i for i, lm in enumerate(env.landmarks)}
     kinds = {lm.id: lm.kind for lm in env.landmarks}

@@ -34,23 +34,20 @@ def main(args: argparse.Namespace) -> int:
     """Render every viewframe of the scenario into ``args.out``; returns 0."""
     from dataclasses import asdict
 
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
     from models.overview import draw_overview
-    from models.scenario import load_scenario
-    from models.symbolic import landmark_priors
-    from models.viewframes import build_viewframes
+    from models.world import World
 
-    scenario = load_scenario(args.scenario)
+    world = World.from_scenario(args.scenario)
+    scenario = world.scenario
     out: Path = args.out
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(out, f"cannot create the output folder: {exc}") from None
-    env = build_environment(scenario)
+    env = world.environment
     t0 = time.perf_counter()
-    with CameraEmulator(env, scenario.camera) as cam:
-        frames = build_viewframes(scenario, emulator=cam)
+    with world:
+        frames = world.viewframes
     dt = time.perf_counter() - t0
     for vf in frames:
         stem = out / f"vf_{vf.index:03d}"
@@ -58,7 +55,7 @@ def main(args: argparse.Namespace) -> int:
             raise InputError(stem.with_suffix(".png"), "cannot write image")
         doc = {"index": vf.index, "pose": asdict(vf.pose), "description": vf.description.to_dict()}
         stem.with_suffix(".json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
-    priors = landmark_priors([vf.description for vf in frames], landmark_ids=[lm.id for lm in env.landmarks])
+    priors = world.priors
     (out / "priors.json").write_text(json.dumps(priors, indent=1), encoding="utf-8")
     if not args.no_overview:
         draw_overview(env.terrain, env.landmarks, scenario.route, [vf.pose for vf in frames],

@@ -29,12 +29,10 @@ def main(args: argparse.Namespace) -> int:
 
     from knowledge_sources.report import plot_frame, plot_positions, plot_queries, plot_rankings
     from knowledge_sources.results import load_results
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
     from models.errors import InputError
+    from models.index import ViewframeIndex
     from models.scenario import load_scenario
-    from models.sensor import sensor_frames
-    from models.viewframes import build_viewframes
+    from models.world import World
 
     runs = [load_results(p) for p in args.results]
     main_run = runs[0]
@@ -45,10 +43,10 @@ def main(args: argparse.Namespace) -> int:
     out: Path = args.out
     (out / "frames").mkdir(parents=True, exist_ok=True)
 
-    env = build_environment(scenario)
-    with CameraEmulator(env, scenario.camera) as cam:
-        viewframes = build_viewframes(scenario, emulator=cam)
-        frames = {f.index: f for f in sensor_frames(scenario, emulator=cam, poses=[v.pose for v in viewframes])}
+    with World(scenario) as world:
+        env = world.environment
+        viewframes = world.viewframes
+        frames = {f.index: f for f in world.sensor_frames}
 
     def save(fig, name: str) -> str:
         fig.savefig(out / name, dpi=100)
@@ -61,13 +59,13 @@ def main(args: argparse.Namespace) -> int:
         save(plot_rankings(main_run), "rankings.png"),
         save(plot_queries(runs), "queries.png"),
     ]
-    memory = scenario.memory.model_dump()
+    index = ViewframeIndex(scenario.memory)  # its preprocessing, for the edge images
     for rec in main_run["frames"][: args.max_frames]:
         cam_img = frames[rec["frame"]].image if rec["frame"] in frames else None
         if cam_img is None:
             continue
         vf = viewframes[rec["viewframe"]].image if rec["viewframe"] is not None else None
-        written.append(save(plot_frame(rec, cam_img, vf, memory=memory), f"frames/frame_{rec['frame']:03d}.png"))
+        written.append(save(plot_frame(rec, cam_img, vf, pattern=index.pattern), f"frames/frame_{rec['frame']:03d}.png"))
 
     lines = [f"# mapinterp report: {main_run['scenario']}", ""]
     lines.append("| results | strategy | frames | top-1 | mean queries | mean error (m) | latency p50 (ms) |")

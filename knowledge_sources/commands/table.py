@@ -1,7 +1,8 @@
 """``mapinterp table SCENARIO``: the error-variance table of camera images against viewframes.
 
-Renders the scenario's viewframes, preprocesses and stores them in the holographic memory
-(parameters from the scenario's ``memory`` block), and for every camera frame (the files of
+Renders the scenario's viewframes (:class:`models.world.World`), stores them in a
+:class:`models.index.ViewframeIndex` (preprocessing and memory from the scenario's ``memory``
+block, as the indexer agent does), and for every camera frame (the files of
 ``sensor.frames``, resized to the camera size, or the simulated frames of ``sensor.simulate``)
 prints one row: the error variance of the recall against every stored viewframe (see
 :mod:`models.associative`), the row's minimum marked ``*``. When a frame has a true pose, its
@@ -17,8 +18,6 @@ import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-
-import numpy as np
 
 from models.errors import ScenarioError
 
@@ -69,29 +68,19 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
     Raises :class:`~models.errors.ScenarioError` when the scenario has no ``sensor`` block.
     """
     from knowledge_sources.results import nearest_viewframe
-    from models.associative import memory_from_spec
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
-    from models.preprocess import preprocess_with
-    from models.sensor import sensor_frames
-    from models.viewframes import build_viewframes, route_poses
+    from models.index import ViewframeIndex
+    from models.world import World
 
     if scenario.sensor is None:
         raise ScenarioError(scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate")
-    spec = scenario.memory.model_dump()
-    with CameraEmulator(build_environment(scenario), scenario.camera) as emulator:
-        viewframes = build_viewframes(scenario, emulator=emulator)
-        poses = route_poses(scenario, emulator.environment.terrain)
-        frames = sensor_frames(scenario, emulator=emulator, poses=poses)
-
-    def pattern(image: np.ndarray) -> np.ndarray:
-        return preprocess_with(image, memory=spec)
-
-    memory = memory_from_spec(spec, seed=scenario.seed)
-    memory.write_many([pattern(vf.image) for vf in viewframes], [vf.index for vf in viewframes])
+    with World(scenario) as world:
+        viewframes = world.viewframes
+        frames = world.sensor_frames
+    index = ViewframeIndex(scenario.memory, seed=scenario.seed)
+    index.add([vf.image for vf in viewframes], [vf.index for vf in viewframes])
     rows = []
     for frame in frames:
-        ranking = memory.rank(pattern(frame.image))
+        ranking = index.rank(frame.image)
         by_label = dict(zip(ranking.labels.tolist(), ranking.variances.tolist()))
         variances = [by_label[vf.index] for vf in viewframes]
         truth = None

@@ -263,22 +263,3 @@ def test_shift_search_on_the_best_candidates_matches_the_full_search(monkeypatch
         # the search only lowers variances: the refined ones agree, the others are upper bounds
         fv = dict(zip(f.labels.tolist(), f.variances)); gv = dict(zip(g.labels.tolist(), g.variances))  # noqa: E702
         assert all(fv[k] >= gv[k] * (1 - 1e-5) for k in fv)
-
-
-@pytest.mark.parametrize("settings", [{}, {"bank_size": 3, "max_shift": (1, 4), "key": "quantized", "size": 64}])
-def test_memory_from_spec_reads_every_setting(settings) -> None:
-    from models.associative import memory_from_spec
-    from models.scenario import MemorySpec
-
-    spec = MemorySpec(**settings)
-    mem = memory_from_spec(spec.model_dump(), seed=5)
-    assert (mem.size, mem.bank_size, mem.key_method, mem.max_shift, mem.seed) == (
-        spec.size, spec.bank_size, spec.key, tuple(spec.max_shift), 5)
-
-
-def test_memory_from_spec_refuses_malformed_settings() -> None:
-    from models.associative import memory_from_spec
-    from models.errors import AssociativeMemoryError
-
-    with pytest.raises(AssociativeMemoryError, match="memory settings"):
-        memory_from_spec({"size": 64, "bank_size": 2, "key": "phase"})  # no max_shift

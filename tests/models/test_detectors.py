@@ -111,7 +111,7 @@ def test_registry_protocol_and_fallback():
 @pytest.mark.slow
 def test_rendered_house_found_from_its_viewframe_and_not_elsewhere():
     """Real pyrender views: the camera near the viewframe sees the house; far past it, not."""
-    from models.camera import CameraEmulator
+    from models.camera_emulator import CameraEmulator
     from models.environment import build_environment
     from models.scenario import scenario_from_dict
     from models.sensor import degrade

@@ -9,7 +9,8 @@ import pytest
 
 from models.errors import InputError
 from models.scenario import SimulateSpec, scenario_from_dict
-from models.sensor import degrade, load_frame_image, sensor_frames, simulate_frames
+from models.sensor import degrade, load_frame_image, simulate_frames
+from models.world import World
 
 CAMERA = {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0}
 
@@ -101,7 +102,7 @@ def test_degrade_rejects_gray_input():
 
 @pytest.mark.slow
 def test_simulated_frames_near_route_points_and_reproducible(tmp_path):
-    from models.camera import CameraEmulator
+    from models.camera_emulator import CameraEmulator
     from models.environment import build_environment
     from models.viewframes import route_poses
 
@@ -133,7 +134,8 @@ def test_simulated_frames_near_route_points_and_reproducible(tmp_path):
 def test_simulate_stride_and_per_point(tmp_path, stride, per_point, points):
     scenario = _scenario(tmp_path, {"simulate": {"stride": stride, "per_point": per_point, "jitter_m": 0.0,
                                                  "advance": 0.0}})
-    frames = sensor_frames(scenario)
+    with World(scenario) as world:
+        frames = world.sensor_frames
     assert [f.index for f in frames] == list(range(len(points)))
     nearest = [min(range(3), key=lambda i: math.dist(f.truth[:2], scenario.route[i])) for f in frames]
     assert nearest == points
@@ -147,7 +149,9 @@ def test_sensor_frames_from_files_with_truth(tmp_path):
         {"image": "frames/f0.png", "truth": {"x": 1.0, "y": 2.0, "heading_deg": 3.0}},
         {"image": "frames/f1.png"},
     ]})
-    frames = sensor_frames(scenario)
+    world = World(scenario)
+    frames = world.sensor_frames
+    assert "environment" not in vars(world), "frames on file need no environment model or renderer"
     assert [f.index for f in frames] == [0, 1]
     assert frames[0].truth == (1.0, 2.0, 3.0) and frames[1].truth is None
     assert frames[1].image.shape == (120, 160, 3) and frames[1].image.mean() == 101

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from models.camera import CameraEmulator, Pose
+from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel
 from models.landmarks import place_landmarks
 from models.scenario import CameraSpec, LandmarkSpec

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from models.camera import CameraEmulator
+from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
 from models.scenario import scenario_from_dict
 from models.symbolic import SymbolicDescription
-from models.viewframes import build_viewframes, route_headings, route_poses
+from models.viewframes import render_viewframes, route_headings, route_poses
+from models.world import World
 
 
 def _scenario(route, **extra):
@@ -40,9 +41,10 @@ def test_route_poses_stand_on_the_ground():
     assert poses[0].heading_deg == pytest.approx(np.degrees(np.arctan2(30, 40)))
 
 
-def test_build_viewframes_renders_and_describes_each_point():
+def test_the_world_renders_and_describes_each_route_point():
     s = _scenario([[200, 300], [240, 310], [300, 300]])
-    frames = build_viewframes(s)
+    with World(s) as world:
+        frames = world.viewframes
     assert [f.index for f in frames] == [0, 1, 2]
     for f in frames:
         assert f.image.shape == (120, 160, 3) and f.mask.shape == (120, 160)
@@ -52,7 +54,7 @@ def test_build_viewframes_renders_and_describes_each_point():
     # with a caller's emulator: same pictures, and the emulator stays open
     env = build_environment(s)
     with CameraEmulator(env, s.camera) as cam:
-        again = build_viewframes(s, emulator=cam)
+        again = render_viewframes(cam, route_poses(s, env.terrain))
         np.testing.assert_array_equal(again[1].image, frames[1].image)
         cam.render(again[0].pose)
 

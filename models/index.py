@@ -1,0 +1,110 @@
+"""The viewframe index: preprocessing, K-GEN keys, storage and ranking with one memory setting.
+
+Every place that stores viewframes and ranks camera images against them (the associative indexer
+agent, ``mapinterp table``, the report's edge images, ``bench/`` and ``bench/tuning/``) goes
+through a :class:`ViewframeIndex`, built from a scenario's ``memory`` settings
+(:class:`models.scenario.MemorySpec`, or the same settings as plain data, as the ``map``
+hypothesis carries them). So the viewframes and the camera images of a mission are always
+preprocessed alike, and the memory always has the scenario's size, bank size, key method and
+shift search::
+
+    image (H, W[, 3]) --preprocess(size, edge, blur_sigma)--> pattern (N, N)
+    pattern --K-GEN(key)--> key;  M_b := M_b + K * P   (banks of bank_size viewframes)
+    camera image --same preprocessing--> ranking of every stored viewframe by error variance
+
+The pipeline's parts are :mod:`models.preprocess`, :mod:`models.memory_keys` and
+:mod:`models.associative`; this module only puts them together, once. Images are indexed
+(row, col); viewframes are identified by their viewframe index (the route point's number).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from pydantic import ValidationError
+
+from models.associative import BankedMemory, Ranking
+from models.errors import AssociativeMemoryError
+from models.preprocess import preprocess
+from models.scenario import MemorySpec
+
+__all__ = ["ViewframeIndex", "memory_settings"]
+
+log = logging.getLogger(__name__)
+
+
+def memory_settings(memory: MemorySpec | Mapping[str, Any] | None) -> MemorySpec:
+    """``memory`` as a validated :class:`MemorySpec`: a spec, plain data (``MemorySpec.model_dump()``,
+    the ``map`` hypothesis' ``memory``; missing fields take the defaults), or None for the defaults.
+
+    Raises :class:`AssociativeMemoryError` naming the field of malformed settings.
+    """
+    if isinstance(memory, MemorySpec):
+        return memory
+    if memory is None:
+        return MemorySpec()
+    try:
+        return MemorySpec.model_validate(dict(memory))
+    except (TypeError, ValueError, ValidationError) as err:
+        if isinstance(err, ValidationError):
+            first = err.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "memory"
+            raise AssociativeMemoryError(f"memory settings: {where}: {first['msg']}") from None
+        raise AssociativeMemoryError(f"memory settings: malformed: {err}") from None
+
+
+class ViewframeIndex:
+    """Viewframes stored in a banked holographic memory, ranked for camera images.
+
+    Parameters
+    ----------
+    memory : MemorySpec, mapping or None
+        The memory settings (see :func:`memory_settings`); None: the defaults.
+    seed : int
+        Seed of the keys' random phase (:func:`models.memory_keys.make_key`).
+
+    Example::
+
+        index = ViewframeIndex(scenario.memory)
+        index.add([vf.image for vf in viewframes], [vf.index for vf in viewframes])
+        ranking = index.rank(frame.image)   # Ranking.viewframes, best first
+    """
+
+    def __init__(self, memory: MemorySpec | Mapping[str, Any] | None = None, *, seed: int = 0) -> None:
+        self.settings = memory_settings(memory)
+        s = self.settings
+        self.memory = BankedMemory(s.size, bank_size=s.bank_size, seed=seed, key_method=s.key, max_shift=s.max_shift)
+
+    def __len__(self) -> int:
+        return len(self.memory)
+
+    @property
+    def viewframes(self) -> NDArray[np.int64]:
+        """Viewframe indices in storage order, shape (H,)."""
+        return np.concatenate([b.labels for b in self.memory.banks]) if self.memory.banks else np.zeros(0, np.int64)
+
+    def pattern(self, image: ArrayLike) -> NDArray[np.float32]:
+        """The memory pattern of an image (viewframe or camera frame): (N, N) float32, zero mean,
+        unit energy (:func:`models.preprocess.preprocess` with this index's settings)."""
+        s = self.settings
+        return preprocess(image, size=s.size, edge=s.edge, blur_sigma=s.blur_sigma)
+
+    def add(self, images: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
+        """Preprocess and store viewframe images under their viewframe indices."""
+        self.add_patterns((self.pattern(im) for im in images), viewframes)
+
+    def add_patterns(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
+        """Store patterns already made by :meth:`pattern` (e.g. shared by several indices)."""
+        self.memory.write_many(patterns, viewframes)
+
+    def rank(self, image: ArrayLike) -> Ranking:
+        """Every stored viewframe ordered by the error variance of ``image``'s recall, best first."""
+        return self.memory.rank(self.pattern(image))
+
+    def rank_pattern(self, pattern: ArrayLike) -> Ranking:
+        """:meth:`rank` of a pattern already made by :meth:`pattern`."""
+        return self.memory.rank(pattern)

@@ -1,0 +1,114 @@
+"""A scenario's world: the environment model, the camera emulator, the route poses, the viewframes
+and the camera (sensor) frames, built once from the scenario.
+
+Everything that renders a scenario (the map renderer and camera agents, ``mapinterp table``,
+``render`` and ``report``, ``bench/`` and ``bench/tuning/``) gets these from one :class:`World`,
+so there is one way from a scenario file to its viewframes and its camera frames::
+
+    with World.from_scenario("scenarios/hills.yaml") as world:
+        viewframes = world.viewframes      # rendered and described at every route point
+        frames = world.sensor_frames       # read from sensor.frames, or simulated
+
+Each part is built on first use and kept: camera frames read from files need no renderer, and
+a world that only simulates frames renders no viewframes. The camera emulator holds an
+offscreen renderer: close the world (or use it as a context manager) to release it. World
+coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emulator`.
+"""
+
+from __future__ import annotations
+
+import logging
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+from models.camera_emulator import CameraEmulator, Pose
+from models.environment import EnvironmentModel, build_environment
+from models.scenario import Scenario, load_scenario
+from models.sensor import SensorFrame, frames_from_files, simulate_frames
+from models.symbolic import landmark_priors
+from models.terrain import Terrain
+from models.viewframes import Viewframe, render_viewframes, route_poses
+
+__all__ = ["World"]
+
+log = logging.getLogger(__name__)
+
+
+class World:
+    """The world of one scenario (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+    terrain : Terrain, optional
+        An already loaded terrain (default: the scenario's, loaded on first use).
+    **lod
+        ``tile_cells``, ``levels``, ``lod_factor``, ``refine`` of :class:`EnvironmentModel`.
+    """
+
+    def __init__(self, scenario: Scenario, *, terrain: Terrain | None = None, **lod: Any) -> None:
+        self.scenario = scenario
+        self._terrain = terrain
+        self._lod = lod
+        self._emulator: CameraEmulator | None = None
+
+    @classmethod
+    def from_scenario(cls, scenario: Scenario | str | Path, **options: Any) -> World:
+        """The world of a scenario, or of a scenario file (loaded and validated)."""
+        return cls(scenario if isinstance(scenario, Scenario) else load_scenario(scenario), **options)
+
+    # -- the parts, each built on first use ------------------------------------------------
+    @cached_property
+    def environment(self) -> EnvironmentModel:
+        """F* = T(F, L): the terrain and the placed landmarks, as meshes for rendering."""
+        return build_environment(self.scenario, terrain=self._terrain, **self._lod)
+
+    @property
+    def emulator(self) -> CameraEmulator:
+        """The camera emulator of :attr:`environment` (one offscreen renderer, until :meth:`close`)."""
+        if self._emulator is None:
+            self._emulator = CameraEmulator(self.environment, self.scenario.camera)
+        return self._emulator
+
+    @cached_property
+    def poses(self) -> list[Pose]:
+        """The camera pose at every route point (:func:`models.viewframes.route_poses`)."""
+        return route_poses(self.scenario, self.environment.terrain)
+
+    @cached_property
+    def viewframes(self) -> list[Viewframe]:
+        """The viewframe at every route point, rendered and symbolically described."""
+        frames = render_viewframes(self.emulator, self.poses)
+        log.info("rendered %d viewframes of %s", len(frames), self.scenario.name)
+        return frames
+
+    @cached_property
+    def sensor_frames(self) -> list[SensorFrame]:
+        """The mission's camera frames: the files of ``sensor.frames`` (resized to the camera),
+        or frames simulated along the route by ``sensor.simulate``; none without a sensor block."""
+        sensor = self.scenario.sensor
+        if sensor is None:
+            return []
+        if sensor.frames:
+            return frames_from_files(self.scenario)
+        return simulate_frames(self.scenario, self.emulator, self.poses)
+
+    @cached_property
+    def priors(self) -> dict[str, float]:
+        """The a-priori landmark probabilities P(L) over the viewframes, by landmark id."""
+        ids = [lm.id for lm in self.scenario.landmarks]
+        return landmark_priors([vf.description for vf in self.viewframes], landmark_ids=ids)
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def close(self) -> None:
+        """Release the camera emulator's renderer (the parts already built stay usable)."""
+        if self._emulator is not None:
+            self._emulator.close()
+            self._emulator = None
+
+    def __enter__(self) -> World:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,69 @@
+"""A scenario's world: one object owns the environment, the emulator, the poses, the viewframes
+and the camera frames, each built once, on first use."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.camera_emulator import CameraEmulator
+from models.environment import build_environment
+from models.scenario import scenario_from_dict
+from models.sensor import simulate_frames
+from models.symbolic import landmark_priors
+from models.viewframes import render_viewframes, route_poses
+from models.world import World
+
+
+def _scenario(**extra):
+    return scenario_from_dict({
+        "name": "world",
+        "seed": 4,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
+        "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
+        "route": [[200, 300], [240, 310], [300, 300]],
+        "camera": {"width": 96, "height": 72, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
+        **extra,
+    })
+
+
+@pytest.mark.slow
+def test_the_world_is_the_pipeline_done_by_hand():
+    scenario = _scenario(sensor={"simulate": {"per_point": 1}})
+    with World(scenario) as world:
+        viewframes, frames, poses = world.viewframes, world.sensor_frames, world.poses
+        assert world.viewframes is viewframes and world.environment is world.emulator.environment  # built once
+    env = build_environment(scenario)
+    with CameraEmulator(env, scenario.camera) as cam:
+        by_hand_poses = route_poses(scenario, env.terrain)
+        by_hand = render_viewframes(cam, by_hand_poses)
+        by_hand_frames = simulate_frames(scenario, cam, by_hand_poses)
+    assert poses == by_hand_poses
+    assert [vf.index for vf in viewframes] == [0, 1, 2]
+    for a, b in zip(viewframes, by_hand):
+        np.testing.assert_array_equal(a.mask, b.mask)
+        assert np.abs(a.image.astype(int) - b.image).mean() < 0.5
+        assert a.description.visible == b.description.visible
+    assert [f.truth for f in frames] == [f.truth for f in by_hand_frames]
+    assert world.priors == landmark_priors([vf.description for vf in by_hand], landmark_ids=["H1"])
+
+
+def test_parts_are_built_on_first_use_and_close_releases_the_renderer():
+    world = World(_scenario())
+    assert world.sensor_frames == []  # no sensor block: nothing to render
+    assert "environment" not in vars(world) and world._emulator is None
+    emulator = world.emulator
+    assert world.emulator is emulator
+    world.close()
+    assert world._emulator is None and emulator._renderer is None
+    world.close()  # twice is fine
+
+
+def test_from_scenario_loads_a_file(tmp_path):
+    import yaml
+
+    path = tmp_path / "w.yaml"
+    data = _scenario().model_dump(mode="json", exclude_none=True)
+    path.write_text(yaml.safe_dump(data))
+    world = World.from_scenario(path)
+    assert world.scenario.name == "world" and world.scenario.path == path
