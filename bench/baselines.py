@@ -65,7 +65,7 @@ class HolographicIndex:
         self.memory.write_many([self.pattern(im) for im in images], labels)
 
     def rank_pattern(self, pattern: NDArray[np.float32]) -> NDArray[np.int64]:
-        return self.memory.rank(pattern).labels
+        return self.memory.rank(pattern).viewframes
 
     def rank(self, image: NDArray) -> NDArray[np.int64]:
         return self.rank_pattern(self.pattern(image))

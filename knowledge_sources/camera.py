@@ -42,8 +42,8 @@ class Camera(KnowledgeSource):
         from models.world import World
 
         body = event.hypothesis.body
-        self._ready.add(int(body["bank"]))
-        if self._started or len(self._ready) < int(body["banks"]):
+        self._ready.add(int(body["shard"]))
+        if self._started or len(self._ready) < int(body["shards"]):
             return
         self._started = True
         mp = board.get("map")

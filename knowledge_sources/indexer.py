@@ -1,4 +1,4 @@
-"""The associative indexer: one memory bank of viewframes, ranking every camera frame."""
+"""The associative indexer: one shard of the viewframes, ranking every camera frame."""
 
 from __future__ import annotations
 
@@ -19,29 +19,29 @@ log = logging.getLogger(__name__)
 
 
 class AssociativeIndexer(KnowledgeSource):
-    """Stores the viewframes of its shard (``index % banks == bank``) in a
+    """Stores the viewframes of its shard (``index % shards == shard``) in a
     :class:`~models.index.ViewframeIndex` (a banked holographic memory, ``memory.bank_size``
     viewframes per bank, with the scenario's preprocessing)
     and posts ``index`` once its shard is stored, then, for each camera frame, the ranking of
     those viewframes by error variance. The
-    scheduler merges the rankings of all shards (variances are comparable across banks).
+    scheduler merges the rankings of all shards (variances are comparable across banks and shards).
 
-    Options: ``bank`` (this shard, default 0), ``banks`` (number of shards, default 1). Memory
+    Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1). Memory
     parameters (size, edge method, blur, bank size, shift search) come from the scenario through
     the ``map`` hypothesis. Camera frames that
-    arrive before the bank is complete wait; viewframes missed as events are read back from the
+    arrive before the shard is stored wait; viewframes missed as events are read back from the
     blackboard, so an indexer that joins late or restarts still indexes everything.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
 
-    def __init__(self, name: str, *, bank: int = 0, banks: int = 1, **options: Any) -> None:
+    def __init__(self, name: str, *, shard: int = 0, shards: int = 1, **options: Any) -> None:
         super().__init__(name, **options)
-        if banks < 1 or not 0 <= bank < banks:
-            raise ValueError(f"bank must be in [0, banks), got bank={bank}, banks={banks}")
-        self.bank = bank
-        self.banks = banks
+        if shards < 1 or not 0 <= shard < shards:
+            raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
+        self.shard = shard
+        self.shards = shards
         self._images: dict[int, np.ndarray] = {}
         self._index: ViewframeIndex | None = None
         self._waiting: list[Any] = []
@@ -50,7 +50,7 @@ class AssociativeIndexer(KnowledgeSource):
         if event.kind is not EventKind.POSTED:
             return None
         h = event.hypothesis
-        if h.level == levels.VIEWFRAME and h.body["index"] % self.banks != self.bank:
+        if h.level == levels.VIEWFRAME and h.body["index"] % self.shards != self.shard:
             return None
         return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
 
@@ -73,20 +73,20 @@ class AssociativeIndexer(KnowledgeSource):
     def _build(self, body: dict[str, Any], board: Board) -> None:
         from models.index import ViewframeIndex
 
-        mine = [k for k in range(int(body["viewframes"])) if k % self.banks == self.bank]
+        mine = [k for k in range(int(body["viewframes"])) if k % self.shards == self.shard]
         for k in mine:
             if k not in self._images:
                 got = board.get(levels.viewframe_id(k))
                 if got is None:
                     raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
                 self._images[k] = got.body["image"]
-        index = ViewframeIndex(body["memory"], seed=self.bank)
+        index = ViewframeIndex(body["memory"], seed=self.shard)
         index.add((self._images[k] for k in mine), mine)
         self._index = index
         self._images.clear()
-        board.post(levels.INDEX, {"bank": self.bank, "banks": self.banks, "viewframes": len(mine)},
-                   id=f"index-{self.bank}", links=("map",))
-        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.bank, self.banks, len(mine))
+        board.post(levels.INDEX, {"shard": self.shard, "shards": self.shards, "viewframes": len(mine)},
+                   id=f"index-{self.shard}", links=("map",))
+        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
 
     def _rank(self, frame, board: Board) -> None:
         assert self._index is not None  # frames wait in _waiting until the index is built
@@ -96,11 +96,11 @@ class AssociativeIndexer(KnowledgeSource):
             {
                 "frame": int(frame.body["frame"]),
                 "frame_time": frame.timestamp,
-                "bank": self.bank,
-                "banks": self.banks,
+                "shard": self.shard,
+                "shards": self.shards,
                 **ranking.to_dict(),
             },
-            id=f"rk-{int(frame.body['frame']):06d}-{self.bank}",
+            id=f"rk-{int(frame.body['frame']):06d}-{self.shard}",
             links=(frame.id,),
             credibility=float(min(1.0, max(0.0, ranking.reliability / (1.0 + ranking.reliability)))),
         )

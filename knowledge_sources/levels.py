@@ -9,11 +9,11 @@ viewframe      map renderer                ``index``, ``pose`` [x, y, z, heading
                                            ``description`` (symbolic, plain data)
 map            map renderer                ``viewframes`` count, ``priors`` P(L), ``landmarks``,
                                            ``route`` [[x, y], ...], ``visible`` {index: [ids]}
-index          associative indexer(s)      ``bank``, ``banks``, ``viewframes``: this shard is stored
+index          associative indexer(s)      ``shard``, ``shards``, ``viewframes``: this shard is stored
 sensor_frame   camera                      ``frame``, ``image`` (H, W, 3) uint8
 truth          camera                      ``frame``, ``pose`` [x, y, heading_deg] (evaluation only:
                                            no agent consumes it)
-ranking        associative indexer(s)      ``frame``, ``bank``, ``banks``, ``labels``, ``variances``,
+ranking        associative indexer(s)      ``frame``, ``shard``, ``shards``, ``viewframes``, ``variances``,
                                            ``reliability``
 query          scheduler                   ``frame``, ``landmark``, ``kind``, ``viewframe``, ``p``
 answer         landmark detector           ``frame``, ``landmark``, ``viewframe``, ``present``

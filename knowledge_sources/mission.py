@@ -49,13 +49,13 @@ def agent_plan(
 ) -> list[tuple[str, str, dict[str, Any]]]:
     """The agents of a mission: ``(factory, name, options)`` triples, options being plain data."""
     sched = scenario.scheduler
-    banks = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
+    shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
         ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate}),
     ]
-    for b in range(banks):
-        plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{b}", {"bank": b, "banks": banks}))
+    for s in range(shards):
+        plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{s}", {"shard": s, "shards": shards}))
     for kind in sorted({lm.kind for lm in scenario.landmarks}):
         plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
                      {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold}))

@@ -161,13 +161,13 @@ class SceneAnalysis:
             raise ValueError("accept must be in (0, 1]")
         if not 0.5 < self.reliability < 1.0:
             raise ValueError("reliability must be in (0.5, 1)")
-        labels = [int(k) for k, _ in self.ranking]
-        self._rank = {k: i for i, k in enumerate(labels)}
+        ranked = [int(k) for k, _ in self.ranking]
+        self._rank = {k: i for i, k in enumerate(ranked)}
         if self.strategy == "associative":
             w = ranking_weights([v for _, v in self.ranking], beta=self.beta)
-            self._weights = {k: float(w[i]) for i, k in enumerate(labels[: self.candidates])}
+            self._weights = {k: float(w[i]) for i, k in enumerate(ranked[: self.candidates])}
         else:
-            self._weights = {k: 1.0 for k in labels}
+            self._weights = {k: 1.0 for k in ranked}
         self._likelihood = {k: 1.0 for k in self._weights}
         self._asked = set()
         self._present = set()

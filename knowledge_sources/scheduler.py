@@ -1,6 +1,6 @@
 """The scene-analysis scheduler: verifies the associative ranking by asking landmark detectors.
 
-For each camera frame it waits for the rankings of every memory bank, merges them, and runs a
+For each camera frame it waits for the rankings of every shard, merges them, and runs a
 :class:`~knowledge_sources.scene_analysis.SceneAnalysis` (the decision rule is documented
 there): each question becomes a ``query`` hypothesis addressed to the detector agent of the
 landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
@@ -40,7 +40,7 @@ class _Frame:
     frame: int
     frame_time: float
     rankings: dict[int, Any] = field(default_factory=dict)
-    banks: int = 1
+    shards: int = 1
     analysis: SceneAnalysis | None = None
     question: Question | None = None
     query_id: str | None = None
@@ -140,14 +140,14 @@ class Scheduler(KnowledgeSource):
         st = self._frames.setdefault(frame, _Frame(frame, float(h.body["frame_time"])))
         if st.analysis is not None:
             return
-        st.banks = int(h.body["banks"])
-        st.rankings[int(h.body["bank"])] = Ranking.from_dict(h.body)
+        st.shards = int(h.body["shards"])
+        st.rankings[int(h.body["shard"])] = Ranking.from_dict(h.body)
         st.links.append(h.id)
-        if len(st.rankings) < st.banks:
+        if len(st.rankings) < st.shards:
             return
         mp = self._ensure_map(board)
         merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
-        st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
+        st.ranking = [(int(k), float(v)) for k, v in zip(merged.viewframes, merged.variances)]
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,

@@ -116,7 +116,7 @@ def reliability(variances: ArrayLike) -> float:
 class Ranking:
     """Stored viewframes ordered by error variance, best (smallest) first.
 
-    ``labels`` (H,) int64 viewframe indices; ``variances`` (H,) float64 in the same order;
+    ``viewframes`` (H,) int64 viewframe indices; ``variances`` (H,) float64 in the same order;
     ``reliability`` see :func:`reliability`.
 
     Example::
@@ -126,39 +126,39 @@ class Ranking:
         [(2, 1e-05)]
     """
 
-    labels: NDArray[np.int64]
+    viewframes: NDArray[np.int64]
     variances: NDArray[np.float64]
     reliability: float = field(default=0.0)
 
     def __post_init__(self) -> None:
-        labels = np.asarray(self.labels, dtype=np.int64).ravel()
+        viewframes = np.asarray(self.viewframes, dtype=np.int64).ravel()
         variances = np.asarray(self.variances, dtype=np.float64).ravel()
-        if labels.shape != variances.shape:
+        if viewframes.shape != variances.shape:
             raise AssociativeMemoryError(
-                f"ranking: labels ({labels.size}) and variances ({variances.size}) differ in length"
+                f"ranking: viewframes ({viewframes.size}) and variances ({variances.size}) differ in length"
             )
-        object.__setattr__(self, "labels", labels)
+        object.__setattr__(self, "viewframes", viewframes)
         object.__setattr__(self, "variances", variances)
         object.__setattr__(self, "reliability", float(self.reliability))
 
     def __len__(self) -> int:
-        return int(self.labels.size)
+        return int(self.viewframes.size)
 
     @property
     def best(self) -> int | None:
-        """Label of the best viewframe, or None for an empty ranking."""
-        return int(self.labels[0]) if self.labels.size else None
+        """Index of the best viewframe, or None for an empty ranking."""
+        return int(self.viewframes[0]) if self.viewframes.size else None
 
     def top(self, k: int) -> list[tuple[int, float]]:
-        """The ``k`` best as ``[(label, variance), ...]``."""
+        """The ``k`` best as ``[(viewframe, variance), ...]``."""
         if k < 0:
             raise ValueError(f"k must be >= 0, got {k!r}")
-        return [(int(a), float(b)) for a, b in zip(self.labels[:k], self.variances[:k])]
+        return [(int(a), float(b)) for a, b in zip(self.viewframes[:k], self.variances[:k])]
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data (lists, floats) for msgpack/JSON."""
         return {
-            "labels": [int(x) for x in self.labels],
+            "viewframes": [int(x) for x in self.viewframes],
             "variances": [float(x) for x in self.variances],
             "reliability": float(self.reliability),
         }
@@ -167,15 +167,15 @@ class Ranking:
     def from_dict(cls, data: dict[str, Any]) -> Ranking:
         """Inverse of :meth:`to_dict`; raises AssociativeMemoryError on malformed data."""
         try:
-            return cls(np.asarray(data["labels"]), np.asarray(data["variances"]), float(data["reliability"]))
+            return cls(np.asarray(data["viewframes"]), np.asarray(data["variances"]), float(data["reliability"]))
         except (KeyError, TypeError, ValueError) as err:
             raise AssociativeMemoryError(f"ranking: malformed data: {err}") from err
 
 
-def _ranking(labels: NDArray[np.int64], variances: NDArray[np.float64]) -> Ranking:
-    # stable sort on (variance, label) so equal variances come in label order
-    order = np.lexsort((labels, variances))
-    return Ranking(labels[order], variances[order], reliability(variances))
+def _ranking(viewframes: NDArray[np.int64], variances: NDArray[np.float64]) -> Ranking:
+    # stable sort on (variance, viewframe) so equal variances come in viewframe order
+    order = np.lexsort((viewframes, variances))
+    return Ranking(viewframes[order], variances[order], reliability(variances))
 
 
 def _check_key_method(key_method: str) -> None:
@@ -294,7 +294,7 @@ class HolographicMemory:
             self._weights[:, n // 2] /= 2.0
         # w * rfft2(P_h), interleaved float32; a capacity buffer whose first _count rows are used
         self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
-        self._labels = np.zeros(0, dtype=np.int64)
+        self._viewframes = np.zeros(0, dtype=np.int64)
         self._count = 0
         self._match: NDArray[np.float32] | None = None  # (H, D) ranking matrix, built on demand
 
@@ -303,9 +303,9 @@ class HolographicMemory:
         return self._count
 
     @property
-    def labels(self) -> NDArray[np.int64]:
-        """Labels in storage order, shape (H,)."""
-        return self._labels[: self._count]
+    def viewframes(self) -> NDArray[np.int64]:
+        """Viewframe indices in storage order, shape (H,)."""
+        return self._viewframes[: self._count]
 
     @property
     def prototypes(self) -> NDArray[np.float32]:
@@ -355,40 +355,40 @@ class HolographicMemory:
             cap = max(need, 2 * self._fprotos.shape[0], 16)
             protos = np.empty((cap, self._fprotos.shape[1]), dtype=np.float32)
             protos[: self._count] = self._fprotos[: self._count]
-            labels = np.empty(cap, dtype=np.int64)
-            labels[: self._count] = self._labels[: self._count]
-            self._fprotos, self._labels = protos, labels
+            viewframes = np.empty(cap, dtype=np.int64)
+            viewframes[: self._count] = self._viewframes[: self._count]
+            self._fprotos, self._viewframes = protos, viewframes
 
-    def write(self, pattern: ArrayLike, label: int) -> None:
-        """Store a pattern of shape (N, N) under ``label``: ``M := M + K(P) * P``.
+    def write(self, pattern: ArrayLike, viewframe: int) -> None:
+        """Store a pattern of shape (N, N) under ``viewframe``: ``M := M + K(P) * P``.
 
         The pattern is normalised (zero mean, unit energy) if it is not already; a featureless
-        pattern or a label already stored raises :class:`AssociativeMemoryError`.
+        pattern or a viewframe already stored raises :class:`AssociativeMemoryError`.
         """
-        self.write_many([pattern], [label])
+        self.write_many([pattern], [viewframe])
 
-    def write_many(self, patterns: Iterable[ArrayLike], labels: Iterable[int]) -> None:
+    def write_many(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Store several patterns at once (same result as :meth:`write` in a loop)."""
         pats = [self._pattern(p, "write") for p in patterns]
-        labs = [int(x) for x in labels]
-        if len(pats) != len(labs):
-            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(labs)} labels")
-        existing = set(self.labels.tolist())
-        for p, lab in zip(pats, labs):
+        vfs = [int(x) for x in viewframes]
+        if len(pats) != len(vfs):
+            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(vfs)} viewframes")
+        existing = set(self.viewframes.tolist())
+        for p, vf in zip(pats, vfs):
             if not p.any():
-                raise AssociativeMemoryError(f"write: pattern of label {lab} is featureless (constant)")
-            if lab in existing:
-                raise AssociativeMemoryError(f"write: label {lab} is already stored")
-            existing.add(lab)
+                raise AssociativeMemoryError(f"write: pattern of viewframe {vf} is featureless (constant)")
+            if vf in existing:
+                raise AssociativeMemoryError(f"write: viewframe {vf} is already stored")
+            existing.add(vf)
         if not pats:
             return
         self._grow(len(pats))
-        for p, lab in zip(pats, labs):
+        for p, vf in zip(pats, vfs):
             fk = key_spectrum(p, seed=self.seed, method=self.key_method)
             fp = np.fft.rfft2(p.astype(np.float64))
             self._spectrum += fk * fp
             self._fprotos[self._count] = _interleave(self._weights * fp)
-            self._labels[self._count] = lab
+            self._viewframes[self._count] = vf
             self._count += 1
         self._match = None
 
@@ -422,23 +422,23 @@ class HolographicMemory:
     def error_variances(
         self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None
     ) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
-        """``(labels, variances)`` in storage order: ``var(R^ - P_h)`` for every stored P_h
+        """``(viewframes, variances)`` in storage order: ``var(R^ - P_h)`` for every stored P_h
         (minimised over the searched shifts of R^)."""
         c = self.similarities(pattern, key=key)
         n2 = float(self.size * self.size)
-        return self.labels.copy(), np.maximum(2.0 - 2.0 * c, 0.0) / n2
+        return self.viewframes.copy(), np.maximum(2.0 - 2.0 * c, 0.0) / n2
 
     def rank(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> Ranking:
-        """All stored labels ordered by error variance, best first."""
-        labels, variances = self.error_variances(pattern, key=key)
-        return _ranking(labels, variances)
+        """All stored viewframes ordered by error variance, best first."""
+        viewframes, variances = self.error_variances(pattern, key=key)
+        return _ranking(viewframes, variances)
 
     # ---------------------------------------------------------------- transport
     def state(self) -> dict[str, Any]:
         """Plain data (ints, str, numpy arrays) from which :meth:`from_state` rebuilds the bank."""
         return {
             **_config_state(self),
-            "labels": self.labels.copy(),
+            "viewframes": self.viewframes.copy(),
             "prototype_spectra": self._fprotos[: self._count].copy(),
             "spectrum": np.stack([self._spectrum.real, self._spectrum.imag], axis=-1),
         }
@@ -450,17 +450,17 @@ class HolographicMemory:
             size, config = _config_from_state(state)
             mem = cls(size, **config)
             n = mem.size
-            labels = np.asarray(state["labels"], dtype=np.int64).ravel()
+            viewframes = np.asarray(state["viewframes"], dtype=np.int64).ravel()
             protos = np.asarray(state["prototype_spectra"], dtype=np.float32)
-            protos = protos.reshape(labels.size, 2 * n * (n // 2 + 1))
+            protos = protos.reshape(viewframes.size, 2 * n * (n // 2 + 1))
             spec = np.asarray(state["spectrum"], dtype=np.float64)
             if spec.shape != (n, n // 2 + 1, 2):
                 raise ValueError(f"spectrum has shape {spec.shape}, expected {(n, n // 2 + 1, 2)}")
         except (KeyError, TypeError, ValueError) as err:
             raise AssociativeMemoryError(f"memory state: malformed: {err}") from err
-        if np.unique(labels).size != labels.size:
-            raise AssociativeMemoryError("memory state: duplicate labels")
-        mem._fprotos, mem._labels, mem._count = np.ascontiguousarray(protos), labels.copy(), labels.size
+        if np.unique(viewframes).size != viewframes.size:
+            raise AssociativeMemoryError("memory state: duplicate viewframes")
+        mem._fprotos, mem._viewframes, mem._count = np.ascontiguousarray(protos), viewframes.copy(), viewframes.size
         mem._spectrum = spec[..., 0] + 1j * spec[..., 1]
         return mem
 
@@ -469,16 +469,16 @@ def merge_rankings(rankings: Sequence[Ranking]) -> Ranking:
     """Merge the rankings of several banks into one.
 
     The variances are of the unit-energy recall, so they are comparable across banks and the
-    merge is a sort; the reliability is recomputed over the merged variances. Labels must be
+    merge is a sort; the reliability is recomputed over the merged variances. Viewframes must be
     distinct across the rankings.
     """
     if not rankings:
         return Ranking(np.zeros(0, np.int64), np.zeros(0, np.float64), 0.0)
-    labels = np.concatenate([r.labels for r in rankings])
+    viewframes = np.concatenate([r.viewframes for r in rankings])
     variances = np.concatenate([r.variances for r in rankings])
-    if np.unique(labels).size != labels.size:
-        raise AssociativeMemoryError("merge_rankings: a label appears in more than one ranking")
-    return _ranking(labels, variances)
+    if np.unique(viewframes).size != viewframes.size:
+        raise AssociativeMemoryError("merge_rankings: a viewframe appears in more than one ranking")
+    return _ranking(viewframes, variances)
 
 
 class BankedMemory:
@@ -508,7 +508,7 @@ class BankedMemory:
         self.max_shift = template.max_shift
         self.bank_size = int(bank_size)
         self.banks: list[HolographicMemory] = []
-        self._labels: set[int] = set()
+        self._viewframes: set[int] = set()
         self._packed: NDArray[np.float32] | None = None  # (H, D) all banks' ranking matrices
         self._bank_power: NDArray[np.float64] | None = None  # (B, N * (N // 2 + 1)) w |FM_b|^2
         self._row_bank: NDArray[np.int64] | None = None  # (H,) bank of each packed row
@@ -519,26 +519,26 @@ class BankedMemory:
     def _new_bank(self) -> HolographicMemory:
         return HolographicMemory(self.size, seed=self.seed, key_method=self.key_method, max_shift=self.max_shift)
 
-    def write(self, pattern: ArrayLike, label: int) -> None:
+    def write(self, pattern: ArrayLike, viewframe: int) -> None:
         """Store one pattern in the last bank, opening a new bank when it is full."""
-        self.write_many([pattern], [label])
+        self.write_many([pattern], [viewframe])
 
-    def write_many(self, patterns: Iterable[ArrayLike], labels: Iterable[int]) -> None:
+    def write_many(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Store several patterns, filling banks in order."""
-        pats, labs = list(patterns), [int(x) for x in labels]
-        if len(pats) != len(labs):
-            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(labs)} labels")
-        dup = self._labels.intersection(labs)
-        if dup or len(set(labs)) != len(labs):
-            raise AssociativeMemoryError(f"write: label {min(dup) if dup else labs} is already stored")
+        pats, vfs = list(patterns), [int(x) for x in viewframes]
+        if len(pats) != len(vfs):
+            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(vfs)} viewframes")
+        dup = self._viewframes.intersection(vfs)
+        if dup or len(set(vfs)) != len(vfs):
+            raise AssociativeMemoryError(f"write: viewframe {min(dup) if dup else vfs} is already stored")
         i = 0
         while i < len(pats):
             if not self.banks or len(self.banks[-1]) >= self.bank_size:
                 self.banks.append(self._new_bank())
             bank = self.banks[-1]
             take = min(self.bank_size - len(bank), len(pats) - i)
-            bank.write_many(pats[i : i + take], labs[i : i + take])
-            self._labels.update(labs[i : i + take])
+            bank.write_many(pats[i : i + take], vfs[i : i + take])
+            self._viewframes.update(vfs[i : i + take])
             i += take
         self._packed = None
 
@@ -572,8 +572,8 @@ class BankedMemory:
         energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
         scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
         c = _search(matrix, _query_matrix(key, self.max_shift), scale[self._row_bank])
-        labels = np.concatenate([b.labels for b in self.banks])
-        return _ranking(labels, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
+        viewframes = np.concatenate([b.viewframes for b in self.banks])
+        return _ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
 
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
@@ -595,8 +595,8 @@ class BankedMemory:
         for b in banks:
             if (b.size, b.seed, b.key_method, b.max_shift) != (mem.size, mem.seed, mem.key_method, mem.max_shift):
                 raise AssociativeMemoryError("memory state: a bank differs in size, seed, key_method or max_shift")
-            mem._labels.update(b.labels.tolist())
+            mem._viewframes.update(b.viewframes.tolist())
         mem.banks = banks
-        if len(mem._labels) != len(mem):
-            raise AssociativeMemoryError("memory state: duplicate labels across banks")
+        if len(mem._viewframes) != len(mem):
+            raise AssociativeMemoryError("memory state: duplicate viewframes across banks")
         return mem

@@ -17,8 +17,9 @@ Several emulators may live in one process; :meth:`CameraEmulator.close` destroys
 EGL context (pyrender's ``delete`` would ``eglTerminate`` the display shared with the others).
 
 Shading is Lambertian (``albedo * (ambient + intensity * max(n . l, 0))``), done by a small
-fragment shader that replaces pyrender's physically based ``mesh.frag``: on Mesa's software
-rasteriser the PBR shader cost about 3x more per pixel, and the terrain fills most pixels.
+fragment shader that replaces pyrender's physically based ``mesh.frag``, which costs far more
+per pixel on Mesa's software rasteriser, where the terrain fills most pixels (measured in
+BENCHMARKS.md, "Rendering viewframes").
 The replacement goes through pyrender's shader cache (``Renderer._program_cache``, pyrender
 0.1.x); if that attribute ever disappears the emulator logs a warning and keeps PBR.
 """
@@ -291,7 +292,7 @@ class CameraEmulator:
             if new >= 0:
                 self.scene.activate(self._terrain_node(t, new))
         self._current_levels = levels
-        # landmark boxes: draw only those that may be in view (each draw call costs ~0.3 ms)
+        # landmark boxes: draw only those that may be in view (every draw call costs Python time)
         hidden = outside_frustum(self._box_corners, pose.position, pose.rotation(),
                                  tan_half_fov=(self._tan_x, self._tan_y))
         far = np.linalg.norm(self._box_corners.mean(1) - pose.position, axis=1) > self.camera.far + 100

@@ -6,8 +6,8 @@ level of detail (vertex stride 1, 2, 4, ... cells), built on first use, with a v
 Per view the camera emulator shows, for each tile, the level whose stride suits the tile's
 distance, and hides tiles outside the view frustum (:meth:`EnvironmentModel.tile_levels`).
 On Mesa's software rasteriser the cost follows the triangle count (and, through pyrender's
-Python overhead, the number of draw calls: about 0.3 ms each), so big tiles with coarse
-distant levels keep rendering fast on large DEMs.
+Python overhead, the number of draw calls; BENCHMARKS.md has the measurements), so big tiles with
+coarse distant levels keep rendering fast on large DEMs.
 
 The drawn ground approximates the bilinear F: it matches F at the DEM posts and lies at most
 |twist| / 4 below it inside a cell (never above, so the camera is never under the ground).

@@ -85,7 +85,7 @@ class ViewframeIndex:
     @property
     def viewframes(self) -> NDArray[np.int64]:
         """Viewframe indices in storage order, shape (H,)."""
-        return np.concatenate([b.labels for b in self.memory.banks]) if self.memory.banks else np.zeros(0, np.int64)
+        return np.concatenate([b.viewframes for b in self.memory.banks]) if self.memory.banks else np.zeros(0, np.int64)
 
     def pattern(self, image: ArrayLike) -> NDArray[np.float32]:
         """The memory pattern of an image (viewframe or camera frame): (N, N) float32, zero mean,

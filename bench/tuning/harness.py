@@ -50,7 +50,7 @@ def evaluate(d, *, oracle=False, min_pixels=_DEFAULTS.min_pixels, beta=_DEFAULTS
     ok = 0
     queries = 0
     for fi, (rk, t) in enumerate(zip(d["ranks"], d["truth"])):
-        sa = SceneAnalysis([(int(k), float(v)) for k, v in zip(rk.labels, rk.variances)], visible, strategy=strategy,
+        sa = SceneAnalysis([(int(k), float(v)) for k, v in zip(rk.viewframes, rk.variances)], visible, strategy=strategy,
                            candidates=candidates, accept=accept, reliability=reliability, priors=priors, beta=beta)
         while (q := sa.next_question()) is not None:
             key = (d["name"], fi, q.landmark, q.viewframe)

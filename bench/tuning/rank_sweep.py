@@ -17,6 +17,6 @@ for size, sigma, bank, ms in [(128,1.0,4,(2,16)),(128,1.0,2,(2,16)),(128,1.0,1,(
             t0 = time.perf_counter()
             r = index.rank_pattern(q)
             t += time.perf_counter() - t0
-            ok += int(r.labels[0]) == tr
+            ok += int(r.viewframes[0]) == tr
             tot += 1
     print(f"N {size} sigma {sigma} bank {bank} shift {ms}: ranking top1 {ok/tot:.3f}  {1000*t/tot:.1f} ms/query")

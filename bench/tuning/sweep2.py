@@ -6,7 +6,7 @@ from harness import evaluate
 
 data = pickle.load(open("/tmp/tune_data.pkl", "rb"))
 n = [len(d["truth"]) for d in data]
-rank1 = sum(int(r.labels[0]) == t for d in data for r, t in zip(d["ranks"], d["truth"])) / sum(n)
+rank1 = sum(int(r.viewframes[0]) == t for d in data for r, t in zip(d["ranks"], d["truth"])) / sum(n)
 print("ranking top-1", round(rank1, 3))
 def total(**kw):
     res = [evaluate(d, **kw) for d in data]

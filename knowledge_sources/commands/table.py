@@ -81,12 +81,12 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
     rows = []
     for frame in frames:
         ranking = index.rank(frame.image)
-        by_label = dict(zip(ranking.labels.tolist(), ranking.variances.tolist()))
-        variances = [by_label[vf.index] for vf in viewframes]
+        by_viewframe = dict(zip(ranking.viewframes.tolist(), ranking.variances.tolist()))
+        variances = [by_viewframe[vf.index] for vf in viewframes]
         truth = None
         if frame.truth is not None:
             truth = nearest_viewframe(frame.truth[0], frame.truth[1], scenario.route)
-        rows.append(TableRow(frame.index, frame.source, variances, int(ranking.labels[0]), ranking.reliability, truth))
+        rows.append(TableRow(frame.index, frame.source, variances, int(ranking.viewframes[0]), ranking.reliability, truth))
     return viewframes, rows
 
 

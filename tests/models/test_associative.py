@@ -70,7 +70,7 @@ def test_storage_order_does_not_matter() -> None:
     assert np.allclose(a.spectrum, b.spectrum, atol=1e-12)
     for q in pats:
         ra, rb = a.rank(q), b.rank(q)
-        assert ra.labels.tolist() == rb.labels.tolist()
+        assert ra.viewframes.tolist() == rb.viewframes.tolist()
         assert np.allclose(ra.variances, rb.variances, atol=1e-12)
 
 
@@ -140,7 +140,7 @@ def test_banked_and_single_memory_agree_on_small_sets() -> None:
         q = preprocess(_perturb(im, rng, shift=1.0, noise=4.0, gain=0.9), size=64)
         assert single.rank(q).best == banked.rank(q).best == i
         a, b = single.rank(q), full.rank(q)
-        assert a.labels.tolist() == b.labels.tolist() and np.allclose(a.variances, b.variances)
+        assert a.viewframes.tolist() == b.viewframes.tolist() and np.allclose(a.variances, b.variances)
 
 
 def test_state_round_trips_through_msgpack() -> None:
@@ -172,13 +172,13 @@ def test_ranking_plain_data_and_merge() -> None:
     a = Ranking(np.array([3, 1]), np.array([1e-5, 2e-5]), 1.0)
     b = Ranking(np.array([2]), np.array([1.5e-5]), 0.0)
     merged = merge_rankings([a, b])
-    assert merged.labels.tolist() == [3, 2, 1]
+    assert merged.viewframes.tolist() == [3, 2, 1]
     assert merged.top(2) == [(3, 1e-5), (2, 1.5e-5)]
     assert Ranking.from_dict(merged.to_dict()).to_dict() == merged.to_dict()
     with pytest.raises(AssociativeMemoryError, match="more than one"):
         merge_rankings([a, a])
     with pytest.raises(AssociativeMemoryError, match="malformed"):
-        Ranking.from_dict({"labels": [1]})
+        Ranking.from_dict({"viewframes": [1]})
     assert len(merge_rankings([])) == 0
 
 
@@ -240,7 +240,7 @@ def test_banks_of_one_reduce_to_ncc_of_whitened_patterns() -> None:
         q = preprocess(_perturb(im, rng, shift=2.0, noise=6.0, gain=0.8), size=64)
         ncc = np.array([float(np.sum(q * p)) for p in pats])
         r = mem.rank(q)
-        assert r.labels.tolist() == np.argsort(-ncc, kind="stable").tolist()
+        assert r.viewframes.tolist() == np.argsort(-ncc, kind="stable").tolist()
         assert np.allclose(np.sort(1 - r.variances * 64 * 64 / 2), np.sort(ncc), atol=0.02)
 
 
@@ -261,5 +261,5 @@ def test_shift_search_on_the_best_candidates_matches_the_full_search(monkeypatch
         assert f.best == g.best == i
         assert f.top(1)[0][1] == pytest.approx(g.top(1)[0][1], rel=1e-6)
         # the search only lowers variances: the refined ones agree, the others are upper bounds
-        fv = dict(zip(f.labels.tolist(), f.variances)); gv = dict(zip(g.labels.tolist(), g.variances))  # noqa: E702
+        fv = dict(zip(f.viewframes.tolist(), f.variances)); gv = dict(zip(g.viewframes.tolist(), g.variances))  # noqa: E702
         assert all(fv[k] >= gv[k] * (1 - 1e-5) for k in fv)

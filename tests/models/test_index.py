@@ -50,9 +50,9 @@ def test_ranking_equals_the_memory_built_by_hand() -> None:
     query = np.roll(images[4], 2, axis=1)
     got, want = index.rank(query), by_hand.rank(preprocess(query, size=64, blur_sigma=spec.blur_sigma))
     assert got.best == 14
-    assert got.labels.tolist() == want.labels.tolist()
+    assert got.viewframes.tolist() == want.viewframes.tolist()
     np.testing.assert_allclose(got.variances, want.variances, rtol=1e-5)
-    assert index.rank_pattern(index.pattern(query)).labels.tolist() == got.labels.tolist()
+    assert index.rank_pattern(index.pattern(query)).viewframes.tolist() == got.viewframes.tolist()
 
 
 @pytest.mark.parametrize(("settings", "field"), [
