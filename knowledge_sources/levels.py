@@ -1,42 +1,382 @@
-"""The blackboard levels of mapinterp and what lives on each.
+"""The blackboard levels of mapinterp: one typed message class per level, and the ids of its hypotheses.
 
-=============  ==========================  ============================================================
-level          posted by                   body
-=============  ==========================  ============================================================
-scenario       user (``mapinterp run``)    ``path``: absolute scenario file; ``strategy``
-viewframe      map renderer                ``index``, ``pose`` [x, y, z, heading_deg, pitch_deg],
-                                           ``image`` (H, W, 3) uint8, ``mask`` (H, W) int16,
-                                           ``description`` (symbolic, plain data)
-map            map renderer                ``viewframes`` count, ``priors`` P(L), ``landmarks``,
-                                           ``route`` [[x, y], ...], ``visible`` {index: [ids]}
-index          associative indexer(s)      ``shard``, ``shards``, ``viewframes``: this shard is stored
-sensor_frame   camera                      ``frame``, ``image`` (H, W, 3) uint8
-truth          camera                      ``frame``, ``pose`` [x, y, heading_deg] (evaluation only:
-                                           no agent consumes it)
-ranking        associative indexer(s)      ``frame``, ``shard``, ``shards``, ``viewframes``, ``variances``,
-                                           ``reliability``
-query          scheduler                   ``frame``, ``landmark``, ``kind``, ``viewframe``, ``p``
-answer         landmark detector           ``frame``, ``landmark``, ``viewframe``, ``present``
-                                           (true/false/null), ``score``, ``reason``
-position       scheduler                   the frame's decision (see :mod:`knowledge_sources.results`)
-=============  ==========================  ============================================================
+Each level is one frozen, slotted dataclass deriving from :class:`Message`. Its ``level``
+class attribute names the level, its docstring's first line says what one hypothesis stands for,
+its fields (with their ``doc``) are the body, and :meth:`Message.to_body` /
+:meth:`Message.from_body` convert to and from the plain dict that travels in a hypothesis
+(msgpack through :mod:`blackboard.codec`). Construction validates every field against its type
+hint (``int``, ``float``, ``str``, ``bool``, ``list``, ``dict``, ``numpy.ndarray`` with an
+optional ``dtype``/``ndim``, each optionally ``| None``); a bad body raises
+:class:`MessageError` naming the level, the field and the hypothesis. Numpy arrays are passed
+through untouched (no copy: the codec already hands out read-only views of the payload).
+
+The id of every hypothesis is built by a function here (:func:`frame_id`, :func:`viewframe_id`,
+...) and :meth:`Message.id` returns it; :func:`post` posts a message under its id.
+
+Adding a level is adding one class::
+
+    @dataclass(frozen=True, slots=True)
+    class Track(Message):
+        \"\"\"The vehicle's track up to one camera frame.\"\"\"
+
+        level: ClassVar[str] = "track"
+        posted_by: ClassVar[str] = "tracker"
+        frame: int = field(metadata={"doc": "camera frame number"})
+        xy: list = field(metadata={"doc": "[[x, y], ...] world metres, oldest first"})
+
+        def id(self) -> str:
+            return track_id(self.frame)
+
+
+    def track_id(frame: int) -> str:
+        return f"tr-{frame:06d}"
+
+The class registers itself (:data:`MESSAGES`), the level name constant is ``Track.level``, and
+the levels table below (and in README.md, checked by ``tests/knowledge_sources/test_levels.py``)
+is generated from the classes: run ``python -m knowledge_sources.levels`` to print it.
+
 """
 
 from __future__ import annotations
 
-__all__ = ["SCENARIO", "VIEWFRAME", "MAP", "INDEX", "SENSOR_FRAME", "TRUTH", "RANKING", "QUERY", "ANSWER", "POSITION",
-           "frame_id", "viewframe_id"]
+import dataclasses
+import sys
+import types
+import typing
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Self
 
-SCENARIO = "scenario"
-VIEWFRAME = "viewframe"
-MAP = "map"
-INDEX = "index"
-SENSOR_FRAME = "sensor_frame"
-TRUTH = "truth"
-RANKING = "ranking"
-QUERY = "query"
-ANSWER = "answer"
-POSITION = "position"
+import numpy as np
+
+from blackboard.errors import BlackboardError
+
+if TYPE_CHECKING:
+    from blackboard.hypothesis import Hypothesis
+    from blackboard.knowledge_source import Board
+    from models.associative import Ranking as MemoryRanking
+
+__all__ = [
+    "ANSWER", "Answer", "INDEX", "Index", "MAP", "MESSAGES", "Map", "Message", "MessageError", "POSITION",
+    "Position", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario", "SensorFrame",
+    "TRUTH", "Truth", "VIEWFRAME", "Viewframe", "answer_id", "frame_id", "index_id", "levels_table", "map_id",
+    "message_class", "position_id", "post", "query_id", "ranking_id", "scenario_id", "truth_id", "viewframe_id",
+]
+
+class MessageError(BlackboardError):
+    """A hypothesis body does not fit its level's message class.
+
+    Attributes: ``level``, ``field`` (None for the body as a whole), ``hypothesis_id`` (None when
+    not known, e.g. while an agent builds a message).
+    """
+
+    def __init__(self, level: str, field: str | None, problem: str, *, hypothesis_id: str | None = None) -> None:
+        self.level = level
+        self.field = field
+        self.problem = problem
+        self.hypothesis_id = hypothesis_id
+        where = f"level {level}" + (f" hypothesis {hypothesis_id}" if hypothesis_id else "")
+        super().__init__(f"{where}: {field + ': ' if field else ''}{problem}")
+
+
+#: level name -> message class, in the order the classes are defined (the pipeline's order)
+MESSAGES: dict[str, type[Message]] = {}
+
+_Check = Callable[[Any], Any]
+
+
+class Message:
+    """Base of the level messages (see the module docstring). Subclasses are frozen slotted dataclasses."""
+
+    __slots__ = ()
+    #: the level's name (a key chunk)
+    level: ClassVar[str]
+    #: who posts it, for the levels table
+    posted_by: ClassVar[str]
+    #: the shape of its hypothesis ids, for the levels table (the id function builds them)
+    id_pattern: ClassVar[str]
+    #: (field name, check) pairs, built from the type hints on first use
+    _checks: ClassVar[tuple[tuple[str, _Check], ...] | None] = None
+    _required: ClassVar[frozenset[str]] = frozenset()
+    _names: ClassVar[frozenset[str]] = frozenset()
+    _order: ClassVar[tuple[str, ...]] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        level = cls.__dict__.get("level")
+        if level is None:
+            return
+        # dataclass(slots=True) creates the class a second time: replace, do not refuse
+        known = MESSAGES.get(level)
+        if known is not None and known.__qualname__ != cls.__qualname__:
+            raise TypeError(f"level {level!r} already has message class {known.__qualname__}")
+        MESSAGES[level] = cls
+
+    def __post_init__(self) -> None:
+        cls = type(self)
+        checks = cls.__dict__.get("_checks") or _build_checks(cls)
+        for name, check in checks:
+            value = getattr(self, name)
+            try:
+                new = check(value)
+            except (TypeError, ValueError) as err:
+                raise MessageError(cls.level, name, str(err)) from None
+            if new is not value:
+                object.__setattr__(self, name, new)
+
+    def id(self) -> str:
+        """The id of the hypothesis carrying this message."""
+        raise NotImplementedError(f"{type(self).__name__} has no id function")
+
+    def to_body(self) -> dict[str, Any]:
+        """The hypothesis body: every field by name (arrays not copied)."""
+        cls = type(self)
+        if "_checks" not in cls.__dict__:
+            _build_checks(cls)
+        return {name: getattr(self, name) for name in cls._order}
+
+    @classmethod
+    def from_body(cls, body: Mapping[str, Any], *, hypothesis_id: str | None = None) -> Self:
+        """The message of a hypothesis body; :class:`MessageError` names the missing, unknown or bad field."""
+        if "_checks" not in cls.__dict__:
+            _build_checks(cls)
+        if not isinstance(body, Mapping):
+            raise MessageError(cls.level, None, f"body must be a map, got {type(body).__name__}",
+                               hypothesis_id=hypothesis_id)
+        missing = cls._required.difference(body)
+        unknown = set(body).difference(cls._names)
+        if missing or unknown:
+            name = min(missing) if missing else min(map(str, unknown))
+            raise MessageError(cls.level, name, "missing" if missing else "not a field of this level",
+                               hypothesis_id=hypothesis_id)
+        try:
+            return cls(**body)
+        except MessageError as err:
+            raise MessageError(cls.level, err.field, err.problem, hypothesis_id=hypothesis_id) from None
+
+    @classmethod
+    def from_hypothesis(cls, hypothesis: Hypothesis) -> Self:
+        """The message a hypothesis carries; it must be on this class's level."""
+        if hypothesis.level != cls.level:
+            raise MessageError(cls.level, None, f"hypothesis {hypothesis.id} is on level {hypothesis.level}",
+                               hypothesis_id=hypothesis.id)
+        return cls.from_body(hypothesis.body, hypothesis_id=hypothesis.id)
+
+
+def message_class(level: str) -> type[Message]:
+    """The message class of ``level``; ``KeyError`` names the known levels."""
+    try:
+        return MESSAGES[level]
+    except KeyError:
+        raise KeyError(f"no message class for level {level!r}; levels: {', '.join(MESSAGES)}") from None
+
+
+def post(
+    board: Board,
+    message: Message,
+    *,
+    links: Iterable[str] = (),
+    credibility: float = 1.0,
+    addressed_to: str | None = None,
+    deadline_s: float | None = None,
+) -> Hypothesis:
+    """Post ``message`` on its level under its id (:meth:`Message.id`); keywords as ``Board.post``."""
+    return board.post(message.level, message.to_body(), id=message.id(), links=links, credibility=credibility,
+                      addressed_to=addressed_to, deadline_s=deadline_s)
+
+
+# -- validation ------------------------------------------------------------------------------------
+
+
+def _doc(text: str, **extra: Any) -> dict[str, Any]:
+    return {"doc": text, **extra}
+
+
+def _check_for(hint: Any, meta: Mapping[str, Any]) -> _Check:
+    """A function returning its argument (or a normalised copy of a scalar), or raising ValueError/TypeError."""
+    origin = typing.get_origin(hint)
+    if origin in (types.UnionType, typing.Union):
+        args = [a for a in typing.get_args(hint) if a is not type(None)]
+        inner = _check_for(args[0], meta)
+        return lambda v: None if v is None else inner(v)
+    base = origin or hint
+    if base is int:
+        def check_int(v: Any) -> Any:
+            if type(v) is int:
+                return v
+            if isinstance(v, np.integer):
+                return int(v)
+            raise TypeError(f"must be an integer, got {type(v).__name__}")
+        return check_int
+    if base is float:
+        def check_float(v: Any) -> Any:
+            if type(v) is float:
+                return v
+            if isinstance(v, (int, np.integer, np.floating)) and not isinstance(v, bool):
+                return float(v)
+            raise TypeError(f"must be a number, got {type(v).__name__}")
+        return check_float
+    if base is bool:
+        def check_bool(v: Any) -> Any:
+            if isinstance(v, (bool, np.bool_)):
+                return bool(v)
+            raise TypeError(f"must be true or false, got {type(v).__name__}")
+        return check_bool
+    if base is str:
+        def check_str(v: Any) -> Any:
+            if isinstance(v, str):
+                return v
+            raise TypeError(f"must be a string, got {type(v).__name__}")
+        return check_str
+    if base is list:
+        length = meta.get("length")
+
+        def check_list(v: Any) -> Any:
+            if not isinstance(v, (list, tuple)):
+                raise TypeError(f"must be a list, got {type(v).__name__}")
+            if length is not None and len(v) != length:
+                raise ValueError(f"must have {length} entries, got {len(v)}")
+            return v
+        return check_list
+    if base is dict:
+        def check_dict(v: Any) -> Any:
+            if isinstance(v, dict):
+                return v
+            raise TypeError(f"must be a map, got {type(v).__name__}")
+        return check_dict
+    if base is np.ndarray:
+        dtype = None if meta.get("dtype") is None else np.dtype(meta["dtype"])
+        ndim = meta.get("ndim")
+        channels = meta.get("channels")
+
+        def check_array(v: Any) -> Any:
+            if not isinstance(v, np.ndarray):
+                raise TypeError(f"must be a numpy array, got {type(v).__name__}")
+            if dtype is not None and v.dtype != dtype:
+                raise TypeError(f"must have dtype {dtype}, got {v.dtype}")
+            if ndim is not None and v.ndim != ndim:
+                raise ValueError(f"must have {ndim} dimensions, got shape {v.shape}")
+            if channels is not None and v.shape[-1] != channels:
+                raise ValueError(f"must have {channels} channels (last axis), got shape {v.shape}")
+            return v
+        return check_array
+    raise TypeError(f"unsupported field type {hint!r}")
+
+
+def _build_checks(cls: type[Message]) -> tuple[tuple[str, _Check], ...]:
+    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    fields = dataclasses.fields(cls)  # type: ignore[arg-type]
+    cls._checks = tuple((f.name, _check_for(hints[f.name], f.metadata)) for f in fields)
+    cls._required = frozenset(f.name for f in fields
+                              if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+    cls._names = frozenset(f.name for f in fields)
+    cls._order = tuple(f.name for f in fields)
+    return cls._checks
+
+
+# -- the levels ------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class Scenario(Message):
+    """The run's input: which scenario file to localize."""
+
+    level: ClassVar[str] = "scenario"
+    posted_by: ClassVar[str] = "user (``mapinterp run``)"
+    id_pattern: ClassVar[str] = "scenario"
+    path: str = field(metadata=_doc("absolute path of the scenario file"))
+    strategy: str = field(metadata=_doc('"associative" or "prior"'))
+
+    def id(self) -> str:
+        return scenario_id()
+
+
+def scenario_id() -> str:
+    """Hypothesis id of the run's scenario."""
+    return "scenario"
+
+
+@dataclass(frozen=True, slots=True)
+class Viewframe(Message):
+    """One a-priori view synthesised from the map at a route point."""
+
+    level: ClassVar[str] = "viewframe"
+    posted_by: ClassVar[str] = "map renderer"
+    id_pattern: ClassVar[str] = "vf-<index:06d>"
+    index: int = field(metadata=_doc("viewframe index k (its route point)"))
+    pose: list = field(metadata=_doc("[x, y, z, heading_deg, pitch_deg], world metres and degrees", length=5))
+    image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
+    mask: np.ndarray = field(metadata=_doc("(H, W) int16 landmark index per pixel, -1 none", dtype="int16", ndim=2))
+    description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
+
+    def id(self) -> str:
+        return viewframe_id(self.index)
+
+
+def viewframe_id(index: int) -> str:
+    """Hypothesis id of viewframe ``index`` on the viewframe level."""
+    return f"vf-{index:06d}"
+
+
+@dataclass(frozen=True, slots=True)
+class Map(Message):
+    """The map is complete: everything the other agents need of it besides the viewframe images."""
+
+    level: ClassVar[str] = "map"
+    posted_by: ClassVar[str] = "map renderer"
+    id_pattern: ClassVar[str] = "map"
+    scenario: str = field(metadata=_doc("scenario name"))
+    path: str = field(metadata=_doc("absolute path of the scenario file"))
+    viewframes: int = field(metadata=_doc("number of viewframes"))
+    priors: dict = field(metadata=_doc("P(L): {landmark id: prior}"))
+    landmarks: list = field(metadata=_doc("[{id, kind, index, x, y}, ...] in scenario order"))
+    route: list = field(metadata=_doc("[[x, y], ...] route points, world metres"))
+    poses: list = field(metadata=_doc("[[x, y, z, heading_deg, pitch_deg], ...] the pose of each viewframe"))
+    visible: dict = field(metadata=_doc('{"k": {landmark id: pixels}}: landmarks visible in viewframe k'))
+    memory: dict = field(metadata=_doc("the scenario's memory settings (MemorySpec.model_dump)"))
+
+    def id(self) -> str:
+        return map_id()
+
+
+def map_id() -> str:
+    """Hypothesis id of the map."""
+    return "map"
+
+
+@dataclass(frozen=True, slots=True)
+class Index(Message):
+    """One indexer shard has stored its viewframes."""
+
+    level: ClassVar[str] = "index"
+    posted_by: ClassVar[str] = "associative indexer(s)"
+    id_pattern: ClassVar[str] = "index-<bank>"
+    bank: int = field(metadata=_doc("this shard"))
+    banks: int = field(metadata=_doc("number of shards"))
+    viewframes: int = field(metadata=_doc("viewframes stored in this shard"))
+
+    def id(self) -> str:
+        return index_id(self.bank)
+
+
+def index_id(bank: int) -> str:
+    """Hypothesis id of shard ``bank``'s index."""
+    return f"index-{bank}"
+
+
+@dataclass(frozen=True, slots=True)
+class SensorFrame(Message):
+    """One camera image of the mission."""
+
+    level: ClassVar[str] = "sensor_frame"
+    posted_by: ClassVar[str] = "camera"
+    id_pattern: ClassVar[str] = "sf-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number, in mission order"))
+    image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
+    source: str = field(metadata=_doc('the image file, or "simulated"'))
+
+    def id(self) -> str:
+        return frame_id(self.frame)
 
 
 def frame_id(frame: int) -> str:
@@ -44,6 +384,195 @@ def frame_id(frame: int) -> str:
     return f"sf-{frame:06d}"
 
 
-def viewframe_id(index: int) -> str:
-    """Hypothesis id of viewframe ``index`` on the viewframe level."""
-    return f"vf-{index:06d}"
+@dataclass(frozen=True, slots=True)
+class Truth(Message):
+    """The true pose of one camera frame: for evaluation only, no agent consumes it."""
+
+    level: ClassVar[str] = "truth"
+    posted_by: ClassVar[str] = "camera"
+    id_pattern: ClassVar[str] = "truth-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    pose: list = field(metadata=_doc("[x, y, heading_deg], world metres and degrees", length=3))
+
+    def id(self) -> str:
+        return truth_id(self.frame)
+
+
+def truth_id(frame: int) -> str:
+    """Hypothesis id of frame ``frame``'s truth."""
+    return f"truth-{frame:06d}"
+
+
+@dataclass(frozen=True, slots=True)
+class Ranking(Message):
+    """One shard's viewframes ranked for one camera frame, best first."""
+
+    level: ClassVar[str] = "ranking"
+    posted_by: ClassVar[str] = "associative indexer(s)"
+    id_pattern: ClassVar[str] = "rk-<frame:06d>-<bank>"
+    frame: int = field(metadata=_doc("frame number"))
+    frame_time: float = field(metadata=_doc("timestamp of the camera frame's hypothesis (latency)"))
+    bank: int = field(metadata=_doc("the shard ranked"))
+    banks: int = field(metadata=_doc("number of shards"))
+    labels: list = field(metadata=_doc("viewframe indices k, best first"))
+    variances: list = field(metadata=_doc("error variance of each, same order"))
+    reliability: float = field(metadata=_doc("robust standard deviations the best stands below the rest"))
+
+    def id(self) -> str:
+        return ranking_id(self.frame, self.bank)
+
+    @classmethod
+    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, bank: int, banks: int) -> Ranking:
+        """The message of a memory's :class:`~models.associative.Ranking`."""
+        return cls(frame=frame, frame_time=frame_time, bank=bank, banks=banks, **ranking.to_dict())
+
+    def ranking(self) -> MemoryRanking:
+        """As a :class:`models.associative.Ranking`."""
+        from models.associative import Ranking as MemoryRanking
+
+        return MemoryRanking.from_dict({"labels": self.labels, "variances": self.variances,
+                                        "reliability": self.reliability})
+
+
+def ranking_id(frame: int, bank: int) -> str:
+    """Hypothesis id of shard ``bank``'s ranking of frame ``frame``."""
+    return f"rk-{frame:06d}-{bank}"
+
+
+@dataclass(frozen=True, slots=True)
+class Query(Message):
+    """A yes/no question to a landmark detector: is landmark L in frame F, as seen from viewframe k?"""
+
+    level: ClassVar[str] = "query"
+    posted_by: ClassVar[str] = "scheduler"
+    id_pattern: ClassVar[str] = "q-<frame:06d>-<number>"
+    frame: int = field(metadata=_doc("frame number"))
+    number: int = field(metadata=_doc("1 for the frame's first query, 2 for the next, ..."))
+    landmark: str = field(metadata=_doc("landmark id"))
+    landmark_index: int = field(metadata=_doc("the landmark's value in the viewframe mask"))
+    kind: str = field(metadata=_doc("landmark kind (which detector)"))
+    viewframe: int = field(metadata=_doc("candidate viewframe k"))
+    p: float = field(metadata=_doc("P(L|A): probability the landmark is present"))
+
+    def id(self) -> str:
+        return query_id(self.frame, self.number)
+
+
+def query_id(frame: int, number: int) -> str:
+    """Hypothesis id of the ``number``-th query (from 1) of frame ``frame``."""
+    return f"q-{frame:06d}-{number}"
+
+
+@dataclass(frozen=True, slots=True)
+class Answer(Message):
+    """A landmark detector's answer to one query."""
+
+    level: ClassVar[str] = "answer"
+    posted_by: ClassVar[str] = "landmark detector"
+    id_pattern: ClassVar[str] = "ans-<query>"
+    query: str = field(metadata=_doc("id of the query answered"))
+    frame: int = field(metadata=_doc("frame number"))
+    landmark: str = field(metadata=_doc("landmark id"))
+    viewframe: int = field(metadata=_doc("candidate viewframe k"))
+    present: bool | None = field(metadata=_doc("true, false, or null when undecided"))
+    score: float = field(metadata=_doc("detector score in [-1, 1]"))
+    location: list | None = field(metadata=_doc("(row, col) of the detection in the camera image, or null"))
+    detector: str = field(metadata=_doc("detector name"))
+    reason: str = field(metadata=_doc("why the detector answered so"))
+
+    def id(self) -> str:
+        return answer_id(self.query)
+
+
+def answer_id(query: str) -> str:
+    """Hypothesis id of the answer to query ``query`` (one answer per query)."""
+    return f"ans-{query}"
+
+
+@dataclass(frozen=True, slots=True)
+class Position(Message):
+    """The scheduler's decision for one camera frame (the results file is made of these)."""
+
+    level: ClassVar[str] = "position"
+    posted_by: ClassVar[str] = "scheduler"
+    id_pattern: ClassVar[str] = "pos-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    viewframe: int | None = field(metadata=_doc("chosen viewframe k, or null: not localized"))
+    position: list | None = field(metadata=_doc("[x, y] of the chosen viewframe, world metres, or null"))
+    heading_deg: float | None = field(metadata=_doc("heading of the chosen viewframe, degrees, or null"))
+    confidence: float = field(metadata=_doc("belief in the decision, [0, 1]"))
+    queries: int = field(metadata=_doc("detector queries answered"))
+    backtracks: int = field(metadata=_doc("candidates discarded by an absent landmark"))
+    latency_ms: float = field(metadata=_doc("camera frame posted to decision, milliseconds"))
+    ranking: list = field(metadata=_doc("[[k, variance], ...] the merged ranking's first 5"))
+    reason: str = field(metadata=_doc("why this decision (and what degraded it)"))
+    degraded: list = field(metadata=_doc("queries without an answer: [str, ...]"))
+    steps: list = field(metadata=_doc("the scene analysis's steps: [{...}, ...]"))
+    strategy: str = field(metadata=_doc('"associative" or "prior"'))
+
+    def id(self) -> str:
+        return position_id(self.frame)
+
+    @staticmethod
+    def at(pose: Sequence[float] | None) -> tuple[list[float] | None, float | None]:
+        """``(position, heading_deg)`` of a decision at a viewframe of pose ``[x, y, z, heading_deg, ...]``
+        (None: no viewframe chosen): the one place a position is computed."""
+        if pose is None:
+            return None, None
+        return [float(pose[0]), float(pose[1])], float(pose[3])
+
+
+def position_id(frame: int) -> str:
+    """Hypothesis id of frame ``frame``'s position."""
+    return f"pos-{frame:06d}"
+
+
+SCENARIO = Scenario.level
+VIEWFRAME = Viewframe.level
+MAP = Map.level
+INDEX = Index.level
+SENSOR_FRAME = SensorFrame.level
+TRUTH = Truth.level
+RANKING = Ranking.level
+QUERY = Query.level
+ANSWER = Answer.level
+POSITION = Position.level
+
+
+# -- the table ---------------------------------------------------------------------------------------
+
+
+def _type_name(hint: Any, meta: Mapping[str, Any]) -> str:
+    origin = typing.get_origin(hint)
+    if origin in (types.UnionType, typing.Union):
+        inner = next(a for a in typing.get_args(hint) if a is not type(None))
+        return _type_name(inner, meta) + " | null"
+    base = origin or hint
+    if base is np.ndarray:
+        return f"array {meta['dtype']}" if meta.get("dtype") else "array"
+    return {int: "int", float: "float", str: "str", bool: "bool", list: "list", dict: "map"}[base]
+
+
+def level_fields(cls: type[Message]) -> list[tuple[str, str, str]]:
+    """``(field, type, doc)`` of each field of a message class, in order."""
+    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    return [(f.name, _type_name(hints[f.name], f.metadata), f.metadata.get("doc", ""))
+            for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+
+
+def levels_table() -> str:
+    """The levels table (markdown): one row per field of each level's message class."""
+    rows = ["| level | posted by | id | field | type | meaning |", "|---|---|---|---|---|---|"]
+    for level, cls in MESSAGES.items():
+        for i, (name, kind, doc) in enumerate(level_fields(cls)):
+            head = (f"`{level}`", cls.posted_by.replace("``", "`"), f"`{cls.id_pattern}`") if i == 0 else ("", "", "")
+            rows.append(f"| {' | '.join(head)} | `{name}` | {kind} | {doc} |")
+    return "\n".join(rows)
+
+
+if __doc__ is not None:
+    __doc__ += "Levels (generated from the classes)::\n\n" + "\n".join("    " + line for line in levels_table().splitlines())
+
+
+if __name__ == "__main__":
+    print(levels_table())

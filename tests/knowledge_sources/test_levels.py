@@ -1,0 +1,162 @@
+"""The typed level messages: round trips through the codec, validation naming the field, ids, the docs table."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blackboard.codec import decode, encode
+from blackboard.hypothesis import Hypothesis
+from knowledge_sources import levels
+from models.associative import Ranking as MemoryRanking
+
+README = Path(__file__).resolve().parents[2] / "README.md"
+
+
+def _image(h: int = 6, w: int = 8) -> np.ndarray:
+    return np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
+
+
+#: one valid message of every level
+SAMPLES: list[levels.Message] = [
+    levels.Scenario(path="/tmp/s.yaml", strategy="associative"),
+    levels.Viewframe(index=7, pose=[1.0, 2.0, 3.0, 90.0, 0.0], image=_image(),
+                     mask=np.full((6, 8), -1, np.int16), description={"visible": ["H1"]}),
+    levels.Map(scenario="s", path="/tmp/s.yaml", viewframes=2, priors={"H1": 0.5},
+               landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
+               route=[[0.0, 0.0], [10.0, 0.0]], poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
+               visible={"0": {"H1": 80}, "1": {}}, memory={"size": 64}),
+    levels.Index(bank=1, banks=3, viewframes=12),
+    levels.SensorFrame(frame=4, image=_image(), source="simulated"),
+    levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
+    levels.Ranking(frame=4, frame_time=1.5, bank=0, banks=1, labels=[2, 0], variances=[1e-5, 2e-4], reliability=3.0),
+    levels.Query(frame=4, number=2, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
+    levels.Answer(query="q-000004-2", frame=4, landmark="H1", viewframe=2, present=None, score=0.3, location=None,
+                  detector="edges", reason="undecided"),
+    levels.Position(frame=4, viewframe=2, position=[1.0, 2.0], heading_deg=90.0, confidence=0.9, queries=1,
+                    backtracks=0, latency_ms=12.0, ranking=[[2, 1e-5]], reason="accepted", degraded=[], steps=[],
+                    strategy="associative"),
+]
+
+
+def test_every_level_has_a_sample() -> None:
+    assert [type(m).level for m in SAMPLES] != [] and {type(m).level for m in SAMPLES} == set(levels.MESSAGES)
+
+
+@pytest.mark.parametrize("message", SAMPLES, ids=lambda m: type(m).level)
+def test_round_trip_through_codec_and_hypothesis(message: levels.Message) -> None:
+    h = Hypothesis.new(message.level, message.to_body(), source="t", id=message.id())
+    wire = Hypothesis.from_record(decode(encode({"hyp": h.to_record()}))["hyp"])
+    back = type(message).from_hypothesis(wire)
+    for f in dataclasses.fields(message):  # type: ignore[arg-type]
+        a, b = getattr(message, f.name), getattr(back, f.name)
+        if isinstance(a, np.ndarray):
+            assert b.dtype == a.dtype and np.array_equal(a, b)
+        else:
+            assert a == b, f.name
+    assert back.id() == message.id()
+
+
+@pytest.mark.parametrize("message", SAMPLES, ids=lambda m: type(m).level)
+def test_id_follows_its_documented_pattern(message: levels.Message) -> None:
+    pattern = re.escape(type(message).id_pattern)
+    pattern = re.sub(r"<[a-z_]+:06d>", r"[0-9]{6}", pattern)
+    pattern = re.sub(r"<[a-z_]+>", r"[A-Za-z0-9_-]+", pattern)
+    assert re.fullmatch(pattern, message.id()), (message.id(), type(message).id_pattern)
+
+
+def test_arrays_are_not_copied() -> None:
+    frame = levels.SensorFrame(frame=1, image=_image(), source="x")
+    body = frame.to_body()
+    assert body["image"] is frame.image
+    decoded = decode(encode(body))
+    again = levels.SensorFrame.from_body(decoded)
+    assert again.image is decoded["image"]
+
+
+@pytest.mark.parametrize(
+    ("cls", "body", "field", "problem"),
+    [
+        (levels.Index, {"bank": 0, "banks": 1}, "viewframes", "missing"),
+        (levels.Index, {"bank": 0, "banks": 1, "viewframes": 2, "extra": 1}, "extra", "not a field"),
+        (levels.Index, {"bank": "0", "banks": 1, "viewframes": 2}, "bank", "integer"),
+        (levels.Index, {"bank": True, "banks": 1, "viewframes": 2}, "bank", "integer"),
+        (levels.Truth, {"frame": 1, "pose": [1.0, 2.0]}, "pose", "3 entries"),
+        (levels.Truth, {"frame": 1, "pose": "north"}, "pose", "list"),
+        (levels.SensorFrame, {"frame": 1, "image": np.zeros((4, 4), np.uint8), "source": "x"}, "image", "dimensions"),
+        (levels.SensorFrame, {"frame": 1, "image": np.zeros((4, 4, 3), np.float32), "source": "x"}, "image", "dtype"),
+        (levels.SensorFrame, {"frame": 1, "image": [[0]], "source": "x"}, "image", "numpy array"),
+        (levels.Answer, {"query": "q", "frame": 1, "landmark": "H", "viewframe": 0, "present": "yes", "score": 0.1,
+                         "location": None, "detector": "d", "reason": ""}, "present", "true or false"),
+    ],
+)
+def test_bad_bodies_name_level_field_and_hypothesis(cls: type[levels.Message], body: dict, field: str,
+                                                    problem: str) -> None:
+    with pytest.raises(levels.MessageError) as info:
+        cls.from_body(body, hypothesis_id="h-1")
+    err = info.value
+    assert (err.level, err.field, err.hypothesis_id) == (cls.level, field, "h-1")
+    assert problem in str(err) and "h-1" in str(err) and cls.level in str(err)
+
+
+def test_constructing_a_bad_message_fails_at_the_poster() -> None:
+    with pytest.raises(levels.MessageError, match="frame: must be an integer"):
+        levels.Truth(frame=1.5, pose=[0.0, 0.0, 0.0])  # type: ignore[arg-type]
+
+
+def test_wrong_level_is_refused() -> None:
+    h = Hypothesis.new("truth", {"frame": 1, "pose": [0.0, 0.0, 0.0]}, source="t")
+    with pytest.raises(levels.MessageError, match="is on level truth"):
+        levels.Position.from_hypothesis(h)
+
+
+def test_scalars_are_normalised() -> None:
+    t = levels.Truth(frame=np.int64(3), pose=[0.0, 0.0, 0.0])  # type: ignore[arg-type]
+    assert type(t.frame) is int
+    r = levels.Ranking(frame=1, frame_time=2, bank=0, banks=1, labels=[], variances=[], reliability=np.float32(1))
+    assert type(r.frame_time) is float and type(r.reliability) is float
+
+
+def test_ranking_message_and_memory_ranking_agree() -> None:
+    memory = MemoryRanking(np.array([3, 1, 2]), np.array([1e-5, 2e-5, 9e-5]), 2.5)
+    msg = levels.Ranking.of(memory, frame=5, frame_time=0.0, bank=1, banks=2)
+    back = msg.ranking()
+    assert msg.id() == "rk-000005-1"
+    assert back.top(3) == memory.top(3) and back.reliability == memory.reliability
+
+
+def test_position_at_a_viewframe_pose() -> None:
+    assert levels.Position.at(None) == (None, None)
+    assert levels.Position.at([3.0, 4.0, 2.0, 270.0, 0.0]) == ([3.0, 4.0], 270.0)
+
+
+def test_a_second_class_for_a_level_is_refused() -> None:
+    with pytest.raises(TypeError, match="already has message class"):
+        @dataclasses.dataclass(frozen=True, slots=True)
+        class Other(levels.Message):
+            level = "truth"  # type: ignore[misc]
+
+
+def test_readme_levels_table_is_the_generated_one() -> None:
+    text = README.read_text()
+    m = re.search(r"<!-- levels table: generated -->\n(.*?)\n<!-- end levels table -->", text, re.DOTALL)
+    assert m is not None, "README.md lacks the generated levels table"
+    assert m.group(1).strip() == levels.levels_table(), "README levels table drifted: run python -m knowledge_sources.levels"
+
+
+def test_table_lists_every_field_of_every_level() -> None:
+    rows = [line.split("|")[1:-1] for line in levels.levels_table().splitlines()[2:]]
+    seen: dict[str, list[str]] = {}
+    level = ""
+    for cells in rows:
+        level = cells[0].strip().strip("`") or level
+        seen.setdefault(level, []).append(cells[3].strip().strip("`"))
+    assert seen == {lv: [f.name for f in dataclasses.fields(cls)] for lv, cls in levels.MESSAGES.items()}  # type: ignore[arg-type]
+
+
+def test_module_docstring_carries_the_table() -> None:
+    assert levels.__doc__ is not None and levels.levels_table().splitlines()[2] in levels.__doc__
