@@ -39,28 +39,27 @@ class Camera(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.world import World
+        from models.scenario import load_scenario
+        from models.sensor import sensor_frames
 
-        body = event.hypothesis.body
-        self._ready.add(int(body["shard"]))
-        if self._started or len(self._ready) < int(body["shards"]):
+        index = levels.Index.from_hypothesis(event.hypothesis)
+        self._ready.add(index.bank)
+        if self._started or len(self._ready) < index.banks:
             return
         self._started = True
-        mp = board.get("map")
-        if mp is None:
+        got = board.get(levels.map_id())
+        if got is None:
             raise LookupError("the map is indexed but not on the blackboard")
-        with World.from_scenario(mp.body["path"]) as world:
-            frames = world.sensor_frames
+        scenario = load_scenario(levels.Map.from_hypothesis(got).path)
+        frames = sensor_frames(scenario)
         start = time.perf_counter()
         for f in frames:
             if self.rate_hz is not None:
                 delay = start + f.index / self.rate_hz - time.perf_counter()
                 if delay > 0:
                     time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
-            fid = levels.frame_id(f.index)
-            board.post(levels.SENSOR_FRAME, {"frame": f.index, "image": f.image, "source": f.source},
-                       id=fid, links=("map",))
+            posted = levels.post(board, levels.SensorFrame(frame=f.index, image=f.image, source=f.source),
+                                 links=(levels.map_id(),))
             if f.truth is not None:
-                board.post(levels.TRUTH, {"frame": f.index, "pose": list(f.truth)}, id=f"truth-{f.index:06d}",
-                           links=(fid,))
+                levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))
         log.info("%s: posted %d camera frames", self.name, len(frames))

@@ -4,11 +4,15 @@ from __future__ import annotations
 
 import logging
 from collections import OrderedDict
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
+from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from models.scenario import SchedulerSpec
+
+if TYPE_CHECKING:
+    from models.detectors import DetectorRegistry
 
 __all__ = ["LandmarkDetectorAgent"]
 
@@ -45,8 +49,8 @@ class LandmarkDetectorAgent(KnowledgeSource):
         self.threshold = float(threshold)
         self.absent_threshold = float(absent_threshold)
         self.cache = int(cache)
-        self._registry = None
-        self._store: OrderedDict[str, Any] = OrderedDict()
+        self._registry: DetectorRegistry | None = None
+        self._store: OrderedDict[str, Hypothesis] = OrderedDict()
 
     def setup(self, board: Board) -> None:
         from models.detectors import default_registry
@@ -59,7 +63,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
             return None
         return 1.0
 
-    def _get(self, board: Board, hid: str):
+    def _get(self, board: Board, hid: str) -> Hypothesis:
         if hid in self._store:
             self._store.move_to_end(hid)
             return self._store[hid]
@@ -74,24 +78,28 @@ class LandmarkDetectorAgent(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         from models.detectors import CandidateView
 
-        q = event.hypothesis.body
-        frame = self._get(board, levels.frame_id(int(q["frame"])))
-        vf = self._get(board, levels.viewframe_id(int(q["viewframe"])))
-        detector = self._registry.for_kind(q["kind"])
-        view = CandidateView.from_mask(vf.body["image"], vf.body["mask"], int(q["landmark_index"]))
-        det = detector.detect(frame.body["image"], view=view)
-        board.post(
-            levels.ANSWER,
-            {
-                "frame": int(q["frame"]),
-                "landmark": q["landmark"],
-                "viewframe": int(q["viewframe"]),
-                "present": det.present,
-                "score": det.score,
-                "location": None if det.location is None else list(det.location),
-                "detector": detector.name,
-                "reason": det.reason,
-            },
-            links=(event.hypothesis.id, frame.id, vf.id),
+        assert self._registry is not None
+        q = levels.Query.from_hypothesis(event.hypothesis)
+        frame_h = self._get(board, levels.frame_id(q.frame))
+        vf_h = self._get(board, levels.viewframe_id(q.viewframe))
+        frame = levels.SensorFrame.from_hypothesis(frame_h)
+        vf = levels.Viewframe.from_hypothesis(vf_h)
+        detector = self._registry.for_kind(q.kind)
+        view = CandidateView.from_mask(vf.image, vf.mask, q.landmark_index)
+        det = detector.detect(frame.image, view=view)
+        levels.post(
+            board,
+            levels.Answer(
+                query=event.hypothesis.id,
+                frame=q.frame,
+                landmark=q.landmark,
+                viewframe=q.viewframe,
+                present=det.present,
+                score=det.score,
+                location=None if det.location is None else list(det.location),
+                detector=detector.name,
+                reason=det.reason,
+            ),
+            links=(event.hypothesis.id, frame_h.id, vf_h.id),
             credibility=float(min(1.0, max(0.0, det.score))),
         )

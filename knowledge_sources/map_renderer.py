@@ -29,46 +29,43 @@ class MapRenderer(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.world import World
+        from models.scenario import load_scenario
+        from models.symbolic import landmark_priors
+        from models.viewframes import build_viewframes
 
         source = event.hypothesis
-        with World.from_scenario(source.body["path"]) as world:
-            scenario = world.scenario
-            viewframes = world.viewframes
-            priors = world.priors
+        request = levels.Scenario.from_hypothesis(source)
+        scenario = load_scenario(request.path)
+        viewframes = build_viewframes(scenario)
+        poses = []
         for vf in viewframes:
             p = vf.pose
-            board.post(
-                levels.VIEWFRAME,
-                {
-                    "index": vf.index,
-                    "pose": [p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
-                    "image": np.ascontiguousarray(vf.image),
-                    "mask": vf.mask.astype(np.int16),
-                    "description": vf.description.to_dict(),
-                },
-                id=levels.viewframe_id(vf.index),
-                links=(source.id,),
-            )
-        board.post(
-            levels.MAP,
-            {
-                "scenario": scenario.name,
-                "path": source.body["path"],
-                "viewframes": len(viewframes),
-                "priors": {k: float(v) for k, v in priors.items()},
-                "landmarks": [
-                    {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
-                    for i, lm in enumerate(scenario.landmarks)
-                ],
-                "route": [[float(x), float(y)] for x, y in scenario.route],
-                "visible": {
-                    str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
-                    for vf in viewframes
-                },
-                "memory": scenario.memory.model_dump(),
+            pose = [p.x, p.y, p.z, p.heading_deg, p.pitch_deg]
+            poses.append(pose)
+            levels.post(board, levels.Viewframe(
+                index=vf.index,
+                pose=pose,
+                image=np.ascontiguousarray(vf.image),
+                mask=vf.mask.astype(np.int16),
+                description=vf.description.to_dict(),
+            ), links=(source.id,))
+        ids = [lm.id for lm in scenario.landmarks]
+        priors = landmark_priors([vf.description for vf in viewframes], landmark_ids=ids)
+        levels.post(board, levels.Map(
+            scenario=scenario.name,
+            path=request.path,
+            viewframes=len(viewframes),
+            priors={k: float(v) for k, v in priors.items()},
+            landmarks=[
+                {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
+                for i, lm in enumerate(scenario.landmarks)
+            ],
+            route=[[float(x), float(y)] for x, y in scenario.route],
+            poses=poses,
+            visible={
+                str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
+                for vf in viewframes
             },
-            id="map",
-            links=(source.id,),
-        )
+            memory=scenario.memory.model_dump(),
+        ), links=(source.id,))
         log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)

@@ -180,33 +180,24 @@ def run_mission(
             except AgentError as err:
                 raise AgentError(err.agent, f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
                                             "(was it started with the printed mapinterp agent command?)") from None
-        runtime.post(levels.SCENARIO, {"path": str(Path(scenario.path).resolve()), "strategy": strategy})
+        request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
+        runtime.post(request.level, request.to_body(), id=request.id())
         outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
-        positions = {int(h.body["frame"]): h.body for h in outcome.hypotheses if h.level == levels.POSITION}
-        truths = {int(h.body["frame"]): h.body["pose"] for h in outcome.hypotheses if h.level == levels.TRUTH}
-        frames_seen = sorted(int(h.body["frame"]) for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME)
+        positions = {p.frame: p for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses
+                                          if h.level == levels.POSITION)}
+        truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
+                                       if h.level == levels.TRUTH)}
+        frames_seen = sorted(levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
+                             if h.level == levels.SENSOR_FRAME)
         first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
         last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
         agents = dict(outcome.agents)
     elapsed = time.perf_counter() - started
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
-    records = []
-    for f in frames_seen:
-        p = positions.get(f)
-        if p is None:
-            why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
-            records.append(frame_record(frame=f, viewframe=None, position=None, heading_deg=None, confidence=0.0,
-                                        queries=0, backtracks=0, latency_ms=None, ranking=[],
-                                        truth=truths.get(f), route_xy=route_xy, reason=why))
-            continue
-        rec = frame_record(frame=f, viewframe=p["viewframe"], position=p["position"], heading_deg=p["heading_deg"],
-                           confidence=p["confidence"], queries=p["queries"], backtracks=p["backtracks"],
-                           latency_ms=p["latency_ms"], ranking=p["ranking"], truth=truths.get(f),
-                           route_xy=route_xy, reason=p["reason"])
-        rec["degraded"] = p.get("degraded", [])
-        rec["steps"] = p.get("steps", [])
-        records.append(rec)
+    why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
+    records = [frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why)
+               for f in frames_seen]
     summary = summarize(records)
     summary["wall_s"] = elapsed
     # throughput of localization proper: first camera frame posted to last position posted

@@ -22,13 +22,16 @@ import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from models.errors import InputError
 
-__all__ = ["nearest_viewframe", "frame_record", "summarize", "write_results", "load_results"]
+if TYPE_CHECKING:
+    from knowledge_sources.levels import Position, Truth
+
+__all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "write_results"]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -38,41 +41,48 @@ def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -
 
 
 def frame_record(
+    position: Position | None,
     *,
     frame: int,
-    viewframe: int | None,
-    position: Sequence[float] | None,
-    heading_deg: float | None,
-    confidence: float,
-    queries: int,
-    backtracks: int,
-    latency_ms: float | None,
-    ranking: Sequence[Sequence[float]],
-    truth: Sequence[float] | None,
+    truth: Truth | None,
     route_xy: Sequence[Sequence[float]],
-    reason: str = "",
+    missing: str = "no position was posted",
 ) -> dict[str, Any]:
-    """One frame's entry of the results file; ``truth`` is ``(x, y, heading_deg)`` or ``None``."""
-    truth_vf = None if truth is None else nearest_viewframe(truth[0], truth[1], route_xy)
+    """One frame's entry of the results file, from the frame's ``position`` message (None: none was
+    posted, the entry says ``missing`` as its reason) and its ``truth`` message (None: unknown).
+    The one function that turns a decision into a results entry."""
+    t = None if truth is None else [float(v) for v in truth.pose]
+    truth_vf = None if t is None else nearest_viewframe(t[0], t[1], route_xy)
+    if position is None:
+        viewframe, xy, heading, confidence, queries, backtracks = None, None, None, 0.0, 0, 0
+        latency, ranking, reason = None, [], missing
+    else:
+        viewframe, xy, heading = position.viewframe, position.position, position.heading_deg
+        confidence, queries, backtracks = position.confidence, position.queries, position.backtracks
+        latency, ranking, reason = position.latency_ms, position.ranking, position.reason
     error = None
-    if truth is not None and position is not None:
-        error = math.hypot(position[0] - truth[0], position[1] - truth[1])
-    return {
+    if t is not None and xy is not None:
+        error = math.hypot(xy[0] - t[0], xy[1] - t[1])
+    record: dict[str, Any] = {
         "frame": int(frame),
         "viewframe": None if viewframe is None else int(viewframe),
-        "position": None if position is None else [float(position[0]), float(position[1])],
-        "heading_deg": None if heading_deg is None else float(heading_deg),
+        "position": None if xy is None else [float(xy[0]), float(xy[1])],
+        "heading_deg": None if heading is None else float(heading),
         "confidence": float(confidence),
         "queries": int(queries),
         "backtracks": int(backtracks),
-        "latency_ms": None if latency_ms is None else float(latency_ms),
+        "latency_ms": None if latency is None else float(latency),
         "ranking": [[int(k), float(v)] for k, v in list(ranking)[:5]],
-        "truth": None if truth is None else [float(t) for t in truth],
+        "truth": t,
         "truth_viewframe": truth_vf,
         "correct": None if truth_vf is None else (viewframe is not None and int(viewframe) == truth_vf),
         "error_m": error,
         "reason": reason,
     }
+    if position is not None:
+        record["degraded"] = list(position.degraded)
+        record["steps"] = list(position.steps)
+    return record
 
 
 def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:

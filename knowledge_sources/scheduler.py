@@ -1,6 +1,6 @@
 """The scene-analysis scheduler: verifies the associative ranking by asking landmark detectors.
 
-For each camera frame it waits for the rankings of every shard, merges them, and runs a
+For each camera frame it waits for the rankings of every memory bank, merges them, and runs a
 :class:`~knowledge_sources.scene_analysis.SceneAnalysis` (the decision rule is documented
 there): each question becomes a ``query`` hypothesis addressed to the detector agent of the
 landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
-from knowledge_sources.scene_analysis import Question, SceneAnalysis
+from knowledge_sources.scene_analysis import Question, SceneAnalysis, Strategy
 from models.scenario import SchedulerSpec
 
 __all__ = ["Scheduler", "detector_name"]
@@ -40,10 +40,11 @@ class _Frame:
     frame: int
     frame_time: float
     rankings: dict[int, Any] = field(default_factory=dict)
-    shards: int = 1
+    banks: int = 1
     analysis: SceneAnalysis | None = None
     question: Question | None = None
     query_id: str | None = None
+    queries_posted: int = 0
     links: list[str] = field(default_factory=list)
     degraded: list[str] = field(default_factory=list)
     ranking: list[tuple[int, float]] = field(default_factory=list)
@@ -78,14 +79,14 @@ class Scheduler(KnowledgeSource):
         super().__init__(name, **options)
         if strategy not in ("associative", "prior"):
             raise ValueError(f"strategy must be 'associative' or 'prior', not {strategy!r}")
-        self.strategy = strategy
+        self.strategy: Strategy = strategy  # type: ignore[assignment]  # checked just above
         self.candidates = int(candidates)
         self.accept = float(accept)
         self.reliability = float(reliability)
         self.beta = float(beta)
         self.min_pixels = int(min_pixels)
         self.query_timeout_s = float(query_timeout_s)
-        self._map: dict[str, Any] | None = None
+        self._map: levels.Map | None = None
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
         self._frames: dict[int, _Frame] = {}
@@ -100,7 +101,7 @@ class Scheduler(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
         if h.level == levels.MAP:
-            self._set_map(h.body)
+            self._set_map(levels.Map.from_hypothesis(h))
         elif h.level == levels.RANKING:
             self._on_ranking(h, board)
         elif h.level == levels.ANSWER:
@@ -109,45 +110,48 @@ class Scheduler(KnowledgeSource):
     def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
         if hypothesis.level != levels.QUERY:
             return
-        st = self._frames.get(int(hypothesis.body["frame"]))
-        if st is None or st.done or st.query_id != hypothesis.id:
+        query = levels.Query.from_hypothesis(hypothesis)
+        st = self._frames.get(query.frame)
+        if st is None or st.done or st.query_id != hypothesis.id or st.analysis is None:
             return
         log.warning("%s: frame %d: query %s unanswered: %s", self.name, st.frame, hypothesis.id, reason)
-        st.degraded.append(f"{hypothesis.body['landmark']}: {reason}")
+        st.degraded.append(f"{query.landmark}: {reason}")
         question, st.question, st.query_id = st.question, None, None
+        assert question is not None
         st.analysis.answer(question, None)
         self._advance(st, board)
 
-    def _set_map(self, body: dict[str, Any]) -> None:
+    def _set_map(self, mp: levels.Map) -> None:
         """Keep the map and what the questions need of it, derived once."""
-        self._map = body
-        self._landmarks = {lm["id"]: lm for lm in body["landmarks"]}
+        self._map = mp
+        self._landmarks = {lm["id"]: lm for lm in mp.landmarks}
         self._visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
-                         for k, v in body["visible"].items()}
+                         for k, v in mp.visible.items()}
 
-    def _ensure_map(self, board: Board) -> dict[str, Any]:
+    def _ensure_map(self, board: Board) -> levels.Map:
         if self._map is None:
-            got = board.get("map")
+            got = board.get(levels.map_id())
             if got is None:
                 raise RuntimeError("a ranking arrived but the map is not on the blackboard")
-            self._set_map(got.body)
+            self._set_map(levels.Map.from_hypothesis(got))
+        assert self._map is not None
         return self._map
 
     def _on_ranking(self, h: Hypothesis, board: Board) -> None:
-        from models.associative import Ranking, merge_rankings
+        from models.associative import merge_rankings
 
-        frame = int(h.body["frame"])
-        st = self._frames.setdefault(frame, _Frame(frame, float(h.body["frame_time"])))
+        rk = levels.Ranking.from_hypothesis(h)
+        st = self._frames.setdefault(rk.frame, _Frame(rk.frame, rk.frame_time))
         if st.analysis is not None:
             return
-        st.shards = int(h.body["shards"])
-        st.rankings[int(h.body["shard"])] = Ranking.from_dict(h.body)
+        st.banks = rk.banks
+        st.rankings[rk.bank] = rk.ranking()
         st.links.append(h.id)
-        if len(st.rankings) < st.shards:
+        if len(st.rankings) < st.banks:
             return
         mp = self._ensure_map(board)
         merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
-        st.ranking = [(int(k), float(v)) for k, v in zip(merged.viewframes, merged.variances)]
+        st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,
@@ -156,39 +160,44 @@ class Scheduler(KnowledgeSource):
             accept=self.accept,
             reliability=self.reliability,
             beta=self.beta,
-            priors=mp["priors"],
+            priors=mp.priors,
         )
         self._advance(st, board)
 
     def _on_answer(self, h: Hypothesis, board: Board) -> None:
-        st = self._frames.get(int(h.body["frame"]))
-        if st is None or st.done or st.query_id is None or st.query_id not in h.links:
+        answer = levels.Answer.from_hypothesis(h)
+        st = self._frames.get(answer.frame)
+        if st is None or st.done or st.query_id is None or st.query_id != answer.query or st.analysis is None:
             return  # a late answer to a query already timed out
         question, st.question, st.query_id = st.question, None, None
-        present = h.body["present"]
+        assert question is not None
+        present = answer.present
         st.links.append(h.id)
-        st.analysis.answer(question, None if present is None else bool(present), score=h.body.get("score"))
+        st.analysis.answer(question, present, score=answer.score)
         if present is None:
             # the detector could not tell: no evidence either way, and not counted as a query
-            st.degraded.append(f"{question.landmark}: undecided ({h.body.get('reason', '')})")
+            st.degraded.append(f"{question.landmark}: undecided ({answer.reason})")
         self._advance(st, board)
 
     # -- the loop --------------------------------------------------------------------------
     def _advance(self, st: _Frame, board: Board) -> None:
         mp = self._map
+        assert mp is not None and st.analysis is not None
         question = st.analysis.next_question()
         if question is not None:
             lm = self._landmarks[question.landmark]
-            q = board.post(
-                levels.QUERY,
-                {
-                    "frame": st.frame,
-                    "landmark": question.landmark,
-                    "landmark_index": int(lm["index"]),
-                    "kind": lm["kind"],
-                    "viewframe": question.viewframe,
-                    "p": question.probability,
-                },
+            st.queries_posted += 1
+            q = levels.post(
+                board,
+                levels.Query(
+                    frame=st.frame,
+                    number=st.queries_posted,
+                    landmark=question.landmark,
+                    landmark_index=int(lm["index"]),
+                    kind=lm["kind"],
+                    viewframe=question.viewframe,
+                    p=question.probability,
+                ),
                 links=(levels.frame_id(st.frame), levels.viewframe_id(question.viewframe)),
                 addressed_to=detector_name(lm["kind"]),
                 deadline_s=self.query_timeout_s,
@@ -197,29 +206,26 @@ class Scheduler(KnowledgeSource):
             st.question, st.query_id = question, q.id
             return
         d = st.analysis.decision
+        assert d is not None
         st.done = True
-        route = mp["route"]
-        body: dict[str, Any] = {
-            "frame": st.frame,
-            "viewframe": d.viewframe,
-            "position": None if d.viewframe is None else list(route[d.viewframe]),
-            "heading_deg": None,
-            "confidence": d.confidence,
-            "queries": d.queries,
-            "backtracks": d.backtracks,
-            "latency_ms": (time.time() - st.frame_time) * 1000.0,
-            "ranking": [[k, v] for k, v in st.ranking[:5]],
-            "reason": d.reason + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
-            "degraded": list(st.degraded),
-            "steps": [dict(s) for s in d.steps],
-            "strategy": self.strategy,
-        }
-        if d.viewframe is not None:
-            vf = board.get(levels.viewframe_id(d.viewframe))
-            if vf is not None:
-                pose = vf.body["pose"]
-                body["position"] = [float(pose[0]), float(pose[1])]
-                body["heading_deg"] = float(pose[3])
-        board.post(levels.POSITION, body, id=f"pos-{st.frame:06d}",
-                   links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
-                   credibility=float(min(1.0, max(0.0, d.confidence))))
+        position, heading_deg = levels.Position.at(None if d.viewframe is None else mp.poses[d.viewframe])
+        levels.post(
+            board,
+            levels.Position(
+                frame=st.frame,
+                viewframe=d.viewframe,
+                position=position,
+                heading_deg=heading_deg,
+                confidence=d.confidence,
+                queries=d.queries,
+                backtracks=d.backtracks,
+                latency_ms=(time.time() - st.frame_time) * 1000.0,
+                ranking=[[k, v] for k, v in st.ranking[:5]],
+                reason=d.reason + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
+                degraded=list(st.degraded),
+                steps=[dict(s) for s in d.steps],
+                strategy=self.strategy,
+            ),
+            links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
+            credibility=float(min(1.0, max(0.0, d.confidence))),
+        )
