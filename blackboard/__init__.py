@@ -9,7 +9,9 @@ Modules (imported explicitly; importing ``blackboard`` itself loads nothing heav
 - :mod:`blackboard.keys`: key expressions of a run, ``mapinterp/<run-id>/<level>/<id>``
 - :mod:`blackboard.codec`: msgpack with numpy arrays (no pickle) and size limits
 - :mod:`blackboard.config`: loopback-only zenoh configuration, ``--connect/--listen/--zenoh-config``
-- :mod:`blackboard.knowledge_source`: :class:`KnowledgeSource`, :class:`Board`, :class:`Event`
+- :mod:`blackboard.knowledge_source`: :class:`KnowledgeSource`, the :class:`Board` protocol, :class:`Event`
+- :mod:`blackboard.zenoh_board`: :class:`ZenohBoard`, the distributed board (an agent's zenoh session)
+- :mod:`blackboard.memory_board`: :class:`MemoryBlackboard`, agents in one thread without zenoh (tests)
 - :mod:`blackboard.agent`: one knowledge source's session, agenda and worker thread
 - :mod:`blackboard.agent_host`: ``python -m blackboard.agent_host`` (processes mode)
 - :mod:`blackboard.node`: store, versions, trace, liveness, addressed-post timeouts, quiescence

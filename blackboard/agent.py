@@ -34,7 +34,8 @@ from blackboard.config import ZenohOptions, open_session, zenoh_config
 from blackboard.errors import AgentError, BlackboardError, CodecError, TransportError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
-from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from blackboard.knowledge_source import Event, EventKind, KnowledgeSource
+from blackboard.zenoh_board import ZenohBoard
 
 __all__ = ["AgentRunner", "node_token_key", "run_end_key", "ACTIVITY_ROW", "ACTIVITY_CODES"]
 
@@ -111,7 +112,7 @@ class AgentRunner:
         self._session: zenoh.Session | None = None
         self._thread: threading.Thread | None = None
         self._entities: list[Any] = []
-        self.board: Board | None = None
+        self.board: ZenohBoard | None = None
         self.done = threading.Event()
         #: set when the node announces the end of the run, or its liveliness token disappears
         self.ended = threading.Event()
@@ -147,7 +148,8 @@ class AgentRunner:
             self._entities.append(session.declare_subscriber(self.keys.level(level), lambda s: put(("hyp", s))))
         self._entities.append(session.declare_subscriber(self.keys.inbox(self.name), lambda s: put(("ctl", s))))
         self._entities.append(session.declare_subscriber(self.keys.probe, lambda s: put(("probe", s))))
-        self.board = Board(session, self.keys, self.name, produces=self.source.produces, max_message_bytes=self._max)
+        self.board = ZenohBoard(session, self.keys, self.name, produces=self.source.produces,
+                                max_message_bytes=self._max)
         try:
             self.board._request({
                 "op": "join",

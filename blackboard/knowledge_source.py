@@ -22,26 +22,18 @@ from __future__ import annotations
 
 import enum
 import logging
-import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, runtime_checkable
 
-import zenoh
-
-from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
-from blackboard.errors import BlackboardError, CodecError, DeclarationError, TransportError
+from blackboard.errors import DeclarationError
 from blackboard.hypothesis import Hypothesis, validate_name
-from blackboard.keys import RunKeys
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
 
-__all__ = ["KnowledgeSource", "Board", "Event", "EventKind"]
+__all__ = ["Board", "Event", "EventKind", "KnowledgeSource"]
 
 logger = logging.getLogger(__name__)
-
-#: how long a request to the blackboard node may take before TransportError
-REQUEST_TIMEOUT_S = 10.0
 
 
 class EventKind(str, enum.Enum):
@@ -105,44 +97,18 @@ class KnowledgeSource:
         """Release resources; called once, at the end of the run."""
 
 
-class Board:
-    """What an agent sees of the blackboard, bound to its zenoh session (no global state).
+@runtime_checkable
+class Board(Protocol):
+    """What an agent sees of the blackboard: the protocol every board implements.
 
-    A new post travels one hop: it is published on ``mapinterp/<run>/<level>/<id>``, which the
-    node (store, trace) and the consumers receive at once. Updates and retractions go to the
-    node, which assigns versions serially, so concurrent updates never lose a write.
-    Reads come from the node's store and see this agent's own earlier posts.
+    :class:`blackboard.zenoh_board.ZenohBoard` is the distributed one (a run's agents, each bound
+    to its zenoh session); :class:`blackboard.memory_board.MemoryBoard` is an in-memory one in a
+    single thread, for testing knowledge sources without zenoh. Both check the agent's declared
+    ``produces`` and validate hypotheses the same way; reads see the agent's own earlier posts.
     """
 
-    def __init__(
-        self,
-        session: zenoh.Session,
-        keys: RunKeys,
-        agent: str,
-        *,
-        produces: Iterable[str] | None,
-        max_message_bytes: int = DEFAULT_MAX_BYTES,
-    ) -> None:
-        self._session = session
-        self._keys = keys
-        self.agent = agent
-        self._produces = None if produces is None else frozenset(produces)
-        self._levels_ok: set[str] = set()  # levels that passed _check_level (checked once)
-        self._max = max_message_bytes
-        self._lock = threading.Lock()
-        self.sent = 0  # one-hop posts published so far (quiescence accounting)
-        #: sender -> highest post number seen from it; the node answers this agent's requests only
-        #: after it has received those posts too (so an update of a post just seen never misses it)
-        self.seen_from: dict[str, int] = {}
-
-    def _check_level(self, level: str) -> None:
-        if type(level) is str and level in self._levels_ok:
-            return
-        validate_name(level, "level")
-        if self._produces is not None and level not in self._produces:
-            raise DeclarationError(self.agent, level, f"not declared in produces {sorted(self._produces)}")
-        if len(self._levels_ok) < 1024:
-            self._levels_ok.add(level)
+    #: the name of the agent this board belongs to
+    agent: str
 
     def post(
         self,
@@ -165,30 +131,17 @@ class Board:
             CodecError: ``body`` cannot be encoded or is larger than the message limit.
             ValueError: a bad id, link, credibility or deadline.
         """
-        self._check_level(level)
-        hyp = Hypothesis.new(level, body, source=self.agent, links=tuple(links), credibility=credibility,
-                             id=id, addressed_to=addressed_to, deadline_s=deadline_s)
-        key = self._keys.hypothesis(level, hyp.id)
-        with self._lock:  # the envelope is ours (str keys, validated names): only the body needs the walk
-            data = encode({"op": "post", "hyp": hyp.to_record(), "sender": self.agent, "n": self.sent + 1},
-                          max_bytes=self._max, check=((hyp.body, 2),))
-            try:
-                self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
-            except zenoh.ZError as err:
-                raise TransportError(f"agent {self.agent!r}: cannot publish on {key}: {err}") from None
-            self.sent += 1
-        return hyp
+        ...
 
     def update(self, hypothesis_id: str, *, body: dict | None = None, credibility: float | None = None) -> Hypothesis:
         """Merge ``body`` into the hypothesis' body (top-level keys) and/or set its credibility;
-        the node assigns the next version. Returns the new version.
+        the board assigns the next version. Returns the new version.
 
         Raises:
             DeclarationError: its level is not in this agent's ``produces``.
             BlackboardError: no such hypothesis (never posted, or retracted).
         """
-        reply = self._request({"op": "update", "id": hypothesis_id, "body": body, "credibility": credibility})
-        return Hypothesis.from_record(reply["hyp"])
+        ...
 
     def retract(self, hypothesis_id: str) -> None:
         """Remove a hypothesis from the board (consumers get a RETRACTED event).
@@ -197,56 +150,12 @@ class Board:
             DeclarationError: its level is not in this agent's ``produces``.
             BlackboardError: no such hypothesis.
         """
-        self._request({"op": "retract", "id": hypothesis_id})
+        ...
 
     def get(self, hypothesis_id: str) -> Hypothesis | None:
-        """The current version of a hypothesis from the node's store, or None."""
-        validate_name(hypothesis_id, "hypothesis id")
-        found = self._read(f"{self._keys.root}/*/{hypothesis_id}")
-        return found[0] if found else None
+        """The current version of a hypothesis, or None."""
+        ...
 
     def query(self, level: str) -> list[Hypothesis]:
-        """All hypotheses on ``level`` in the node's store, oldest first."""
-        validate_name(level, "level")
-        return self._read(self._keys.level(level))
-
-    # -- transport ---------------------------------------------------------------------------------
-
-    def _read(self, key: str) -> list[Hypothesis]:
-        after = ",".join(f"{name}:{n}" for name, n in self.seen_from.items())
-        selector = f"{key}?agent={self.agent};sent={self.sent}" + (f";after={after}" if after else "")
-        out = []
-        for reply in self._get(selector, None):
-            record = decode(reply, max_bytes=self._max, key=key)
-            out.append(Hypothesis.from_record(record.get("hyp") if isinstance(record, dict) else None, key=key))
-        out.sort(key=lambda h: (h.timestamp, h.id))
-        return out
-
-    def _request(self, request: dict) -> dict:
-        request = {**request, "agent": self.agent, "sent": self.sent, "after": dict(self.seen_from)}
-        replies = self._get(self._keys.request, encode(request, max_bytes=self._max))
-        if not replies:
-            raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")
-        reply = decode(replies[0], key=self._keys.request)
-        if not isinstance(reply, dict):
-            raise CodecError("malformed reply from the blackboard node", key=self._keys.request)
-        if reply.get("ok"):
-            return reply
-        if reply.get("error") == "declaration":
-            raise DeclarationError(self.agent, str(reply.get("level")), str(reply.get("message")))
-        raise BlackboardError(f"agent {self.agent!r}: {reply.get('message')}")
-
-    def _get(self, selector: str, payload: bytes | None) -> list[bytes]:
-        try:
-            replies = self._session.get(selector, payload=payload, timeout=REQUEST_TIMEOUT_S,
-                                        congestion_control=zenoh.CongestionControl.BLOCK)
-            out = []
-            for reply in replies:
-                if reply.ok is not None:
-                    out.append(reply.ok.payload.to_bytes())
-                elif reply.err is not None:
-                    logger.warning("agent %s: error reply to %s: %s", self.agent, selector,
-                                   reply.err.payload.to_string())
-            return out
-        except zenoh.ZError as err:
-            raise TransportError(f"agent {self.agent!r}: query {selector} failed: {err}") from None
+        """All hypotheses on ``level``, oldest first."""
+        ...

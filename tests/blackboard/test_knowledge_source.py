@@ -10,7 +10,7 @@ import zenoh
 from blackboard.config import ZenohOptions, open_session, zenoh_config
 from blackboard.errors import DeclarationError
 from blackboard.keys import RunKeys
-from blackboard.knowledge_source import Board
+from blackboard.zenoh_board import ZenohBoard as Board
 
 
 @pytest.fixture
