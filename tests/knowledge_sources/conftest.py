@@ -37,3 +37,22 @@ def small(tmp_path) -> Path:
     return path
 
 
+
+
+@pytest.fixture(scope="session")
+def small_rendered(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """SMALL rendered once by the map renderer on an in-memory board: ``{"path", "viewframes", "map"}``
+    (the viewframe and map hypotheses), for the tests of the agents downstream of it."""
+    from blackboard.memory_board import MemoryBlackboard
+    from knowledge_sources import levels
+    from knowledge_sources.map_renderer import MapRenderer
+
+    path = tmp_path_factory.mktemp("small") / "small.yaml"
+    path.write_text(yaml.safe_dump(SMALL))
+    bb = MemoryBlackboard()
+    bb.add(MapRenderer("map-renderer"))
+    levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))
+    bb.run()
+    mp = bb.user.get(levels.map_id())
+    assert mp is not None
+    return {"path": path, "viewframes": bb.hypotheses(levels.VIEWFRAME), "map": mp}

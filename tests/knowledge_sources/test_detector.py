@@ -1,0 +1,88 @@
+"""The landmark detector agent on an in-memory board: answers the queries addressed to it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from blackboard.memory_board import MemoryBlackboard
+from knowledge_sources import levels
+from knowledge_sources.detector import LandmarkDetectorAgent
+
+
+def _visible_landmark(small_rendered: dict) -> tuple[levels.Viewframe, dict]:
+    """A viewframe and a landmark well visible in it."""
+    mp = levels.Map.from_hypothesis(small_rendered["map"])
+    best = max(((k, lm, px) for k, seen in mp.visible.items() for lm, px in seen.items()), key=lambda t: t[2])
+    vf = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][int(best[0])])
+    return vf, next(lm for lm in mp.landmarks if lm["id"] == best[1])
+
+
+def _ask(bb: MemoryBlackboard, vf: levels.Viewframe, lm: dict, image: np.ndarray, *, to: str) -> levels.Query:
+    bb.post(levels.VIEWFRAME, vf.to_body(), id=vf.id())
+    levels.post(bb.user, levels.SensorFrame(frame=0, image=image, source="test"))
+    q = levels.Query(frame=0, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"],
+                     viewframe=vf.index, p=0.5)
+    levels.post(bb.user, q, addressed_to=to, deadline_s=5.0)
+    return q
+
+
+def test_present_where_the_camera_sees_the_viewframe(small_rendered: dict) -> None:
+    vf, lm = _visible_landmark(small_rendered)
+    bb = MemoryBlackboard()
+    bb.add(LandmarkDetectorAgent("detector-x"))
+    q = _ask(bb, vf, lm, vf.image, to="detector-x")
+    bb.run()
+    (h,) = bb.hypotheses(levels.ANSWER)
+    answer = levels.Answer.from_hypothesis(h)
+    assert h.id == levels.answer_id(q.id()) and answer.query == q.id()
+    assert (answer.frame, answer.landmark, answer.viewframe) == (0, lm["id"], vf.index)
+    assert answer.present is True and answer.score >= 0.65 and answer.location is not None
+    assert set(h.links) == {q.id(), levels.frame_id(0), vf.id()}
+    assert bb.user_timeouts == []
+
+
+def test_absent_in_a_blank_image(small_rendered: dict) -> None:
+    vf, lm = _visible_landmark(small_rendered)
+    bb = MemoryBlackboard()
+    bb.add(LandmarkDetectorAgent("detector-x"))
+    _ask(bb, vf, lm, np.full_like(vf.image, 128), to="detector-x")
+    bb.run()
+    (h,) = bb.hypotheses(levels.ANSWER)
+    answer = levels.Answer.from_hypothesis(h)
+    assert answer.present is not True and answer.score < 0.65
+
+
+def test_queries_for_another_detector_are_left_alone(small_rendered: dict) -> None:
+    vf, lm = _visible_landmark(small_rendered)
+    bb = MemoryBlackboard()
+    bb.add(LandmarkDetectorAgent("detector-x"))
+    bb.add(LandmarkDetectorAgent("detector-y"))
+    _ask(bb, vf, lm, vf.image, to="detector-y")
+    bb.run()
+    assert [h.source for h in bb.hypotheses(levels.ANSWER)] == ["detector-y"]
+
+
+def test_a_query_about_a_frame_not_on_the_board_fails_and_times_out(small_rendered: dict) -> None:
+    vf, lm = _visible_landmark(small_rendered)
+    bb = MemoryBlackboard(raise_errors=False)
+    bb.add(LandmarkDetectorAgent("detector-x"))
+    q = levels.Query(frame=9, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"],
+                     viewframe=vf.index, p=0.5)
+    levels.post(bb.user, q, addressed_to="detector-x")
+    bb.run()
+    ((_, _, err),) = bb.errors
+    assert isinstance(err, LookupError) and levels.frame_id(9) in str(err)
+    assert [h.id for h, _ in bb.user_timeouts] == [q.id()]
+
+
+def test_cache_keeps_a_bounded_number_of_hypotheses(small_rendered: dict) -> None:
+    vf, lm = _visible_landmark(small_rendered)
+    bb = MemoryBlackboard()
+    agent = LandmarkDetectorAgent("detector-x", cache=1)
+    bb.add(agent)
+    _ask(bb, vf, lm, vf.image, to="detector-x")
+    bb.run()
+    assert len(agent._store) == 1
+    with pytest.raises(ValueError):
+        LandmarkDetectorAgent("detector-x", cache="many")

@@ -1,0 +1,47 @@
+"""The map renderer on an in-memory board (real rendering, no zenoh)."""
+
+from __future__ import annotations
+
+import pytest
+
+from blackboard.errors import MapinterpError
+from blackboard.memory_board import MemoryBlackboard
+from knowledge_sources import levels
+from knowledge_sources.map_renderer import MapRenderer
+from tests.knowledge_sources.conftest import SMALL
+
+
+def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
+    vfs = [levels.Viewframe.from_hypothesis(h) for h in small_rendered["viewframes"]]
+    n = len(SMALL["route"])
+    assert sorted(v.index for v in vfs) == list(range(n))
+    assert {h.id for h in small_rendered["viewframes"]} == {levels.viewframe_id(k) for k in range(n)}
+    cam = SMALL["camera"]
+    for v in vfs:
+        assert v.image.shape == (cam["height"], cam["width"], 3) and v.mask.shape == v.image.shape[:2]
+        assert v.pose[:2] == pytest.approx(SMALL["route"][v.index])
+    mp_h = small_rendered["map"]
+    mp = levels.Map.from_hypothesis(mp_h)
+    assert mp_h.timestamp >= max(h.timestamp for h in small_rendered["viewframes"])
+    assert mp.viewframes == n and mp.scenario == "small" and mp.path == str(small_rendered["path"])
+    assert mp.route == [[float(x), float(y)] for x, y in SMALL["route"]]
+    assert mp.poses == [v.pose for v in sorted(vfs, key=lambda v: v.index)]
+    assert [lm["id"] for lm in mp.landmarks] == [lm["id"] for lm in SMALL["landmarks"]]
+    assert set(mp.visible) == {str(k) for k in range(n)}
+    # what the map says is visible is what the viewframe masks show
+    for v in vfs:
+        shown = {mp.landmarks[i]["id"] for i in set(v.mask.ravel().tolist()) - {-1}}
+        assert set(mp.visible[str(v.index)]) <= shown
+    assert set(mp.priors) == {lm["id"] for lm in SMALL["landmarks"]}
+    assert all(0.0 <= p <= 1.0 for p in mp.priors.values())
+    assert mp_h.links == (levels.scenario_id(),)
+
+
+def test_a_missing_scenario_file_is_named(tmp_path) -> None:
+    bb = MemoryBlackboard()
+    bb.add(MapRenderer("map-renderer"))
+    missing = tmp_path / "nope.yaml"
+    levels.post(bb.user, levels.Scenario(path=str(missing), strategy="associative"))
+    with pytest.raises(MapinterpError, match="nope.yaml"):
+        bb.run()
+    assert bb.hypotheses(levels.VIEWFRAME) == []

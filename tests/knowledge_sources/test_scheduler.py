@@ -1,0 +1,147 @@
+"""The scene-analysis scheduler on an in-memory board: merging shards, queries, answers, timeouts, positions.
+
+The test plays the detectors: it answers the scheduler's queries by posting ``answer`` messages."""
+
+from __future__ import annotations
+
+import pytest
+
+from blackboard.memory_board import MemoryBlackboard
+from knowledge_sources import levels
+from knowledge_sources.scheduler import Scheduler, detector_name
+
+POSES = [[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 90.0, 0.0], [20.0, 5.0, 2.0, 180.0, 0.0],
+         [30.0, 5.0, 2.0, 270.0, 0.0]]
+MAP = levels.Map(
+    scenario="synthetic", path="/nonexistent/synthetic.yaml", viewframes=4, priors={"H1": 0.75, "T1": 0.5},
+    landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 5.0, "y": 5.0},
+               {"id": "T1", "kind": "tower", "index": 1, "x": 25.0, "y": 10.0}],
+    route=[p[:2] for p in POSES], poses=POSES,
+    visible={"0": {"H1": 500}, "1": {"T1": 500}, "2": {"H1": 500, "T1": 30}, "3": {"H1": 400}},
+    memory={},
+)
+
+
+def _rank(bb: MemoryBlackboard, frame: int, shards: dict[int, list[tuple[int, float]]]) -> None:
+    for bank, entries in shards.items():
+        levels.post(bb.user, levels.Ranking(frame=frame, frame_time=0.0, bank=bank, banks=len(shards),
+                                            labels=[k for k, _ in entries], variances=[v for _, v in entries],
+                                            reliability=3.0))
+
+
+def _answer(bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None) -> None:
+    levels.post(bb.board("user"), levels.Answer(query=query_id, frame=query.frame, landmark=query.landmark,
+                                                viewframe=query.viewframe, present=present,
+                                                score=0.9 if present else 0.0, location=None, detector="test",
+                                                reason="scripted"), links=(query_id,))
+
+
+def _board(**options: object) -> MemoryBlackboard:
+    bb = MemoryBlackboard()
+    bb.add(Scheduler("scheduler", query_timeout_s=5.0, **options))  # type: ignore[arg-type]
+    levels.post(bb.user, MAP)
+    return bb
+
+
+def _queries(bb: MemoryBlackboard) -> list[tuple[str, levels.Query]]:
+    return [(h.id, levels.Query.from_hypothesis(h)) for h in bb.hypotheses(levels.QUERY)]
+
+
+SHARDS = {0: [(2, 1e-5), (0, 8e-5)], 1: [(3, 6e-5), (1, 9e-5)]}
+
+
+def test_waits_for_the_rankings_of_every_shard() -> None:
+    bb = _board()
+    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, bank=0, banks=2, labels=[2, 0],
+                                        variances=[1e-5, 8e-5], reliability=3.0))
+    bb.run()  # only bank 0 of 2 reported: nothing to decide on yet
+    assert _queries(bb) == [] and bb.hypotheses(levels.POSITION) == []
+    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, bank=1, banks=2, labels=[3, 1],
+                                        variances=[6e-5, 9e-5], reliability=3.0))
+    bb.run(timeouts=False)
+    assert len(_queries(bb)) == 1
+
+
+def test_a_confirmed_landmark_localizes_the_frame_at_the_viewframe_pose() -> None:
+    bb = _board()
+    _rank(bb, 4, SHARDS)
+    bb.run(timeouts=False)
+    ((qid, q),) = _queries(bb)
+    h = bb.user.get(qid)
+    assert h is not None and h.addressed_to == detector_name(q.kind) and h.deadline_s == 5.0
+    assert qid == levels.query_id(4, 1) and q.frame == 4 and q.landmark == "H1" and q.landmark_index == 0
+    assert set(h.links) == {levels.frame_id(4), levels.viewframe_id(q.viewframe)}
+    _answer(bb, q, qid, True)
+    bb.run()
+    (ph,) = bb.hypotheses(levels.POSITION)
+    p = levels.Position.from_hypothesis(ph)
+    assert ph.id == levels.position_id(4)
+    assert p.viewframe == 2 and p.position == POSES[2][:2] and p.heading_deg == POSES[2][3]
+    assert p.queries == 1 and p.degraded == [] and p.strategy == "associative"
+    assert p.ranking == [[2, 1e-5], [3, 6e-5], [0, 8e-5], [1, 9e-5]]
+    assert levels.frame_id(4) in ph.links and levels.answer_id(qid) in ph.links
+
+
+def test_an_absent_landmark_backtracks() -> None:
+    bb = _board()
+    _rank(bb, 1, SHARDS)
+    bb.run(timeouts=False)
+    answered = set()
+    for _ in range(10):
+        pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
+        if not pending:
+            break
+        ((qid, q),) = pending
+        answered.add(qid)
+        _answer(bb, q, qid, q.landmark != "H1")  # H1 is absent: every candidate showing it goes
+        bb.run(timeouts=False)
+    p = levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0])
+    assert p.backtracks >= 1 and p.viewframe not in (0, 2, 3)
+    assert [q.number for _, q in _queries(bb)] == list(range(1, len(answered) + 1))
+
+
+def test_an_unanswered_query_times_out_and_the_position_says_degraded() -> None:
+    bb = _board()
+    _rank(bb, 0, SHARDS)
+    bb.run()  # nobody answers: the board times the query out when nothing else is left
+    (ph,) = bb.hypotheses(levels.POSITION)
+    p = levels.Position.from_hypothesis(ph)
+    assert p.degraded and "detector-house" in p.degraded[0] and "degraded" in p.reason
+    assert p.queries >= 1
+
+
+def test_an_undecided_answer_is_no_evidence() -> None:
+    bb = _board()
+    _rank(bb, 0, SHARDS)
+    bb.run(timeouts=False)
+    ((qid, q),) = _queries(bb)
+    _answer(bb, q, qid, None)
+    bb.run()
+    p = levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0])
+    assert any("undecided" in d for d in p.degraded)
+
+
+def test_a_late_answer_is_ignored() -> None:
+    bb = _board()
+    _rank(bb, 0, SHARDS)
+    bb.run()
+    (qid, q), *_ = _queries(bb)
+    positions = len(bb.hypotheses(levels.POSITION))
+    _answer(bb, q, qid, True)  # after its timeout: the frame is decided already
+    bb.run()
+    assert positions == 1 and len(bb.hypotheses(levels.POSITION)) == 1
+
+
+def test_the_prior_strategy_asks_in_prior_order() -> None:
+    bb = _board(strategy="prior")
+    _rank(bb, 0, SHARDS)
+    bb.run(timeouts=False)
+    first = _queries(bb)[0][1]
+    assert first.landmark == "H1"  # the larger prior
+    bb.run()
+    assert levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0]).strategy == "prior"
+
+
+def test_unknown_strategy() -> None:
+    with pytest.raises(ValueError, match="strategy"):
+        Scheduler("scheduler", strategy="guess")
