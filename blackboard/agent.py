@@ -9,9 +9,10 @@ are empty it reports ``idle`` to the node with its counters (samples received pe
 posts sent, timeouts received), which is what global quiescence is decided from.
 
 The runner also follows the run itself: the node holds a liveliness token on
-:func:`node_token_key` and announces the end of the run on :func:`run_end_key`; :attr:`AgentRunner.ended`
-is set on either the announcement or the loss of the node (:attr:`AgentRunner.node_lost`), which
-is how an agent started on another machine (``mapinterp agent``) knows when to stop.
+:attr:`~blackboard.keys.RunKeys.node_token` and announces the end of the run on
+:attr:`~blackboard.keys.RunKeys.run_end`; :attr:`AgentRunner.ended` is set on either the
+announcement or the loss of the node (:attr:`AgentRunner.node_lost`), which is how an agent
+started on another machine (``mapinterp agent``) knows when to stop.
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Event, EventKind, KnowledgeSource
 from blackboard.zenoh_board import ZenohBoard
 
-__all__ = ["AgentRunner", "node_token_key", "run_end_key", "ACTIVITY_ROW", "ACTIVITY_CODES"]
+__all__ = ["ACTIVITY_CODES", "ACTIVITY_ROW", "AgentRunner"]
 
 logger = logging.getLogger(__name__)
 
@@ -61,16 +62,6 @@ _LEAVE_TIMEOUT_S = 2.0
 ACTIVITY_ROW = ("code", "level", "id", "version", "event", "rating", "t", "extra")
 ACTIVITY_CODES = {"s": ("activation_start", None), "f": ("activation_finish", "duration_s"),
                   "o": ("activation_obviated", "reason")}
-
-
-def node_token_key(keys: RunKeys) -> str:
-    """The liveliness token the node of a run holds while it is up."""
-    return f"{keys.control}/node"
-
-
-def run_end_key(keys: RunKeys) -> str:
-    """Node -> every agent: the run has ended."""
-    return f"{keys.control}/end"
 
 
 class AgentRunner:
@@ -137,8 +128,8 @@ class AgentRunner:
         deadline = time.monotonic() + wait_s
         self._session = session = self._open(wait_s, deadline)
         put = self._inbox.put
-        self._entities.append(session.declare_subscriber(run_end_key(self.keys), self._on_run_end))
-        self._entities.append(session.liveliness().declare_subscriber(node_token_key(self.keys), self._on_node_token,
+        self._entities.append(session.declare_subscriber(self.keys.run_end, self._on_run_end))
+        self._entities.append(session.liveliness().declare_subscriber(self.keys.node_token, self._on_node_token,
                                                                       history=True))
         if wait_s > 0 and not self._node_seen.wait(max(0.0, deadline - time.monotonic())):
             self._close_session()

@@ -123,7 +123,7 @@ class ZenohBoard:
     def get(self, hypothesis_id: str) -> Hypothesis | None:
         """The current version of a hypothesis from the node's store, or None."""
         validate_name(hypothesis_id, "hypothesis id")
-        found = self._read(f"{self._keys.root}/*/{hypothesis_id}")
+        found = self._read(self._keys.any_level(hypothesis_id))
         return found[0] if found else None
 
     def query(self, level: str) -> list[Hypothesis]:
@@ -134,8 +134,7 @@ class ZenohBoard:
     # -- transport ---------------------------------------------------------------------------------
 
     def _read(self, key: str) -> list[Hypothesis]:
-        after = ",".join(f"{name}:{n}" for name, n in self.seen_from.items())
-        selector = f"{key}?agent={self.agent};sent={self.sent}" + (f";after={after}" if after else "")
+        selector = self._keys.read_selector(key, agent=self.agent, sent=self.sent, seen=self.seen_from)
         out = []
         for reply in self._get(selector, None):
             record = decode(reply, max_bytes=self._max, key=key)
