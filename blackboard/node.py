@@ -1,102 +1,57 @@
-"""The blackboard node: authoritative store, version authority, trace, liveness and quiescence.
+"""The blackboard node: a composition of the parts that make a run's blackboard.
 
-The node opens a zenoh router (listening on ``tcp/127.0.0.1``; agents connect to it as
-clients) and, as another client of it, its own session. Its callbacks only enqueue; one worker thread does everything else, so the store needs no
-locking beyond what readers from other threads use.
+* :mod:`blackboard.store`: the hypotheses (versions, reads, late joiners) and the barrier that
+  holds a request until the posts its requester saw have arrived;
+* :mod:`blackboard.membership`: who joined, their declarations, liveliness;
+* :mod:`blackboard.deadlines`: addressed posts waiting for an answer;
+* :mod:`blackboard.quiescence`: the counters and the global quiescence decision;
+* :mod:`blackboard.run_trace`: the trace writer and the event counters.
 
-Quiescence (global, across processes, no sleeping): the node counts every sample on each
-level (including the updates and retractions it publishes itself), the one-hop posts it
-received from each agent and the timeouts it sent to each agent. Agents report ``idle`` with
-their own counters whenever their inbox and agenda are empty. When every live agent is idle
-and caught up (received on each consumed level what the node counted, the node received all
-its posts, it received all its timeouts), nothing is deferred and no addressed post waits for
-its deadline, the node sends a probe; if every live agent answers the probe idle and no new
-sample, timeout or request arrived in between, the run is quiescent.
+This module is the transport around them. The node opens a zenoh router (listening on
+``tcp/127.0.0.1``; agents connect to it as clients) and, as another client of it, its own session.
+Its callbacks only enqueue; one worker thread does everything else, so the parts need no locking
+beyond what readers from other threads use.
 
 Agents on other machines (``mapinterp agent --connect``) join like local ones and count alike
-for quiescence and liveness. The node holds a liveliness token (:func:`~blackboard.agent.node_token_key`)
+for quiescence and liveness. The node holds a liveliness token (:attr:`~blackboard.keys.RunKeys.node_token`)
 while it is up; :meth:`BlackboardNode.wait_joined` waits for named agents to join; on
 :meth:`~BlackboardNode.close` the node announces the end of the run
-(:func:`~blackboard.agent.run_end_key`) and gives the agents still connected a moment to leave.
+(:attr:`~blackboard.keys.RunKeys.run_end`) and gives the agents still connected a moment to leave.
 """
 
 from __future__ import annotations
 
-import heapq
 import logging
 import queue
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from blackboard.agent import ACTIVITY_CODES, ACTIVITY_ROW, NODE_SENDER, node_token_key, run_end_key
+from blackboard.agent import NODE_SENDER
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
+from blackboard.deadlines import Deadlines
 from blackboard.errors import CodecError
 from blackboard.hypothesis import NAME_PATTERN, Hypothesis
-from blackboard.keys import RunKeys
+from blackboard.keys import RunKeys, read_parameters
 from blackboard.knowledge_source import Event, EventKind
-from blackboard.trace import TraceKind, TraceWriter
+from blackboard.membership import AgentState, JoinRefused, Membership, gone_phrase
+from blackboard.quiescence import Quiescence, StepKind
+from blackboard.run_trace import RunTrace
+from blackboard.store import Barrier, Store
+from blackboard.trace import TraceKind
 
-__all__ = ["BlackboardNode", "AgentState", "NODE_SENDER"]
+__all__ = ["NODE_SENDER", "AgentState", "BlackboardNode"]
 
 logger = logging.getLogger(__name__)
 
 _MAX_UNREPORTED = 100_000
 #: on close, how long the node waits for the agents still connected to leave after the run end
 END_GRACE_S = 5.0
-_ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
-                                        TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
-_ROW_CODES = {code: (TraceKind(kind), extra) for code, (kind, extra) in ACTIVITY_CODES.items()}
-_ROW_FIELDS = ACTIVITY_ROW[1:7]
-
-
-@dataclass
-class AgentState:
-    """What the node knows of one agent."""
-
-    name: str
-    consumes: tuple[str, ...]
-    produces: tuple[str, ...]
-    exclusive: tuple[str, ...]
-    pid: int | None = None
-    status: dict | None = None
-    timeouts_sent: int = 0
-    state: str = "ok"  # ok | stopped | dead: reason
-
-    @property
-    def live(self) -> bool:
-        return self.state == "ok"
-
-
-@dataclass
-class _Pending:
-    hyp: Hypothesis
-    deadline: float | None
-
-
-@dataclass
-class _Deferred:
-    """A request waiting until the node has received the posts its sender had sent or seen."""
-
-    after: dict[str, int]
-    handler: Any
-    args: tuple = field(default_factory=tuple)
-
-
-def _after(agent: str, sent: int, seen: Any) -> dict[str, int]:
-    after = {agent: sent}
-    if isinstance(seen, dict):
-        for name, n in seen.items():
-            if isinstance(name, str) and isinstance(n, int):
-                after[name] = max(n, after.get(name, 0))
-    return after
 
 
 class BlackboardNode:
@@ -125,26 +80,16 @@ class BlackboardNode:
         self._config = zenoh_config(ZenohOptions(config_file=options.config_file), mode="client",
                                     connect=[self.endpoint])
         self._max = max_message_bytes
-        self._trace = TraceWriter(trace_path) if trace_path is not None else None
+        self._trace = RunTrace(trace_path)
+        self.stats = self._trace.stats
+        self._store = Store()
+        self._barrier = Barrier()
+        self._members = Membership()
+        self.agents: dict[str, AgentState] = self._members.agents
+        self._deadlines = Deadlines()
+        self._quiescence = Quiescence(self._barrier.received)
         self._inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
-        self._lock = threading.Lock()
-        self._store: dict[str, tuple[Hypothesis, bytes]] = {}
-        self.agents: dict[str, AgentState] = {}
-        self._any_exclusive = False
-        self._level_counts: Counter[str] = Counter()
-        self._received: Counter[str] = Counter()
-        self._pending: dict[str, _Pending] = {}
-        self._deadlines: list[tuple[float, str]] = []
-        self._deferred: list[_Deferred] = []
-        self._changes = 0
-        self._probe = 0
-        self._probe_changes: int | None = None
-        self._waiters: list[threading.Event] = []
-        self._tokens: set[str] = set()  # agents whose liveliness token is present
-        self._join_waiters: list[tuple[frozenset[str], threading.Event]] = []
-        self._gone_waiters: list[threading.Event] = []
         self.user_timeouts: list[tuple[Hypothesis, str]] = []
-        self.stats: Counter[str] = Counter()
         self._listener: Callable[[Event], None] | None = None
         self._unreported: list[Event] = []  # events while nobody listened (bounded)
         self._router: zenoh.Session | None = None
@@ -176,10 +121,10 @@ class BlackboardNode:
             session.liveliness().declare_subscriber(self.keys.liveliness_all, lambda s: put(("live", s)),
                                                     history=True),
         ]
-        self._trace_write(TraceKind.RUN_START, run_id=self.keys.run_id, endpoint=self.endpoint)
+        self._trace.write(TraceKind.RUN_START, run_id=self.keys.run_id, endpoint=self.endpoint)
         self._thread = threading.Thread(target=self._work, name=f"node-{self.keys.run_id}", daemon=True)
         self._thread.start()
-        self._entities.append(session.liveliness().declare_token(node_token_key(self.keys)))
+        self._entities.append(session.liveliness().declare_token(self.keys.node_token))
 
     def close(self) -> None:
         """Announce the end of the run, give the agents still connected up to :data:`END_GRACE_S`
@@ -188,9 +133,8 @@ class BlackboardNode:
             gone = threading.Event()
             self._inbox.put(("end", gone))
             if not gone.wait(END_GRACE_S):
-                with self._lock:
-                    left = sorted(self._tokens)
-                logger.warning("blackboard node: agents still connected at the end of the run: %s", ", ".join(left))
+                logger.warning("blackboard node: agents still connected at the end of the run: %s",
+                               ", ".join(self._members.connected()))
             self._inbox.put(("stop", None))
             self._thread.join(10.0)
             self._thread = None
@@ -198,9 +142,8 @@ class BlackboardNode:
             if session is not None and not session.is_closed():
                 session.close()
         self._entities.clear()
-        self._trace_write(TraceKind.RUN_END, stats=dict(self.stats))
-        if self._trace is not None:
-            self._trace.close()
+        self._trace.write(TraceKind.RUN_END, stats=dict(self.stats))
+        self._trace.close()
 
     def post_local(self, hyp: Hypothesis) -> None:
         """Post ``hyp`` from this process (the runtime's inputs); published by the worker."""
@@ -223,9 +166,7 @@ class BlackboardNode:
 
     def hypotheses(self, level: str | None = None) -> list[Hypothesis]:
         """The current store (all levels, or one), oldest first."""
-        with self._lock:
-            found = [h for h, _ in self._store.values() if level is None or h.level == level]
-        return sorted(found, key=lambda h: (h.timestamp, h.id))
+        return self._store.hypotheses(level)
 
     def wait_joined(self, names: Iterable[str]) -> threading.Event:
         """An event set once every agent in ``names`` has joined and holds its liveliness token
@@ -236,33 +177,27 @@ class BlackboardNode:
 
     def missing(self, names: Iterable[str]) -> list[str]:
         """Those of ``names`` that have not joined (see :meth:`wait_joined`), sorted."""
-        with self._lock:
-            return sorted(n for n in set(names) if not self._present(n))
+        return self._members.missing(names)
 
     def busy_agents(self) -> list[str]:
         """Live agents that are not idle and caught up (for timeout messages)."""
-        with self._lock:
-            return [a.name for a in self.agents.values() if a.live and not self._caught_up(a)]
+        with self._members.lock:
+            return [a.name for a in self.agents.values() if a.live and not self._quiescence.caught_up(a)]
 
     def trace(self, kind: TraceKind, **fields: Any) -> None:
-        self._trace_write(kind, **fields)
+        self._trace.write(kind, **fields)
 
     # -- worker ------------------------------------------------------------------------------------
 
-    def _trace_write(self, kind: TraceKind, **fields: Any) -> None:
-        if self._trace is not None:
-            self._trace.write(kind, **fields)
-
     def _work(self) -> None:
-        handlers: dict[str, Callable[[Any], None]] = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
+        handlers: dict[str, Callable[[Any], Any]] = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
                     "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
-                    "await": self._waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
-                    "await_join": self._await_join, "end": self._on_end}
+                    "await": self._quiescence.waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
+                    "await_join": lambda item: self._members.await_join(*item), "end": self._on_end}
         bookkept = time.monotonic()
         while True:
-            timeout = max(0.0, self._deadlines[0][0] - time.monotonic()) if self._deadlines else None
             try:
-                kind, payload = self._inbox.get(timeout=timeout)
+                kind, payload = self._inbox.get(timeout=self._deadlines.wait_s())
             except queue.Empty:
                 kind, payload = "tick", None
             if kind == "stop":
@@ -275,25 +210,21 @@ class BlackboardNode:
             if kind != "tick" and not self._inbox.empty() and time.monotonic() - bookkept < 0.01:
                 continue  # in a burst, deadlines and quiescence are checked every 10 ms
             bookkept = time.monotonic()
-            self._fire_deadlines()
-            if self._waiters:
+            for hyp_id, reason in self._deadlines.due():
+                self._timeout(hyp_id, reason)
+            if self._quiescence.waiters:
                 self._check_quiescence()
 
     def _publish(self, key: str, data: bytes) -> None:
         assert self._session is not None
         self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
-    def _reject(self, key: str, message: str, **fields: Any) -> None:
-        self.stats["rejected"] += 1
-        logger.warning("blackboard node: rejected a message on %s: %s", key, message)
-        self._trace_write(TraceKind.REJECTED, key=key, message=message, **fields)
+    # -- posts ---------------------------------------------------------------------------------------
 
     def _on_hyp(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         split = self.keys.split(key)
-        level = split[0] if split else "?"
-        self._level_counts[level] += 1
-        self._changes += 1
+        self._quiescence.sample(split[0] if split else "?")
         data = sample.payload.to_bytes()
         try:
             message = decode(data, max_bytes=self._max, key=key)
@@ -302,69 +233,43 @@ class BlackboardNode:
             sender = message.get("sender")
             if not isinstance(sender, str) or NAME_PATTERN.fullmatch(sender) is None:
                 raise CodecError(f"bad sender {sender!r}", key=key)
-            self._received[sender] += 1
+            self._barrier.received_from(sender)
             hyp = Hypothesis.from_record(message.get("hyp"), key=key)
         except CodecError as err:
-            self._reject(key, err.message, size=len(data))
-            self._run_deferred()
+            self._trace.reject(key, err.message, size=len(data))
+            self._barrier.release()
             return
         if split is None or (hyp.level, hyp.id) != split:
-            self._reject(key, f"key does not match hypothesis {hyp.level}/{hyp.id}", agent=sender)
+            self._trace.reject(key, f"key does not match hypothesis {hyp.level}/{hyp.id}", agent=sender)
         else:
             self._accept_post(hyp, data, key, sender)
-        self._run_deferred()
+        self._barrier.release()
 
     def _on_local_post(self, hyp: Hypothesis) -> None:
         key = self.keys.hypothesis(hyp.level, hyp.id)
         data = encode({"op": "post", "hyp": hyp.to_record(), "sender": NODE_SENDER}, max_bytes=self._max)
-        self._level_counts[hyp.level] += 1
-        self._changes += 1
+        self._quiescence.sample(hyp.level)
         self._publish(key, data)
         self._accept_post(hyp, data, key, hyp.source)
 
-    def _declaration_problem(self, agent: str, level: str) -> str | None:
-        state = self.agents.get(agent)
-        if state is not None and level not in state.produces:
-            return f"level not declared in produces {list(state.produces)}"
-        if not self._any_exclusive:  # no agent ever declared an exclusive level: nothing to scan
-            return None
-        owner = next((a.name for a in self.agents.values() if a.live and level in a.exclusive and a.name != agent), None)
-        if owner is not None:
-            return f"level is written exclusively by agent {owner!r}"
-        return None
-
     def _accept_post(self, hyp: Hypothesis, data: bytes, key: str, sender: str) -> None:
-        problem = self._declaration_problem(hyp.source, hyp.level) if sender != NODE_SENDER else None
+        problem = self._members.declaration_problem(hyp.source, hyp.level) if sender != NODE_SENDER else None
         if problem is None and hyp.id in self._store:
             problem = f"hypothesis id {hyp.id!r} already exists"
         if problem is None and hyp.source != sender and sender != NODE_SENDER:
             problem = f"sender {sender!r} posted as {hyp.source!r}"
         if problem is not None:
-            self._reject(key, problem, agent=hyp.source, level=hyp.level, id=hyp.id)
+            self._trace.reject(key, problem, agent=hyp.source, level=hyp.level, id=hyp.id)
             return
-        with self._lock:
-            self._store[hyp.id] = (hyp, data)
+        self._store.put(hyp, data)
         self.stats["post"] += 1
-        self._trace_hyp(TraceKind.POST, hyp)
+        self._trace.hypothesis(TraceKind.POST, hyp)
         self._notify(EventKind.POSTED, hyp)
-        for link in hyp.links:
-            if link in self._pending:
-                del self._pending[link]
-        if hyp.addressed_to is not None or hyp.deadline_s is not None:
-            deadline = None if hyp.deadline_s is None else time.monotonic() + hyp.deadline_s
-            self._pending[hyp.id] = _Pending(hyp, deadline)
-            if deadline is not None:
-                heapq.heappush(self._deadlines, (deadline, hyp.id))
+        self._deadlines.answered(hyp.links)
+        if self._deadlines.expect(hyp):
             addressee = self.agents.get(hyp.addressed_to) if hyp.addressed_to else None
             if addressee is not None and not addressee.live:
-                self._timeout(hyp.id, f"agent {addressee.name!r} {_gone(addressee.state)}")
-
-    def _trace_hyp(self, kind: TraceKind, hyp: Hypothesis, **extra: Any) -> None:
-        if self._trace is None:
-            return
-        self._trace_write(kind, t=hyp.timestamp, agent=hyp.source, level=hyp.level, id=hyp.id,
-                          version=hyp.version, links=list(hyp.links), credibility=hyp.credibility,
-                          addressed_to=hyp.addressed_to, deadline_s=hyp.deadline_s, body=hyp.body, **extra)
+                self._timeout(hyp.id, f"agent {addressee.name!r} {gone_phrase(addressee.state)}")
 
     def _notify(self, kind: EventKind, hyp: Hypothesis, reason: str = "") -> None:
         event = Event(kind, hyp, reason)
@@ -384,101 +289,49 @@ class BlackboardNode:
             for event in backlog:
                 self._notify(event.kind, event.hypothesis, event.reason)
 
+    # -- agents: status, liveliness, the end ------------------------------------------------------------
+
     def _on_status(self, sample: zenoh.Sample) -> None:
         try:
             message = decode(sample.payload.to_bytes(), max_bytes=self._max, key=self.keys.status)
             agent = self.agents.get(message["agent"])
         except (CodecError, KeyError, TypeError) as err:
-            self._reject(self.keys.status, f"malformed status: {err}")
+            self._trace.reject(self.keys.status, f"malformed status: {err}")
             return
         if agent is None:
             return
-        self._on_activity(agent.name, message.get("activity") or ())
-        with self._lock:
-            agent.status = message
+        self._trace.activity(agent.name, message.get("activity") or ())
+        self._members.set_status(agent, message)
         state = message.get("state")
         if state == "dead" and agent.live:
             self._agent_gone(agent, f"dead: {message.get('reason')}", TraceKind.AGENT_DEAD)
-            self._check_presence()
+            self._members.check_presence()
         elif state == "stopped" and agent.live:
             agent.state = "stopped"
 
-    def _on_activity(self, agent: str, records: Any) -> None:
-        """Count and trace an agent's activity: rows (:data:`~blackboard.agent.ACTIVITY_ROW`) or
-        dict records; a trace record is made only when there is a trace."""
-        stats, tracing = self.stats, self._trace is not None
-        for record in records:
-            if type(record) is list and len(record) == 8:
-                code = _ROW_CODES.get(record[0])
-                if code is None:
-                    continue
-                kind, extra = code
-                stats[kind.value] += 1
-                if tracing:
-                    fields = dict(zip(_ROW_FIELDS, record[1:7]))
-                    if extra is not None:
-                        fields[extra] = record[7]
-                    self._trace_write(kind, agent=agent, **fields)
-            elif isinstance(record, dict):
-                old_kind = _ACTIVITY_KINDS.get(record.pop("kind", None))
-                if old_kind is not None:
-                    stats[old_kind.value] += 1
-                    self._trace_write(old_kind, agent=agent, **record)
-
     def _on_live(self, sample: zenoh.Sample) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        name = self.keys.liveliness_agent(str(sample.key_expr))
         agent = self.agents.get(name)
-        with self._lock:
-            if sample.kind == zenoh.SampleKind.PUT:
-                self._tokens.add(name)
-            else:
-                self._tokens.discard(name)
+        self._members.token(name, sample.kind == zenoh.SampleKind.PUT)
         if sample.kind == zenoh.SampleKind.DELETE and agent is not None:
             if agent.live:
                 self._agent_gone(agent, "dead: left (liveliness token dropped)", TraceKind.AGENT_LEAVE)
             else:
-                self._trace_write(TraceKind.AGENT_LEAVE, agent=name, reason=agent.state)
-        self._check_presence()
-
-    def _present(self, name: str) -> bool:
-        """Joined and holding its token, or joined and already dead (caller holds the lock)."""
-        agent = self.agents.get(name)
-        return agent is not None and (name in self._tokens or not agent.live)
-
-    def _await_join(self, item: tuple[frozenset[str], threading.Event]) -> None:
-        self._join_waiters.append(item)
-        self._check_presence()
+                self._trace.write(TraceKind.AGENT_LEAVE, agent=name, reason=agent.state)
+        self._members.check_presence()
 
     def _on_end(self, gone: threading.Event) -> None:
         """Announce the end of the run; ``gone`` is set once no agent holds a token any more."""
-        self._publish(run_end_key(self.keys), encode({"op": "end", "run_id": self.keys.run_id}))
-        self._gone_waiters.append(gone)
-        self._check_presence()
-
-    def _check_presence(self) -> None:
-        with self._lock:
-            if self._join_waiters:
-                waiting = []
-                for names, event in self._join_waiters:
-                    if all(self._present(n) for n in names):
-                        event.set()
-                    else:
-                        waiting.append((names, event))
-                self._join_waiters = waiting
-            if self._gone_waiters and not self._tokens:
-                for event in self._gone_waiters:
-                    event.set()
-                self._gone_waiters.clear()
+        self._publish(self.keys.run_end, encode({"op": "end", "run_id": self.keys.run_id}))
+        self._members.await_gone(gone)
 
     def _agent_gone(self, agent: AgentState, state: str, kind: TraceKind) -> None:
-        with self._lock:
-            agent.state = state
-        self._changes += 1
-        self._trace_write(kind, agent=agent.name, reason=state)
+        self._members.set_state(agent, state)
+        self._quiescence.change()
+        self._trace.write(kind, agent=agent.name, reason=state)
         logger.info("blackboard node: agent %s %s", agent.name, state)
-        for hyp_id, pending in list(self._pending.items()):
-            if pending.hyp.addressed_to == agent.name:
-                self._timeout(hyp_id, f"agent {agent.name!r} {_gone(state)}")
+        for hyp_id in self._deadlines.addressed_to(agent.name):
+            self._timeout(hyp_id, f"agent {agent.name!r} {gone_phrase(state)}")
 
     # -- requests ----------------------------------------------------------------------------------
 
@@ -488,7 +341,7 @@ class BlackboardNode:
                              key=self.keys.request)
             op, agent, sent = request["op"], str(request["agent"]), int(request.get("sent", 0))
         except (CodecError, KeyError, TypeError, ValueError) as err:
-            self._reject(self.keys.request, f"malformed request: {err}")
+            self._trace.reject(self.keys.request, f"malformed request: {err}")
             self._reply(query, {"ok": False, "error": "malformed", "message": str(err)})
             return
         if op == "join":
@@ -496,13 +349,11 @@ class BlackboardNode:
         elif op == "leave":  # a clean stop: the token dropped next is no death
             state = self.agents.get(agent)
             if state is not None and state.live:
-                with self._lock:
-                    state.state = "stopped"
+                self._members.set_state(state, "stopped")
             self._reply(query, {"ok": True})
         elif op in ("update", "retract"):
-            self._deferred.append(_Deferred(_after(agent, sent, request.get("after")), self._change,
-                                            (query, op, agent, request)))
-            self._run_deferred()
+            self._barrier.hold(Barrier.after(agent, sent, request.get("after")), self._change, query, op, agent,
+                               request)
         else:
             self._reply(query, {"ok": False, "error": "malformed", "message": f"unknown op {op!r}"})
 
@@ -515,60 +366,31 @@ class BlackboardNode:
             query.drop()
 
     def _join(self, name: str, request: dict) -> dict:
-        try:
-            decl = {k: tuple(str(x) for x in request.get(k, ())) for k in ("consumes", "produces", "exclusive")}
-        except TypeError as err:
-            return {"ok": False, "error": "malformed", "message": str(err)}
-        if NAME_PATTERN.fullmatch(name) is None:
-            return {"ok": False, "error": "malformed", "message": f"bad agent name {name!r}"}
-        old = self.agents.get(name)
-        if old is not None and old.live:
-            return {"ok": False, "error": "declaration", "level": "", "message": f"an agent named {name!r} already joined"}
-        for other in self.agents.values():
-            if not other.live or other.name == name:
-                continue
-            for level in decl["produces"]:
-                if level in other.exclusive or (level in decl["exclusive"] and level in other.produces):
-                    self._trace_write(TraceKind.REJECTED, agent=name, level=level,
-                                      message=f"second writer of exclusive level (agent {other.name!r})")
-                    return {"ok": False, "error": "declaration", "level": level,
-                            "message": f"level is written exclusively, and agent {other.name!r} also writes it"}
-        with self._lock:
-            self.agents[name] = AgentState(name, decl["consumes"], decl["produces"], decl["exclusive"],
-                                           pid=request.get("pid"))
-        self._any_exclusive = self._any_exclusive or bool(decl["exclusive"])
-        self._changes += 1
-        self._trace_write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
-                          **{k: list(v) for k, v in decl.items()})
-        self._check_presence()
+        joined = self._members.join(name, request)
+        if isinstance(joined, JoinRefused):
+            if joined.other is not None:
+                self._trace.write(TraceKind.REJECTED, agent=name, level=joined.level,
+                                  message=f"second writer of exclusive level (agent {joined.other!r})")
+            return joined.reply
+        self._quiescence.change()
+        self._trace.write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
+                          consumes=list(joined.consumes), produces=list(joined.produces),
+                          exclusive=list(joined.exclusive))
+        self._members.check_presence()
         return {"ok": True}
 
-    def _run_deferred(self) -> None:
-        if not self._deferred:
-            return
-        ready: list[_Deferred] = []
-        waiting: list[_Deferred] = []
-        for d in self._deferred:
-            (ready if all(self._received[a] >= n for a, n in d.after.items()) else waiting).append(d)
-        if not ready:
-            return
-        self._deferred = waiting
-        for item in ready:
-            item.handler(*item.args)
-
     def _change(self, query: zenoh.Query, op: str, agent: str, request: dict) -> None:
-        self._changes += 1
+        self._quiescence.change()
         hyp_id = request.get("id")
-        entry = self._store.get(hyp_id) if isinstance(hyp_id, str) else None
-        if entry is None:
+        hyp = self._store.get(hyp_id)
+        if hyp is None:
             self._reply(query, {"ok": False, "error": "unknown", "message": f"no hypothesis {hyp_id!r} on the board"})
             return
-        hyp = entry[0]
-        problem = self._declaration_problem(agent, hyp.level)
+        problem = self._members.declaration_problem(agent, hyp.level)
         if problem is None and agent not in self.agents:
             problem = f"agent {agent!r} has not joined"
         if problem is not None:
-            self._trace_write(TraceKind.REJECTED, agent=agent, level=hyp.level, id=hyp.id, message=f"{op}: {problem}")
+            self._trace.write(TraceKind.REJECTED, agent=agent, level=hyp.level, id=hyp.id, message=f"{op}: {problem}")
             self._reply(query, {"ok": False, "error": "declaration", "level": hyp.level, "message": problem})
             return
         try:
@@ -584,49 +406,29 @@ class BlackboardNode:
             self._reply(query, {"ok": False, "error": "invalid", "message": f"{op} of {hyp_id!r}: {err}"})
             return
         key = self.keys.hypothesis(hyp.level, hyp.id)
-        with self._lock:
-            if op == "update":
-                self._store[hyp.id] = (new, data)
-            else:
-                del self._store[hyp.id]
-                self._pending.pop(hyp.id, None)
-        self._level_counts[hyp.level] += 1
+        if op == "update":
+            self._store.put(new, data)
+        else:
+            self._store.remove(hyp.id)
+            self._deadlines.pop(hyp.id)
+        self._quiescence.level_counts[hyp.level] += 1
         self._publish(key, data)
         self.stats[op] += 1
         if op == "update":
-            self._trace_hyp(TraceKind.UPDATE, new, by=agent)
+            self._trace.hypothesis(TraceKind.UPDATE, new, by=agent)
             self._notify(EventKind.UPDATED, new)
         else:
-            self._trace_write(TraceKind.RETRACT, agent=agent, level=hyp.level, id=hyp.id, version=hyp.version)
+            self._trace.write(TraceKind.RETRACT, agent=agent, level=hyp.level, id=hyp.id, version=hyp.version)
             self._notify(EventKind.RETRACTED, hyp)
         self._reply(query, {"ok": True, "hyp": new.to_record()})
 
     def _on_read(self, query: zenoh.Query) -> None:
-        params = query.parameters
-        agent = params.get("agent") or ""
-        try:
-            sent = int(params.get("sent") or 0)
-            seen = dict((name, int(n)) for name, _, n in
-                        (item.rpartition(":") for item in (params.get("after") or "").split(",") if item))
-        except ValueError:
-            sent, seen = 0, {}
-        self._deferred.append(_Deferred(_after(agent, sent, seen), self._answer_read, (query,)))
-        self._run_deferred()
+        agent, sent, seen = read_parameters(query.parameters)
+        self._barrier.hold(Barrier.after(agent, sent, seen), self._answer_read, query)
 
     def _answer_read(self, query: zenoh.Query) -> None:
-        parts = str(query.key_expr).split("/")
         try:
-            if len(parts) == 4 and all("*" not in p or p == "*" for p in parts[2:]):
-                level, hyp_id = parts[2], parts[3]
-                with self._lock:
-                    found = [(h, d) for h, d in self._store.values()
-                             if level in ("*", h.level) and hyp_id in ("*", h.id)]
-            else:
-                selector = zenoh.KeyExpr(str(query.key_expr))
-                with self._lock:
-                    found = [(h, d) for h, d in self._store.values()
-                             if selector.intersects(self.keys.hypothesis(h.level, h.id))]
-            for hyp, data in found:
+            for hyp, data in self._store.select(self.keys, str(query.key_expr)):
                 query.reply(self.keys.hypothesis(hyp.level, hyp.id), data)
         except zenoh.ZError as err:
             logger.error("blackboard node: cannot answer a read: %s", err)
@@ -636,13 +438,13 @@ class BlackboardNode:
     # -- deadlines and quiescence -----------------------------------------------------------------
 
     def _timeout(self, hyp_id: str, reason: str) -> None:
-        pending = self._pending.pop(hyp_id, None)
+        pending = self._deadlines.pop(hyp_id)
         if pending is None:
             return
         hyp = pending.hyp
-        self._changes += 1
+        self._quiescence.change()
         self.stats["timeout"] += 1
-        self._trace_write(TraceKind.TIMEOUT, agent=hyp.source, level=hyp.level, id=hyp.id, version=hyp.version,
+        self._trace.write(TraceKind.TIMEOUT, agent=hyp.source, level=hyp.level, id=hyp.id, version=hyp.version,
                           addressed_to=hyp.addressed_to, reason=reason)
         self._notify(EventKind.TIMEOUT, hyp, reason)
         poster = self.agents.get(hyp.source)
@@ -653,46 +455,15 @@ class BlackboardNode:
         else:
             self.user_timeouts.append((hyp, reason))
 
-    def _fire_deadlines(self) -> None:
-        now = time.monotonic()
-        while self._deadlines and self._deadlines[0][0] <= now:
-            _, hyp_id = heapq.heappop(self._deadlines)
-            pending = self._pending.get(hyp_id)
-            if pending is not None:
-                self._timeout(hyp_id, f"no answer within {pending.hyp.deadline_s} s"
-                              + (f" from agent {pending.hyp.addressed_to!r}" if pending.hyp.addressed_to else ""))
-
-    def _caught_up(self, agent: AgentState) -> bool:
-        status = agent.status
-        if status is None or status.get("state") != "idle":
-            return False
-        if status.get("sent", 0) != self._received[agent.name] or status.get("timeouts", 0) != agent.timeouts_sent:
-            return False
-        recv = status.get("recv") or {}
-        return all(recv.get(level, 0) == self._level_counts[level] for level in agent.consumes)
-
     def _check_quiescence(self) -> None:
-        live = [a for a in self.agents.values() if a.live]
-        if self._deferred or not all(self._caught_up(a) for a in live):
-            return
-        if any(p.deadline is not None for p in self._pending.values()):
-            return  # the deadline will fire
-        if self._pending:
-            for hyp_id, pending in list(self._pending.items()):
-                self._timeout(hyp_id, f"agent {pending.hyp.addressed_to!r} went idle without answering")
-            return
-        if live and (self._probe_changes != self._changes):
-            self._probe += 1
-            self._probe_changes = self._changes
-            self._publish(self.keys.probe, encode({"probe": self._probe}))
-            return
-        if live and not all((a.status or {}).get("probe") == self._probe for a in live):
-            return
-        self._trace_write(TraceKind.QUIESCENT, stats=dict(self.stats))
-        for waiter in self._waiters:
-            waiter.set()
-        self._waiters.clear()
-
-
-def _gone(state: str) -> str:
-    return "left" if "left" in state else state.replace("dead: ", "is dead: ", 1) if state.startswith("dead") else state
+        step = self._quiescence.step(self._members.live(), held=bool(self._barrier), deadlines=self._deadlines)
+        if step.kind is StepKind.TIME_OUT:
+            for hyp_id in step.time_out:
+                pending = self._deadlines.pending.get(hyp_id)
+                if pending is not None:
+                    self._timeout(hyp_id, f"agent {pending.hyp.addressed_to!r} went idle without answering")
+        elif step.kind is StepKind.PROBE:
+            self._publish(self.keys.probe, encode({"probe": step.probe}))
+        elif step.kind is StepKind.QUIESCENT:
+            self._trace.write(TraceKind.QUIESCENT, stats=dict(self.stats))
+            self._quiescence.release()
