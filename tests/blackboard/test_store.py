@@ -1,0 +1,81 @@
+"""The node's store (versions, reads by key expression) and the barrier that holds requests."""
+
+from __future__ import annotations
+
+import pytest
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.keys import RunKeys
+from blackboard.store import Barrier, Store
+
+KEYS = RunKeys("r1")
+
+
+def _hyp(level: str, hyp_id: str, t: float) -> Hypothesis:
+    return Hypothesis("" + hyp_id, level, "src", 1.0, (), 1, t, {"i": hyp_id})
+
+
+def _store() -> Store:
+    store = Store()
+    for level, hyp_id, t in (("a", "x-2", 2.0), ("a", "x-1", 1.0), ("b", "y-1", 1.5), ("b", "x-3", 3.0)):
+        store.put(_hyp(level, hyp_id, t), f"data-{hyp_id}".encode())
+    return store
+
+
+def test_hypotheses_oldest_first_by_level() -> None:
+    store = _store()
+    assert [h.id for h in store.hypotheses()] == ["x-1", "y-1", "x-2", "x-3"]
+    assert [h.id for h in store.hypotheses("b")] == ["y-1", "x-3"]
+    assert len(store) == 4 and "x-1" in store and "nope" not in store
+
+
+def test_versions_replace_and_remove() -> None:
+    store = _store()
+    old = store.get("x-1")
+    assert old is not None
+    new = old.evolve(body={"j": 1})
+    store.put(new, b"v2")
+    got = store.get("x-1")
+    assert got is not None and got.version == 2 and got.body == {"i": "x-1", "j": 1}
+    store.remove("x-1")
+    assert store.get("x-1") is None and store.get(7) is None  # non-str ids are simply absent
+    with pytest.raises(KeyError):
+        store.remove("x-1")
+
+
+@pytest.mark.parametrize(
+    ("key", "ids"),
+    [
+        ("mapinterp/r1/*/*", ["x-1", "x-2", "x-3", "y-1"]),
+        ("mapinterp/r1/a/*", ["x-1", "x-2"]),
+        ("mapinterp/r1/*/x-3", ["x-3"]),
+        ("mapinterp/r1/b/y-1", ["y-1"]),
+        ("mapinterp/r1/b/x-$*", ["x-3"]),  # a partial wildcard: matched as a zenoh key expression
+        ("mapinterp/r1/**", ["x-1", "x-2", "x-3", "y-1"]),
+        ("mapinterp/r1/c/*", []),
+    ],
+)
+def test_select_answers_reads_with_the_stored_bytes(key: str, ids: list[str]) -> None:
+    found = _store().select(KEYS, key)
+    assert sorted(h.id for h, _ in found) == ids
+    assert all(data == f"data-{h.id}".encode() for h, data in found)
+
+
+def test_barrier_holds_until_the_posts_seen_have_arrived() -> None:
+    barrier = Barrier()
+    ran: list[str] = []
+    barrier.hold(Barrier.after("a1", 2, {"a2": 1, "bad": "x"}), ran.append, "first")
+    barrier.hold(Barrier.after("a1", 0, None), ran.append, "second")  # nothing to wait for
+    assert ran == ["second"] and barrier
+    barrier.received_from("a1")
+    barrier.received_from("a1")
+    barrier.release()
+    assert ran == ["second"]  # still waiting for a2's post
+    barrier.received_from("a2")
+    barrier.release()
+    assert ran == ["second", "first"] and not barrier
+
+
+def test_after_takes_the_larger_count_and_ignores_junk() -> None:
+    assert Barrier.after("me", 3, {"me": 5, "other": 2, 7: 1, "x": "y"}) == {"me": 5, "other": 2}
+    assert Barrier.after("me", 3, ["not", "a", "map"]) == {"me": 3}
