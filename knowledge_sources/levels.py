@@ -8,7 +8,7 @@ its fields (with their ``doc``) are the body, and :meth:`Message.to_body` /
 hint (``int``, ``float``, ``str``, ``bool``, ``list``, ``dict``, ``numpy.ndarray`` with an
 optional ``dtype``/``ndim``, each optionally ``| None``); a bad body raises
 :class:`MessageError` naming the level, the field and the hypothesis. Numpy arrays are passed
-through untouched (no copy: the codec already hands out read-only views of the payload).
+through untouched: a message adds no copy to the one the codec makes when it decodes.
 
 The id of every hypothesis is built by a function here (:func:`frame_id`, :func:`viewframe_id`,
 ...) and :meth:`Message.id` returns it; :func:`post` posts a message under its id.
