@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from blackboard.errors import MapinterpError
 from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
+from knowledge_sources.errors import MAPINTERP_ERRORS
 from knowledge_sources.map_renderer import MapRenderer
 from tests.knowledge_sources.conftest import SMALL
 
@@ -42,6 +42,6 @@ def test_a_missing_scenario_file_is_named(tmp_path) -> None:
     bb.add(MapRenderer("map-renderer"))
     missing = tmp_path / "nope.yaml"
     levels.post(bb.user, levels.Scenario(path=str(missing), strategy="associative"))
-    with pytest.raises(MapinterpError, match="nope.yaml"):
+    with pytest.raises(MAPINTERP_ERRORS, match="nope.yaml"):
         bb.run()
     assert bb.hypotheses(levels.VIEWFRAME) == []
