@@ -21,6 +21,7 @@ Adding a level is adding one class::
 
         level: ClassVar[str] = "track"
         posted_by: ClassVar[str] = "tracker"
+        id_pattern: ClassVar[str] = "tr-<frame:06d>"
         frame: int = field(metadata={"doc": "camera frame number"})
         xy: list = field(metadata={"doc": "[[x, y], ...] world metres, oldest first"})
 
@@ -40,7 +41,6 @@ is generated from the classes: run ``python -m knowledge_sources.levels`` to pri
 from __future__ import annotations
 
 import dataclasses
-import sys
 import types
 import typing
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -106,9 +106,13 @@ class Message:
         level = cls.__dict__.get("level")
         if level is None:
             return
+        missing = [name for name in ("posted_by", "id_pattern") if name not in cls.__dict__]
+        if missing or cls.id is Message.id:
+            raise TypeError(f"message class {cls.__qualname__} of level {level!r} must define "
+                            + ", ".join([*missing, *(["id()"] if cls.id is Message.id else [])]))
         # dataclass(slots=True) creates the class a second time: replace, do not refuse
         known = MESSAGES.get(level)
-        if known is not None and known.__qualname__ != cls.__qualname__:
+        if known is not None and (known.__name__, known.__module__) != (cls.__name__, cls.__module__):
             raise TypeError(f"level {level!r} already has message class {known.__qualname__}")
         MESSAGES[level] = cls
 
@@ -264,7 +268,7 @@ def _check_for(hint: Any, meta: Mapping[str, Any]) -> _Check:
 
 
 def _build_checks(cls: type[Message]) -> tuple[tuple[str, _Check], ...]:
-    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    hints = typing.get_type_hints(cls)
     fields = dataclasses.fields(cls)  # type: ignore[arg-type]
     cls._checks = tuple((f.name, _check_for(hints[f.name], f.metadata)) for f in fields)
     cls._required = frozenset(f.name for f in fields
@@ -555,7 +559,7 @@ def _type_name(hint: Any, meta: Mapping[str, Any]) -> str:
 
 def level_fields(cls: type[Message]) -> list[tuple[str, str, str]]:
     """``(field, type, doc)`` of each field of a message class, in order."""
-    hints = typing.get_type_hints(cls, vars(sys.modules[cls.__module__]))
+    hints = typing.get_type_hints(cls)
     return [(f.name, _type_name(hints[f.name], f.metadata), f.metadata.get("doc", ""))
             for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
 

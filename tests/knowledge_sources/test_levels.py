@@ -136,9 +136,48 @@ def test_position_at_a_viewframe_pose() -> None:
 
 def test_a_second_class_for_a_level_is_refused() -> None:
     with pytest.raises(TypeError, match="already has message class"):
+
         @dataclasses.dataclass(frozen=True, slots=True)
         class Other(levels.Message):
             level = "truth"  # type: ignore[misc]
+            posted_by = "x"  # type: ignore[misc]
+            id_pattern = "x"  # type: ignore[misc]
+
+            def id(self) -> str:
+                return "x"
+
+
+def test_a_new_level_must_say_who_posts_it_and_its_ids() -> None:
+    with pytest.raises(TypeError, match="must define posted_by, id_pattern, id()"):
+
+        @dataclasses.dataclass(frozen=True, slots=True)
+        class Track(levels.Message):
+            level = "track-test"  # type: ignore[misc]
+    assert "track-test" not in levels.MESSAGES
+
+
+def test_a_new_level_is_one_class() -> None:
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Pose(levels.Message):
+        """A refined pose of one frame."""
+
+        level = "pose-test"  # type: ignore[misc]
+        posted_by = "refiner"  # type: ignore[misc]
+        id_pattern = "pose-<frame:06d>"  # type: ignore[misc]
+        frame: int = dataclasses.field(metadata={"doc": "frame number"})
+        xy: list = dataclasses.field(metadata={"doc": "[x, y]", "length": 2})
+
+        def id(self) -> str:
+            return f"pose-{self.frame:06d}"
+
+    try:
+        assert levels.message_class("pose-test") is Pose
+        assert Pose.from_body(Pose(frame=3, xy=[1.0, 2.0]).to_body()).id() == "pose-000003"
+        with pytest.raises(levels.MessageError, match="xy: must have 2 entries"):
+            Pose.from_body({"frame": 3, "xy": [1.0]})
+        assert "| `pose-test` | refiner | `pose-<frame:06d>` | `frame` | int | frame number |" in levels.levels_table()
+    finally:
+        del levels.MESSAGES["pose-test"]
 
 
 def test_readme_levels_table_is_the_generated_one() -> None:
