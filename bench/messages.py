@@ -47,7 +47,7 @@ def samples(width: int, height: int, viewframes: int) -> dict[str, levels.Messag
         "viewframe": levels.Viewframe(index=3, pose=[1.0, 2.0, 2.0, 90.0, 0.0], image=image,
                                       mask=np.full((height, width), -1, np.int16),
                                       description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]}),
-        "ranking": levels.Ranking(frame=3, frame_time=1.0, bank=0, banks=1, labels=list(range(viewframes)),
+        "ranking": levels.Ranking(frame=3, frame_time=1.0, shard=0, shards=1, viewframes=list(range(viewframes)),
                                   variances=[float(v) for v in rng.random(viewframes)], reliability=2.0),
         "query": levels.Query(frame=3, number=1, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
         "answer": levels.Answer(query="q-000003-1", frame=3, landmark="H1", viewframe=2, present=True, score=0.8,

@@ -39,19 +39,18 @@ class Camera(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.scenario import load_scenario
-        from models.sensor import sensor_frames
+        from models.world import World
 
         index = levels.Index.from_hypothesis(event.hypothesis)
-        self._ready.add(index.bank)
-        if self._started or len(self._ready) < index.banks:
+        self._ready.add(index.shard)
+        if self._started or len(self._ready) < index.shards:
             return
         self._started = True
         got = board.get(levels.map_id())
         if got is None:
             raise LookupError("the map is indexed but not on the blackboard")
-        scenario = load_scenario(levels.Map.from_hypothesis(got).path)
-        frames = sensor_frames(scenario)
+        with World.from_scenario(levels.Map.from_hypothesis(got).path) as world:
+            frames = world.sensor_frames
         start = time.perf_counter()
         for f in frames:
             if self.rate_hz is not None:

@@ -354,18 +354,18 @@ class Index(Message):
 
     level: ClassVar[str] = "index"
     posted_by: ClassVar[str] = "associative indexer(s)"
-    id_pattern: ClassVar[str] = "index-<bank>"
-    bank: int = field(metadata=_doc("this shard"))
-    banks: int = field(metadata=_doc("number of shards"))
+    id_pattern: ClassVar[str] = "index-<shard>"
+    shard: int = field(metadata=_doc("this shard"))
+    shards: int = field(metadata=_doc("number of shards"))
     viewframes: int = field(metadata=_doc("viewframes stored in this shard"))
 
     def id(self) -> str:
-        return index_id(self.bank)
+        return index_id(self.shard)
 
 
-def index_id(bank: int) -> str:
-    """Hypothesis id of shard ``bank``'s index."""
-    return f"index-{bank}"
+def index_id(shard: int) -> str:
+    """Hypothesis id of shard ``shard``'s index."""
+    return f"index-{shard}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -413,34 +413,34 @@ class Ranking(Message):
 
     level: ClassVar[str] = "ranking"
     posted_by: ClassVar[str] = "associative indexer(s)"
-    id_pattern: ClassVar[str] = "rk-<frame:06d>-<bank>"
+    id_pattern: ClassVar[str] = "rk-<frame:06d>-<shard>"
     frame: int = field(metadata=_doc("frame number"))
     frame_time: float = field(metadata=_doc("timestamp of the camera frame's hypothesis (latency)"))
-    bank: int = field(metadata=_doc("the shard ranked"))
-    banks: int = field(metadata=_doc("number of shards"))
-    labels: list = field(metadata=_doc("viewframe indices k, best first"))
+    shard: int = field(metadata=_doc("the shard ranked"))
+    shards: int = field(metadata=_doc("number of shards"))
+    viewframes: list = field(metadata=_doc("viewframe indices k, best first"))
     variances: list = field(metadata=_doc("error variance of each, same order"))
     reliability: float = field(metadata=_doc("robust standard deviations the best stands below the rest"))
 
     def id(self) -> str:
-        return ranking_id(self.frame, self.bank)
+        return ranking_id(self.frame, self.shard)
 
     @classmethod
-    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, bank: int, banks: int) -> Ranking:
+    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, shard: int, shards: int) -> Ranking:
         """The message of a memory's :class:`~models.associative.Ranking`."""
-        return cls(frame=frame, frame_time=frame_time, bank=bank, banks=banks, **ranking.to_dict())
+        return cls(frame=frame, frame_time=frame_time, shard=shard, shards=shards, **ranking.to_dict())
 
     def ranking(self) -> MemoryRanking:
         """As a :class:`models.associative.Ranking`."""
         from models.associative import Ranking as MemoryRanking
 
-        return MemoryRanking.from_dict({"labels": self.labels, "variances": self.variances,
+        return MemoryRanking.from_dict({"viewframes": self.viewframes, "variances": self.variances,
                                         "reliability": self.reliability})
 
 
-def ranking_id(frame: int, bank: int) -> str:
-    """Hypothesis id of shard ``bank``'s ranking of frame ``frame``."""
-    return f"rk-{frame:06d}-{bank}"
+def ranking_id(frame: int, shard: int) -> str:
+    """Hypothesis id of shard ``shard``'s ranking of frame ``frame``."""
+    return f"rk-{frame:06d}-{shard}"
 
 
 @dataclass(frozen=True, slots=True)

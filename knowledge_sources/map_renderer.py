@@ -29,14 +29,14 @@ class MapRenderer(KnowledgeSource):
         return 1.0 if event.kind is EventKind.POSTED else None
 
     def act(self, event: Event, board: Board) -> None:
-        from models.scenario import load_scenario
-        from models.symbolic import landmark_priors
-        from models.viewframes import build_viewframes
+        from models.world import World
 
         source = event.hypothesis
         request = levels.Scenario.from_hypothesis(source)
-        scenario = load_scenario(request.path)
-        viewframes = build_viewframes(scenario)
+        with World.from_scenario(request.path) as world:
+            scenario = world.scenario
+            viewframes = world.viewframes
+            priors = world.priors
         poses = []
         for vf in viewframes:
             p = vf.pose
@@ -49,8 +49,6 @@ class MapRenderer(KnowledgeSource):
                 mask=vf.mask.astype(np.int16),
                 description=vf.description.to_dict(),
             ), links=(source.id,))
-        ids = [lm.id for lm in scenario.landmarks]
-        priors = landmark_priors([vf.description for vf in viewframes], landmark_ids=ids)
         levels.post(board, levels.Map(
             scenario=scenario.name,
             path=request.path,

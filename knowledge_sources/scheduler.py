@@ -1,6 +1,6 @@
 """The scene-analysis scheduler: verifies the associative ranking by asking landmark detectors.
 
-For each camera frame it waits for the rankings of every memory bank, merges them, and runs a
+For each camera frame it waits for the rankings of every shard, merges them, and runs a
 :class:`~knowledge_sources.scene_analysis.SceneAnalysis` (the decision rule is documented
 there): each question becomes a ``query`` hypothesis addressed to the detector agent of the
 landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
@@ -40,7 +40,7 @@ class _Frame:
     frame: int
     frame_time: float
     rankings: dict[int, Any] = field(default_factory=dict)
-    banks: int = 1
+    shards: int = 1
     analysis: SceneAnalysis | None = None
     question: Question | None = None
     query_id: str | None = None
@@ -144,14 +144,14 @@ class Scheduler(KnowledgeSource):
         st = self._frames.setdefault(rk.frame, _Frame(rk.frame, rk.frame_time))
         if st.analysis is not None:
             return
-        st.banks = rk.banks
-        st.rankings[rk.bank] = rk.ranking()
+        st.shards = rk.shards
+        st.rankings[rk.shard] = rk.ranking()
         st.links.append(h.id)
-        if len(st.rankings) < st.banks:
+        if len(st.rankings) < st.shards:
             return
         mp = self._ensure_map(board)
         merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
-        st.ranking = [(int(k), float(v)) for k, v in zip(merged.labels, merged.variances)]
+        st.ranking = [(int(k), float(v)) for k, v in zip(merged.viewframes, merged.variances)]
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,

@@ -21,10 +21,10 @@ def _board_with_map(small_rendered: dict) -> MemoryBlackboard:
 def test_frames_start_when_every_shard_is_indexed(small_rendered: dict) -> None:
     bb = _board_with_map(small_rendered)
     bb.add(Camera("camera"))
-    levels.post(bb.user, levels.Index(bank=1, banks=2, viewframes=4))
+    levels.post(bb.user, levels.Index(shard=1, shards=2, viewframes=4))
     bb.run()
     assert bb.hypotheses(levels.SENSOR_FRAME) == []
-    levels.post(bb.user, levels.Index(bank=0, banks=2, viewframes=4))
+    levels.post(bb.user, levels.Index(shard=0, shards=2, viewframes=4))
     bb.run()
     frames = [levels.SensorFrame.from_hypothesis(h) for h in bb.hypotheses(levels.SENSOR_FRAME)]
     n = len(SMALL["route"]) * SMALL["sensor"]["simulate"]["per_point"]
@@ -44,9 +44,9 @@ def test_frames_start_when_every_shard_is_indexed(small_rendered: dict) -> None:
 def test_frames_are_posted_once(small_rendered: dict) -> None:
     bb = _board_with_map(small_rendered)
     bb.add(Camera("camera"))
-    levels.post(bb.user, levels.Index(bank=0, banks=1, viewframes=8))
+    levels.post(bb.user, levels.Index(shard=0, shards=1, viewframes=8))
     bb.run()
-    bb.post(levels.INDEX, levels.Index(bank=0, banks=1, viewframes=8).to_body(), id="index-again")
+    bb.post(levels.INDEX, levels.Index(shard=0, shards=1, viewframes=8).to_body(), id="index-again")
     bb.run()
     assert len(bb.hypotheses(levels.SENSOR_FRAME)) == len(SMALL["route"]) and bb.rejected == []
 
@@ -54,7 +54,7 @@ def test_frames_are_posted_once(small_rendered: dict) -> None:
 def test_camera_needs_the_map(small_rendered: dict) -> None:
     bb = MemoryBlackboard()
     bb.add(Camera("camera"))
-    levels.post(bb.user, levels.Index(bank=0, banks=1, viewframes=8))
+    levels.post(bb.user, levels.Index(shard=0, shards=1, viewframes=8))
     with pytest.raises(LookupError, match="map"):
         bb.run()
 

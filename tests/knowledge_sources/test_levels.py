@@ -30,10 +30,10 @@ SAMPLES: list[levels.Message] = [
                landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
                route=[[0.0, 0.0], [10.0, 0.0]], poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
                visible={"0": {"H1": 80}, "1": {}}, memory={"size": 64}),
-    levels.Index(bank=1, banks=3, viewframes=12),
+    levels.Index(shard=1, shards=3, viewframes=12),
     levels.SensorFrame(frame=4, image=_image(), source="simulated"),
     levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
-    levels.Ranking(frame=4, frame_time=1.5, bank=0, banks=1, labels=[2, 0], variances=[1e-5, 2e-4], reliability=3.0),
+    levels.Ranking(frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[2, 0], variances=[1e-5, 2e-4], reliability=3.0),
     levels.Query(frame=4, number=2, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
     levels.Answer(query="q-000004-2", frame=4, landmark="H1", viewframe=2, present=None, score=0.3, location=None,
                   detector="edges", reason="undecided"),
@@ -81,10 +81,10 @@ def test_arrays_are_not_copied() -> None:
 @pytest.mark.parametrize(
     ("cls", "body", "field", "problem"),
     [
-        (levels.Index, {"bank": 0, "banks": 1}, "viewframes", "missing"),
-        (levels.Index, {"bank": 0, "banks": 1, "viewframes": 2, "extra": 1}, "extra", "not a field"),
-        (levels.Index, {"bank": "0", "banks": 1, "viewframes": 2}, "bank", "integer"),
-        (levels.Index, {"bank": True, "banks": 1, "viewframes": 2}, "bank", "integer"),
+        (levels.Index, {"shard": 0, "shards": 1}, "viewframes", "missing"),
+        (levels.Index, {"shard": 0, "shards": 1, "viewframes": 2, "extra": 1}, "extra", "not a field"),
+        (levels.Index, {"shard": "0", "shards": 1, "viewframes": 2}, "shard", "integer"),
+        (levels.Index, {"shard": True, "shards": 1, "viewframes": 2}, "shard", "integer"),
         (levels.Truth, {"frame": 1, "pose": [1.0, 2.0]}, "pose", "3 entries"),
         (levels.Truth, {"frame": 1, "pose": "north"}, "pose", "list"),
         (levels.SensorFrame, {"frame": 1, "image": np.zeros((4, 4), np.uint8), "source": "x"}, "image", "dimensions"),
@@ -117,13 +117,13 @@ def test_wrong_level_is_refused() -> None:
 def test_scalars_are_normalised() -> None:
     t = levels.Truth(frame=np.int64(3), pose=[0.0, 0.0, 0.0])  # type: ignore[arg-type]
     assert type(t.frame) is int
-    r = levels.Ranking(frame=1, frame_time=2, bank=0, banks=1, labels=[], variances=[], reliability=np.float32(1))
+    r = levels.Ranking(frame=1, frame_time=2, shard=0, shards=1, viewframes=[], variances=[], reliability=np.float32(1))
     assert type(r.frame_time) is float and type(r.reliability) is float
 
 
 def test_ranking_message_and_memory_ranking_agree() -> None:
     memory = MemoryRanking(np.array([3, 1, 2]), np.array([1e-5, 2e-5, 9e-5]), 2.5)
-    msg = levels.Ranking.of(memory, frame=5, frame_time=0.0, bank=1, banks=2)
+    msg = levels.Ranking.of(memory, frame=5, frame_time=0.0, shard=1, shards=2)
     back = msg.ranking()
     assert msg.id() == "rk-000005-1"
     assert back.top(3) == memory.top(3) and back.reliability == memory.reliability

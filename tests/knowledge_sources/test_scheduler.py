@@ -23,9 +23,9 @@ MAP = levels.Map(
 
 
 def _rank(bb: MemoryBlackboard, frame: int, shards: dict[int, list[tuple[int, float]]]) -> None:
-    for bank, entries in shards.items():
-        levels.post(bb.user, levels.Ranking(frame=frame, frame_time=0.0, bank=bank, banks=len(shards),
-                                            labels=[k for k, _ in entries], variances=[v for _, v in entries],
+    for shard, entries in shards.items():
+        levels.post(bb.user, levels.Ranking(frame=frame, frame_time=0.0, shard=shard, shards=len(shards),
+                                            viewframes=[k for k, _ in entries], variances=[v for _, v in entries],
                                             reliability=3.0))
 
 
@@ -52,11 +52,11 @@ SHARDS = {0: [(2, 1e-5), (0, 8e-5)], 1: [(3, 6e-5), (1, 9e-5)]}
 
 def test_waits_for_the_rankings_of_every_shard() -> None:
     bb = _board()
-    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, bank=0, banks=2, labels=[2, 0],
+    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, shard=0, shards=2, viewframes=[2, 0],
                                         variances=[1e-5, 8e-5], reliability=3.0))
-    bb.run()  # only bank 0 of 2 reported: nothing to decide on yet
+    bb.run()  # only shard 0 of 2 reported: nothing to decide on yet
     assert _queries(bb) == [] and bb.hypotheses(levels.POSITION) == []
-    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, bank=1, banks=2, labels=[3, 1],
+    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, shard=1, shards=2, viewframes=[3, 1],
                                         variances=[6e-5, 9e-5], reliability=3.0))
     bb.run(timeouts=False)
     assert len(_queries(bb)) == 1
