@@ -59,6 +59,8 @@ __all__ = [
     "SensorSpec",
     "MemorySpec",
     "SchedulerSpec",
+    "SkylineSpec",
+    "RefineSpec",
     "ExpectSpec",
     "Scenario",
     "load_scenario",
@@ -272,6 +274,34 @@ class SchedulerSpec(_Spec):
         return self
 
 
+class SkylineSpec(_Spec):
+    """The skyline ranking source (:mod:`models.skyline`, :mod:`knowledge_sources.skyline`):
+    ``{enabled: true, step_deg: 0.5, max_heading_deg: 12, max_pitch_deg: 4, truncate_deg: 2,
+    weight: 1.0}``. ``weight`` is the skyline's weight in the fusion of ranking sources
+    (:mod:`knowledge_sources.fusion`; the associative memory's is 1). Defaults: see BENCHMARKS.md.
+    """
+
+    enabled: bool = True
+    step_deg: float = Field(default=0.5, gt=0, le=5)
+    max_heading_deg: float = Field(default=12.0, ge=0, le=90)
+    max_pitch_deg: float = Field(default=4.0, ge=0, le=30)
+    truncate_deg: float = Field(default=2.0, gt=0)
+    weight: float = Field(default=1.0, ge=0)
+
+
+class RefineSpec(_Spec):
+    """Pose refinement after the decision (:mod:`models.refine`, :mod:`knowledge_sources.refiner`):
+    ``{enabled: true, along_m: 25, across_m: 6, levels: 3, grid: 5}``: positions within
+    ``along_m`` along and ``across_m`` across the chosen route point's heading are searched,
+    ``levels`` times on a ``grid`` x ``grid`` pattern that halves each time."""
+
+    enabled: bool = True
+    along_m: float = Field(default=20.0, ge=0)
+    across_m: float = Field(default=6.0, ge=0)
+    levels: int = Field(default=3, ge=1, le=8)
+    grid: int = Field(default=5, ge=3, le=11)
+
+
 class ExpectSpec(_Spec):
     """Expected outcome of running the scenario (checked by the pytest plugin)."""
 
@@ -295,6 +325,8 @@ class Scenario(_Spec):
     sensor: SensorSpec | None = None
     memory: MemorySpec = MemorySpec()
     scheduler: SchedulerSpec = SchedulerSpec()
+    skyline: SkylineSpec = SkylineSpec()
+    refine: RefineSpec = RefineSpec()
     expect: ExpectSpec | None = None
 
     _path: Path | None = PrivateAttr(default=None)

@@ -14,18 +14,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from models.camera_emulator import CameraEmulator, Pose
-from models.scenario import Scenario
+from models.scenario import Scenario, SkylineSpec
+from models.skyline import skyline_from_depth
 from models.symbolic import SymbolicDescription, describe
 from models.terrain import Terrain
 
 __all__ = ["Viewframe", "route_headings", "route_poses", "render_viewframes"]
+
+_SKYLINE = SkylineSpec()
 
 
 @dataclass
 class Viewframe:
     """A stored a-priori view: ``index`` is its viewframe index (the route point's number),
     image uint8 (H, W, 3) RGB, depth float32 (H, W) metres, mask int32 (H, W) landmark indices
-    (-1 none), and its symbolic description."""
+    (-1 none), its symbolic description, and its skyline float32 (n,): the horizon's elevation
+    per azimuth bin from the depth buffer, NaN where the column has no sky/terrain boundary
+    (:mod:`models.skyline`)."""
 
     index: int
     pose: Pose
@@ -33,6 +38,7 @@ class Viewframe:
     depth: np.ndarray
     mask: np.ndarray
     description: SymbolicDescription
+    skyline: np.ndarray
 
 
 def route_headings(route) -> list[float]:
@@ -52,12 +58,17 @@ def route_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
-def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[Viewframe]:
-    """Render and describe the viewframe at every pose (the route poses), numbered in order."""
+def render_viewframes(
+    emulator: CameraEmulator, poses: Sequence[Pose], *, skyline_step_deg: float = _SKYLINE.step_deg
+) -> list[Viewframe]:
+    """Render and describe the viewframe at every pose (the route poses), numbered in order; each
+    carries its skyline at ``skyline_step_deg`` degrees per bin (the scenario's ``skyline.step_deg``)."""
     env = emulator.environment
+    fov = float(emulator.camera.fov_y_deg)
     frames = []
     for i, pose in enumerate(poses):
         view = emulator.render(pose)
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
-        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc))
+        sky = skyline_from_depth(view.depth, fov_y_deg=fov, step_deg=skyline_step_deg)
+        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc, sky))
     return frames

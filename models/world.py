@@ -79,7 +79,7 @@ class World:
     @cached_property
     def viewframes(self) -> list[Viewframe]:
         """The viewframe at every route point, rendered and symbolically described."""
-        frames = render_viewframes(self.emulator, self.poses)
+        frames = render_viewframes(self.emulator, self.poses, skyline_step_deg=self.scenario.skyline.step_deg)
         log.info("rendered %d viewframes of %s", len(frames), self.scenario.name)
         return frames
 

@@ -11,6 +11,7 @@ from models.scenario import scenario_from_dict
 from models.symbolic import SymbolicDescription
 from models.viewframes import render_viewframes, route_headings, route_poses
 from models.world import World
+from models.skyline import profile_bins, skyline_from_depth
 
 
 def _scenario(route, **extra):
@@ -49,6 +50,9 @@ def test_the_world_renders_and_describes_each_route_point():
     for f in frames:
         assert f.image.shape == (120, 160, 3) and f.mask.shape == (120, 160)
         assert isinstance(f.description, SymbolicDescription)
+        # the skyline comes from the depth buffer: elevation per azimuth bin, NaN without a boundary
+        assert f.skyline.dtype == np.float32 and f.skyline.shape == (profile_bins(160, 120, fov_y_deg=45),)
+        np.testing.assert_array_equal(f.skyline, skyline_from_depth(f.depth, fov_y_deg=45))
     assert "H1" in frames[0].description.visible  # 60 m ahead, slightly left
     assert "H1" not in frames[2].description.visible  # already passed
     # with a caller's emulator: same pictures, and the emulator stays open

@@ -1,0 +1,351 @@
+"""The skyline: the sky/terrain boundary of a view, as an angular profile, and its matching.
+
+A *skyline* is the elevation angle of the sky/terrain boundary at each azimuth of the view,
+sampled on a fixed angular grid so that views of other resolutions (and other fields of view)
+compare bin by bin. Conventions (the pinhole of :mod:`models.camera`): a pixel (row, col) sees
+the camera-frame ray ``(xc, yc, 1)`` with ``xc = (col - cx) / f``, ``yc = (cy - row) / f``; its
+**azimuth** is ``atan(xc)`` (degrees, positive to the right of the optical axis) and its
+**elevation** ``atan2(yc, sqrt(1 + xc**2))`` (degrees, positive above the optical axis). Bin i
+of a profile of ``n`` bins at ``step_deg`` sits at azimuth ``(i - (n - 1) / 2) * step_deg``;
+``n = 2 * floor(half_fov_x / step_deg) + 1``, so bin ``(n - 1) / 2`` is the optical axis.
+An invalid bin (no boundary in the image there: terrain up to the top edge, or sky down to the
+bottom edge) is NaN.
+
+**From a depth buffer** (viewframes, :func:`skyline_from_depth`): sky is where the renderer
+found no geometry (depth 0); the boundary of a column is its first geometry row from the top.
+
+**From a camera image** (:func:`skyline_from_image`): a two-class (sky, terrain) labelling with
+one boundary per column, solved exactly by dynamic programming over the columns (a chain MRF):
+
+    E(b) = sum_c [ sum_{r < b_c} u_sky(r, c) + sum_{r >= b_c} u_ter(r, c) - lam_edge * g(b_c, c) ]
+         + sum_c lam_smooth * min(|b_c - b_{c-1}|, jump)
+
+``b_c`` (0..H) is the number of sky pixels at the top of column c. The unaries are negative
+log-likelihoods under per-image Gaussian colour-and-texture models of the two classes (CIE Lab
+plus the log local variance of L), capped at ``cap`` nats so that a few odd pixels cannot
+decide a column; the models start from the top rows (mostly sky) and the bottom rows (always
+terrain for a ground camera) and are refitted from the labelling (``iterations`` rounds, an EM
+of hard labels). ``g`` is the vertical contrast across the boundary (the Lab distance between
+the two rows' neighbourhoods, over its image median), which pins the boundary to the edge that
+haze leaves between far hills and sky. The truncated-linear smoothness lets silhouettes
+(towers, steep slopes) jump at a bounded price. Images are first reduced to at most
+:data:`WORK_ROWS` rows, so the cost does not grow with the resolution and the constants mean
+the same at every size; gain and gamma do not matter (the class models are per image).
+
+**Matching** (:func:`match_skylines`): the camera profile ``q`` against reference profiles
+``r`` over heading shifts ``delta`` (whole bins) and a pitch offset. With the camera turned by
+``delta`` (ccw, as headings) and pitched by ``pi`` relative to the reference,
+``q(a) = r(a - delta) - pi``. For each shift the pitch offset is the median of ``r - q`` over
+the bins valid in both (robust), clipped to ``max_pitch_deg``, and the error is the mean of the
+residuals truncated at ``truncate_deg`` (a truncated L1: an occluder or a wrong column costs at
+most ``truncate_deg``). Overlaps under ``min_overlap`` of the bins score ``truncate_deg``. The
+best shift of each reference is returned: error (degrees), heading offset, pitch offset.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "DEFAULT_STEP_DEG",
+    "DEFAULT_MAX_HEADING_DEG",
+    "DEFAULT_MAX_PITCH_DEG",
+    "DEFAULT_TRUNCATE_DEG",
+    "WORK_ROWS",
+    "SkylineMatch",
+    "profile_bins",
+    "profile_azimuths",
+    "boundary_to_profile",
+    "skyline_from_depth",
+    "skyline_from_image",
+    "image_boundary",
+    "match_skylines",
+]
+
+log = logging.getLogger(__name__)
+
+#: angular sampling of a profile, degrees per bin
+DEFAULT_STEP_DEG = 0.5
+#: heading shifts searched by the match, +- degrees
+DEFAULT_MAX_HEADING_DEG = 12.0
+#: pitch offsets accepted by the match, +- degrees
+DEFAULT_MAX_PITCH_DEG = 4.0
+#: residuals are truncated at this many degrees (the robust error's ceiling)
+DEFAULT_TRUNCATE_DEG = 2.0
+#: images are reduced to at most this many rows before the boundary search
+WORK_ROWS = 128
+
+_CAP = 4.0  # nats: cap of a pixel's class cost
+_LAM_EDGE = 3.0  # nats per unit of normalised contrast at the boundary
+_LAM_SMOOTH = 0.6  # nats per row of boundary jump between neighbouring columns
+_JUMP = 8  # rows: jumps beyond cost no more
+_ITERATIONS = 2
+_MIN_OVERLAP = 0.5
+
+
+def _fov_x_half(width: int, height: int, fov_y_deg: float) -> float:
+    return math.degrees(math.atan(math.tan(math.radians(fov_y_deg) / 2) * width / height))
+
+
+def profile_bins(width: int, height: int, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG) -> int:
+    """Number of bins of the profile of a (height, width) view with vertical field ``fov_y_deg``."""
+    if width < 2 or height < 2:
+        raise ValueError(f"image must be at least 2 x 2 pixels, not {height} x {width}")
+    if not 0 < fov_y_deg < 180:
+        raise ValueError(f"fov_y_deg must be in (0, 180), not {fov_y_deg}")
+    if not step_deg > 0:
+        raise ValueError(f"step_deg must be > 0, not {step_deg}")
+    return 2 * int(math.floor(_fov_x_half(width, height, fov_y_deg) / step_deg)) + 1
+
+
+def profile_azimuths(n: int, *, step_deg: float = DEFAULT_STEP_DEG) -> NDArray[np.float64]:
+    """Azimuth in degrees (positive right of the optical axis) of each of ``n`` bins, shape (n,)."""
+    return (np.arange(n) - (n - 1) / 2) * step_deg
+
+
+def boundary_to_profile(
+    boundary: NDArray,
+    height: int,
+    *,
+    fov_y_deg: float,
+    step_deg: float = DEFAULT_STEP_DEG,
+) -> NDArray[np.float32]:
+    """Per-column boundary rows -> angular profile.
+
+    Parameters
+    ----------
+    boundary : ndarray of shape (W,)
+        Number of sky pixels at the top of each column (0..height, fractional allowed); the
+        boundary lies between rows ``b - 1`` and ``b``. Columns with ``b <= 0`` (terrain up to the
+        top), ``b >= height`` (no terrain) or NaN are invalid.
+    height : int
+        Rows of the image the boundary was found in.
+
+    Returns
+    -------
+    ndarray of shape (n,), float32
+        Elevation in degrees per bin (module docstring), NaN where invalid.
+    """
+    b = np.asarray(boundary, dtype=np.float64).ravel()
+    width = b.size
+    n = profile_bins(width, height, fov_y_deg=fov_y_deg, step_deg=step_deg)
+    f = (height / 2) / math.tan(math.radians(fov_y_deg) / 2)
+    cx, cy = (width - 1) / 2, (height - 1) / 2
+    xc = (np.arange(width) - cx) / f
+    yc = (cy - (b - 0.5)) / f
+    azimuth = np.degrees(np.arctan(xc))
+    elevation = np.degrees(np.arctan2(yc, np.sqrt(1 + xc**2)))
+    valid = np.isfinite(b) & (b > 0) & (b < height)
+    grid = profile_azimuths(n, step_deg=step_deg)
+    out = np.interp(grid, azimuth, np.where(valid, elevation, 0.0))
+    # a bin is valid when both columns it is interpolated from are
+    right = np.clip(np.searchsorted(azimuth, grid), 0, width - 1)
+    left = np.clip(right - 1, 0, width - 1)
+    ok = valid[left] & valid[right]
+    out[~ok] = np.nan
+    return out.astype(np.float32)
+
+
+def skyline_from_depth(
+    depth: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG
+) -> NDArray[np.float32]:
+    """The profile of a rendered view from its depth buffer (H, W) (0 = sky), shape (n,)."""
+    d = np.asarray(depth)
+    if d.ndim != 2:
+        raise ValueError(f"depth must have shape (H, W), not {d.shape}")
+    geometry = d > 0
+    first = np.argmax(geometry, axis=0).astype(np.float64)
+    first[~geometry.any(axis=0)] = d.shape[0]
+    return boundary_to_profile(first, d.shape[0], fov_y_deg=fov_y_deg, step_deg=step_deg)
+
+
+def _features(rgb: NDArray[np.float32]) -> NDArray[np.float32]:
+    """(H, W, 4) per-pixel features: CIE Lab and log local variance of L."""
+    lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
+    L = lab[..., 0]
+    mean = cv2.blur(L, (3, 3))
+    var = np.maximum(cv2.blur(L * L, (3, 3)) - mean * mean, 0.0)
+    tex = np.log(var + 1.0)
+    return np.concatenate([lab, tex[..., None]], axis=2)
+
+
+def _gauss_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Negative log-likelihood (up to a shared constant) of every pixel under a Gaussian fitted
+    to the pixels in ``sel``, shape (H, W)."""
+    x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
+    s = x[sel.ravel()]
+    if len(s) < 8:
+        s = x
+    mu = s.mean(0)
+    cov = np.cov(s, rowvar=False) + np.diag([1.0, 0.5, 0.5, 0.05])  # floors: noise-free renders
+    inv = np.linalg.inv(cov)
+    d = x - mu
+    maha = np.einsum("ij,jk,ik->i", d, inv, d)
+    _, logdet = np.linalg.slogdet(cov)
+    return (0.5 * (maha + logdet)).reshape(feat.shape[:2])
+
+
+def _contrast(feat: NDArray[np.float32]) -> NDArray[np.float64]:
+    """(H + 1, W) normalised vertical contrast at each boundary position (0 and H: none)."""
+    lab = feat[..., :3].astype(np.float64)
+    h = lab.shape[0]
+    above = cv2.blur(lab, (3, 1))  # horizontal smoothing against noise
+    g = np.zeros((h + 1, lab.shape[1]))
+    # two rows above vs two rows below the boundary between rows b-1 and b
+    up = (above[:-1] + np.vstack([above[:1], above[:-2]])) / 2
+    down = (above[1:] + np.vstack([above[2:], above[-1:]])) / 2
+    g[1:h] = np.linalg.norm(down - up, axis=2)
+    scale = float(np.median(g[1:h])) + 1e-6
+    return np.minimum(g / (4 * scale), 3.0)
+
+
+def _viterbi(unary: NDArray[np.float64], *, lam: float, jump: int) -> NDArray[np.int64]:
+    """Minimise sum_c unary[b_c, c] + lam * min(|b_c - b_{c-1}|, jump); unary (S, W) -> b (W,)."""
+    s, w = unary.shape
+    idx = np.arange(s)
+    pair = lam * np.minimum(np.abs(idx[:, None] - idx[None, :]), jump)
+    cost = unary[:, 0].copy()
+    back = np.zeros((w, s), dtype=np.int64)
+    for c in range(1, w):
+        total = cost[:, None] + pair  # (prev, cur)
+        back[c] = np.argmin(total, axis=0)
+        cost = total[back[c], idx] + unary[:, c]
+    b = np.zeros(w, dtype=np.int64)
+    b[-1] = int(np.argmin(cost))
+    for c in range(w - 1, 0, -1):
+        b[c - 1] = back[c, b[c]]
+    return b
+
+
+def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
+    """Sky/terrain boundary of a camera image by the chain-MRF of the module docstring.
+
+    Parameters
+    ----------
+    image : ndarray of shape (H, W, 3) uint8 RGB, or (H, W) gray
+
+    Returns
+    -------
+    boundary : ndarray of shape (W',)
+        Sky pixels at the top of each column of the working image (0..H').
+    rows : int
+        H', the working image's rows (``min(H, WORK_ROWS)``); W' keeps the aspect ratio.
+    """
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    if img.ndim != 3 or img.shape[2] != 3 or min(img.shape[:2]) < 2:
+        raise ValueError(f"image must have shape (H, W, 3) or (H, W), not {np.asarray(image).shape}")
+    rgb = img.astype(np.float32) / (255.0 if img.dtype == np.uint8 else max(float(img.max()), 1e-6))
+    h, w = rgb.shape[:2]
+    if h > WORK_ROWS:
+        w2 = max(2, int(round(w * WORK_ROWS / h)))
+        rgb = cv2.resize(rgb, (w2, WORK_ROWS), interpolation=cv2.INTER_AREA)
+        h, w = rgb.shape[:2]
+    feat = _features(np.ascontiguousarray(rgb))
+    g = _contrast(feat)
+    rows = np.arange(h)[:, None]
+    sky_sel = np.zeros((h, w), bool)
+    sky_sel[: max(1, h // 12)] = True
+    ter_sel = rows >= h - max(1, h // 4)
+    ter_sel = np.broadcast_to(ter_sel, (h, w))
+    b = None
+    for _ in range(_ITERATIONS + 1):
+        cs, ct = _gauss_cost(feat, sky_sel), _gauss_cost(feat, ter_sel)
+        llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
+        # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
+        unary = np.vstack([np.zeros((1, w)), np.cumsum(llr, axis=0)]) - _LAM_EDGE * g
+        b = _viterbi(unary, lam=_LAM_SMOOTH, jump=_JUMP)
+        sky_sel = rows < b[None, :]
+        ter_sel = ~sky_sel
+        if sky_sel.sum() < 8 or ter_sel.sum() < 8:
+            break
+    return b.astype(np.float64), h
+
+
+def skyline_from_image(
+    image: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG
+) -> NDArray[np.float32]:
+    """The profile (n,) of a camera image (H, W, 3) uint8 RGB (module docstring)."""
+    b, rows = image_boundary(image)
+    return boundary_to_profile(b, rows, fov_y_deg=fov_y_deg, step_deg=step_deg)
+
+
+@dataclass(frozen=True)
+class SkylineMatch:
+    """Best shift of a query profile against each of V references.
+
+    ``error`` (V,) mean truncated residual in degrees (lower is better); ``heading_deg`` (V,)
+    how far the camera is turned ccw from the reference; ``pitch_deg`` (V,) how far it is
+    pitched up from the reference; ``overlap`` (V,) fraction of bins compared.
+    """
+
+    error: NDArray[np.float64]
+    heading_deg: NDArray[np.float64]
+    pitch_deg: NDArray[np.float64]
+    overlap: NDArray[np.float64]
+
+
+def match_skylines(
+    query: NDArray,
+    references: NDArray,
+    *,
+    step_deg: float = DEFAULT_STEP_DEG,
+    max_heading_deg: float = DEFAULT_MAX_HEADING_DEG,
+    max_pitch_deg: float = DEFAULT_MAX_PITCH_DEG,
+    truncate_deg: float = DEFAULT_TRUNCATE_DEG,
+    min_overlap: float = _MIN_OVERLAP,
+) -> SkylineMatch:
+    """Match the camera profile ``query`` (n,) with ``references`` (V, n) over heading shifts.
+
+    Both must be on the same grid (``step_deg``, same n). See the module docstring for the
+    model and the robust error. A reference without enough overlap at any shift scores
+    ``truncate_deg`` with zero offsets.
+    """
+    q = np.asarray(query, dtype=np.float64).ravel()
+    r = np.asarray(references, dtype=np.float64)
+    if r.ndim == 1:
+        r = r[None]
+    if r.ndim != 2 or r.shape[1] != q.size:
+        raise ValueError(f"references must have shape (V, {q.size}) like the query, not {r.shape}")
+    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0:
+        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0")
+    v, n = r.shape
+    smax = min(int(round(max_heading_deg / step_deg)), n - 1)
+    shifts = np.arange(-smax, smax + 1)
+    best_e = np.full(v, float(truncate_deg))
+    best_h = np.zeros(v)
+    best_p = np.zeros(v)
+    best_o = np.zeros(v)
+    qn = np.isfinite(q).sum()
+    if qn == 0 or v == 0:
+        return SkylineMatch(best_e, best_h, best_p, best_o)
+    need = max(3, int(math.ceil(min_overlap * qn)))
+    for s in shifts:
+        # q(i) against r(i - s)
+        lo, hi = max(0, s), min(n, n + s)
+        d = r[:, lo - s: hi - s] - q[None, lo:hi]  # r - q = pitch offset where they agree
+        ok = np.isfinite(d)
+        cnt = ok.sum(1)
+        use = cnt >= need
+        if not use.any():
+            continue
+        with np.errstate(all="ignore"):
+            pitch = np.clip(np.nanmedian(d[use], axis=1), -max_pitch_deg, max_pitch_deg)
+        res = np.minimum(np.abs(d[use] - pitch[:, None]), truncate_deg)
+        # bins of the query the reference does not cover count as truncated residuals
+        err = (np.where(ok[use], res, 0.0).sum(1) + truncate_deg * (qn - cnt[use])) / qn
+        rows = np.nonzero(use)[0]
+        better = err < best_e[rows]
+        rows = rows[better]
+        best_e[rows] = err[better]
+        best_h[rows] = s * step_deg
+        best_p[rows] = pitch[better]
+        best_o[rows] = cnt[use][better] / qn
+    return SkylineMatch(best_e, best_h, best_p, best_o)

@@ -1,0 +1,150 @@
+"""The skyline: horizon extraction from images and depth buffers, and profile matching."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from models.camera import CameraEmulator
+from models.environment import build_environment
+from models.scenario import SimulateSpec, scenario_from_dict
+from models.sensor import degrade
+from models.skyline import (
+    boundary_to_profile,
+    match_skylines,
+    profile_azimuths,
+    profile_bins,
+    skyline_from_depth,
+    skyline_from_image,
+)
+
+FOV = 45.0
+
+
+def _scenario(width=160, height=120, pitch=0.0):
+    return scenario_from_dict({
+        "name": "sky",
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
+        "route": [[300, 300], [400, 400]],
+        "camera": {"width": width, "height": height, "fov_y_deg": FOV, "eye_height": 2.0, "pitch_deg": pitch,
+                   "near": 1.0, "far": 5000.0},
+    })
+
+
+@pytest.fixture(scope="module")
+def emulator():
+    s = _scenario()
+    with CameraEmulator(build_environment(s), s.camera) as cam:
+        yield cam
+
+
+def test_profile_grid_is_centred_and_the_same_at_every_resolution():
+    n = profile_bins(160, 120, fov_y_deg=FOV)
+    assert n % 2 == 1 and profile_azimuths(n)[(n - 1) // 2] == 0.0
+    assert profile_bins(320, 240, fov_y_deg=FOV) == n == profile_bins(640, 480, fov_y_deg=FOV)
+    # a flat horizon through the image centre is at elevation 0 in every bin; one row above at ~atan(1/f)
+    f = 60 / math.tan(math.radians(FOV / 2))
+    flat = boundary_to_profile(np.full(160, 60.0), 120, fov_y_deg=FOV)
+    np.testing.assert_allclose(flat, 0.0, atol=0.5 / f * 180 / math.pi + 1e-6)
+    assert np.isnan(boundary_to_profile(np.full(160, 0.0), 120, fov_y_deg=FOV)).all()  # no sky
+    assert np.isnan(boundary_to_profile(np.full(160, 120.0), 120, fov_y_deg=FOV)).all()  # no terrain
+
+
+@pytest.mark.parametrize("bad", [dict(fov_y_deg=0), dict(fov_y_deg=45, step_deg=0)])
+def test_profile_bins_names_the_bad_parameter(bad):
+    with pytest.raises(ValueError, match=next(iter(bad)) if bad.get("fov_y_deg") == 0 else "step_deg"):
+        profile_bins(160, 120, **bad)
+
+
+def _synthetic(height, width, horizon_rows, rng, *, haze=0.0):
+    """Sky (bright blue, smooth) over textured green terrain below ``horizon_rows`` (W,)."""
+    rows = np.arange(height)[:, None]
+    sky = rows < horizon_rows[None, :]
+    img = np.empty((height, width, 3), np.float32)
+    img[:] = (0.70, 0.80, 0.92)
+    terrain = np.array([0.35, 0.45, 0.22]) * (1 + 0.25 * rng.standard_normal((height, width, 1)))
+    img = np.where(sky[..., None], img, terrain)
+    img = img * (1 - haze) + 0.8 * haze
+    return np.clip(img * 255 + rng.normal(0, 6, img.shape), 0, 255).astype(np.uint8), sky
+
+
+@pytest.mark.parametrize("size", [(120, 160), (240, 320), (96, 96)])
+@pytest.mark.parametrize("haze", [0.0, 0.5])
+def test_known_synthetic_horizon_is_recovered(size, haze):
+    h, w = size
+    rng = np.random.default_rng(11)
+    cols = np.arange(w)
+    truth = (0.45 * h + 0.12 * h * np.sin(cols / w * 2 * math.pi * 1.5)).round()
+    truth[w // 3: w // 3 + max(2, w // 40)] = 0.2 * h  # a tower: a steep, narrow silhouette
+    img, _ = _synthetic(h, w, truth, rng, haze=haze)
+    got = skyline_from_image(img, fov_y_deg=FOV)
+    want = boundary_to_profile(truth, h, fov_y_deg=FOV)
+    pixel_deg = FOV / h
+    err = np.abs(got - want)
+    assert np.isfinite(got).mean() > 0.95
+    assert np.nanmedian(err) <= max(0.5 * pixel_deg, 0.2)
+    assert np.nanpercentile(err, 90) <= 2 * pixel_deg + 0.4
+
+
+@pytest.mark.parametrize("haze, noise, gain", [(0.0, 0.0, 0.0), (0.6, 4.0, 0.2), (0.3, 12.0, 0.4)])
+def test_rendered_horizon_matches_the_depth_buffer(emulator, haze, noise, gain):
+    """A rendered view, degraded like a camera image, gives the skyline of its own depth buffer."""
+    spec = SimulateSpec(haze=haze, noise=noise, gain=gain, gamma=0.2, blur=0.8, texture=0.4)
+    errs = []
+    for i, heading in enumerate((20.0, 80.0, 150.0, 230.0)):
+        view = emulator.render(emulator.pose_at(420.0, 380.0, heading))
+        image = degrade(view.image, depth=view.depth, spec=spec, rng=i)
+        want = skyline_from_depth(view.depth, fov_y_deg=FOV)
+        got = skyline_from_image(image, fov_y_deg=FOV)
+        assert np.isfinite(want).mean() > 0.9, "the test view should show a horizon"
+        errs.append(np.abs(got - want)[np.isfinite(want)])
+    err = np.concatenate(errs)
+    assert np.nanmedian(err) < 0.4  # about one pixel (0.375 degrees at 120 rows)
+    assert np.nanmean(np.nan_to_num(err, nan=5.0) > 1.5) < 0.1  # gross errors (or misses) on few bins
+
+
+def test_other_resolution_gives_the_same_profile():
+    s_small, s_big = _scenario(160, 120), _scenario(320, 240)
+    env = build_environment(s_small)
+    spec = SimulateSpec(haze=0.3, noise=4.0)
+    profiles = []
+    for s in (s_small, s_big):
+        with CameraEmulator(env, s.camera) as cam:
+            view = cam.render(cam.pose_at(420.0, 380.0, 80.0))
+            profiles.append(skyline_from_image(degrade(view.image, depth=view.depth, spec=spec, rng=1), fov_y_deg=FOV))
+    assert profiles[0].shape == profiles[1].shape
+    assert np.nanmedian(np.abs(profiles[0] - profiles[1])) < 0.4
+
+
+@pytest.mark.parametrize("turn, pitch", [(5.0, 0.0), (-8.0, 1.5), (3.0, -2.0)])
+def test_matching_recovers_a_known_heading_and_pitch_shift(emulator, turn, pitch):
+    x, y, heading = 420.0, 380.0, 80.0
+    ref = skyline_from_depth(emulator.render(emulator.pose_at(x, y, heading)).depth, fov_y_deg=FOV)
+    view = emulator.render(emulator.pose_at(x, y, heading + turn, pitch_deg=pitch))
+    image = degrade(view.image, depth=view.depth, spec=SimulateSpec(haze=0.3, noise=6.0), rng=3)
+    q = skyline_from_image(image, fov_y_deg=FOV)
+    other = skyline_from_depth(emulator.render(emulator.pose_at(x, y, heading + 60)).depth, fov_y_deg=FOV)
+    m = match_skylines(q, np.stack([other, ref]))
+    assert m.error[1] < m.error[0]  # the right reference wins against a view elsewhere
+    assert m.heading_deg[1] == pytest.approx(turn, abs=0.75)
+    assert m.pitch_deg[1] == pytest.approx(pitch, abs=0.5)
+    assert m.overlap[1] > 0.6
+
+
+def test_matching_is_robust_to_an_occluded_stretch():
+    rng = np.random.default_rng(2)
+    n = 81
+    ref = np.cumsum(rng.normal(0, 0.4, n)).astype(np.float32)
+    q = np.roll(ref, 4) - 1.0  # turned 4 bins (2 degrees at 0.5) and pitched up by 1 degree
+    q[:4] = np.nan
+    q[30:40] += 6.0  # a vehicle or a tree in front of the horizon
+    m = match_skylines(q, ref[None])
+    assert m.heading_deg[0] == pytest.approx(2.0) and m.pitch_deg[0] == pytest.approx(1.0, abs=0.05)
+    assert m.error[0] < 0.4
+
+
+def test_matching_rejects_mismatched_grids():
+    with pytest.raises(ValueError, match="references must have shape"):
+        match_skylines(np.zeros(81), np.zeros((3, 75)))
