@@ -291,15 +291,17 @@ class SkylineSpec(_Spec):
 
 class RefineSpec(_Spec):
     """Pose refinement after the decision (:mod:`models.refine`, :mod:`knowledge_sources.refiner`):
-    ``{enabled: true, along_m: 25, across_m: 6, levels: 3, grid: 5}``: positions within
-    ``along_m`` along and ``across_m`` across the chosen route point's heading are searched,
-    ``levels`` times on a ``grid`` x ``grid`` pattern that halves each time."""
+    ``{enabled: true, along_m: 20, across_m: 8, levels: 2, grid: 5, edge_weight: 2}``: positions
+    within ``along_m`` along and ``across_m`` across the chosen route point's heading are
+    searched, ``levels`` times on a ``grid`` x ``grid`` pattern that shrinks each time; a view's
+    score is its skyline error plus ``edge_weight`` times one minus its edge correlation."""
 
     enabled: bool = True
     along_m: float = Field(default=20.0, ge=0)
-    across_m: float = Field(default=6.0, ge=0)
-    levels: int = Field(default=3, ge=1, le=8)
+    across_m: float = Field(default=8.0, ge=0)
+    levels: int = Field(default=2, ge=1, le=8)
     grid: int = Field(default=5, ge=3, le=11)
+    edge_weight: float = Field(default=2.0, ge=0)
 
 
 class ExpectSpec(_Spec):

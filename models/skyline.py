@@ -277,6 +277,13 @@ def skyline_from_image(
     return boundary_to_profile(b, rows, fov_y_deg=fov_y_deg, step_deg=step_deg)
 
 
+def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np.float64]:
+    """Median of the finite entries of each row (``cnt`` of them, >= 1): NaNs sort last."""
+    srt = np.sort(d, axis=1)
+    rows = np.arange(len(d))
+    return 0.5 * (srt[rows, (cnt - 1) // 2] + srt[rows, cnt // 2])
+
+
 @dataclass(frozen=True)
 class SkylineMatch:
     """Best shift of a query profile against each of V references.
@@ -336,8 +343,7 @@ def match_skylines(
         use = cnt >= need
         if not use.any():
             continue
-        with np.errstate(all="ignore"):
-            pitch = np.clip(np.nanmedian(d[use], axis=1), -max_pitch_deg, max_pitch_deg)
+        pitch = np.clip(_row_nanmedian(d[use], cnt[use]), -max_pitch_deg, max_pitch_deg)
         res = np.minimum(np.abs(d[use] - pitch[:, None]), truncate_deg)
         # bins of the query the reference does not cover count as truncated residuals
         err = (np.where(ok[use], res, 0.0).sum(1) + truncate_deg * (qn - cnt[use])) / qn

@@ -1,0 +1,60 @@
+"""Pose refinement recovers a known offset from the route point."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from models.camera import CameraEmulator
+from models.environment import build_environment
+from models.refine import refine_pose
+from models.scenario import SimulateSpec, scenario_from_dict
+from models.sensor import degrade
+
+
+@pytest.fixture(scope="module")
+def emulator():
+    s = scenario_from_dict({
+        "name": "refine",
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
+        "landmarks": [{"id": "H1", "kind": "house", "x": 470, "y": 420, "width": 18, "depth": 12, "height": 8}],
+        "route": [[300, 300], [400, 400]],
+        "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+    })
+    with CameraEmulator(build_environment(s), s.camera) as cam:
+        yield cam
+
+
+@pytest.mark.parametrize("along, across, turn, pitch", [(9.0, -3.0, 4.0, 0.0), (-12.0, 2.0, -6.0, 1.0)])
+def test_refinement_recovers_a_known_offset(emulator, along, across, turn, pitch):
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    th = math.radians(start.heading_deg)
+    x = start.x + along * math.cos(th) + across * math.sin(th)
+    y = start.y + along * math.sin(th) - across * math.cos(th)
+    true = emulator.pose_at(x, y, start.heading_deg + turn, pitch_deg=pitch)
+    view = emulator.render(true, light_intensity=1.2, light_direction=(0.3, -0.5, -0.8))
+    image = degrade(view.image, depth=view.depth, spec=SimulateSpec(haze=0.3, noise=5.0), rng=4)
+    r = refine_pose(image, emulator, start)
+    before = math.hypot(start.x - x, start.y - y)
+    after = math.hypot(r.x - x, r.y - y)
+    assert after < 3.0 < before, (before, after)
+    assert r.heading_deg == pytest.approx(true.heading_deg, abs=0.5)
+    assert r.pitch_deg == pytest.approx(pitch, abs=0.5)
+    assert r.score <= r.start_score and r.renders > 10
+    assert 0 < r.sigma_along_m < 20 and 0 < r.sigma_across_m < 20 and 0 < r.sigma_heading_deg < 2
+
+
+def test_refinement_of_the_true_pose_stays_put(emulator):
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    image = emulator.render(start).image
+    r = refine_pose(image, emulator, start)
+    assert math.hypot(r.x - start.x, r.y - start.y) < 1.5
+    assert r.heading_deg == pytest.approx(60.0, abs=0.3)
+
+
+def test_refinement_options_are_checked(emulator):
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    with pytest.raises(ValueError, match="levels"):
+        refine_pose(np.zeros((120, 160, 3), np.uint8), emulator, start, levels=0)
