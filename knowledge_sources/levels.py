@@ -58,9 +58,9 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ANSWER", "Answer", "INDEX", "Index", "MAP", "MESSAGES", "Map", "Message", "MessageError", "POSITION",
-    "Position", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario", "SensorFrame",
+    "Position", "POSE", "Pose", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario", "SensorFrame",
     "TRUTH", "Truth", "VIEWFRAME", "Viewframe", "answer_id", "frame_id", "index_id", "levels_table", "map_id",
-    "message_class", "position_id", "post", "query_id", "ranking_id", "scenario_id", "truth_id", "viewframe_id",
+    "message_class", "pose_id", "position_id", "post", "query_id", "ranking_id", "scenario_id", "truth_id", "viewframe_id",
 ]
 
 class MessageError(BlackboardError):
@@ -312,6 +312,8 @@ class Viewframe(Message):
     image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
     mask: np.ndarray = field(metadata=_doc("(H, W) int16 landmark index per pixel, -1 none", dtype="int16", ndim=2))
     description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
+    skyline: np.ndarray = field(metadata=_doc("(n,) float32 horizon elevation per azimuth bin, degrees, NaN: none "
+                                              "(models.skyline)", dtype="float32", ndim=1))
 
     def id(self) -> str:
         return viewframe_id(self.index)
@@ -409,26 +411,33 @@ def truth_id(frame: int) -> str:
 
 @dataclass(frozen=True, slots=True)
 class Ranking(Message):
-    """One shard's viewframes ranked for one camera frame, best first."""
+    """One ranking source's viewframes ranked for one camera frame, best first (an associative shard, or the skyline)."""
 
     level: ClassVar[str] = "ranking"
-    posted_by: ClassVar[str] = "associative indexer(s)"
-    id_pattern: ClassVar[str] = "rk-<frame:06d>-<shard>"
+    posted_by: ClassVar[str] = "associative indexer(s), skyline"
+    id_pattern: ClassVar[str] = "rk-<frame:06d>-<shard>"  # shard: the shard number, or the source if not associative
     frame: int = field(metadata=_doc("frame number"))
     frame_time: float = field(metadata=_doc("timestamp of the camera frame's hypothesis (latency)"))
-    shard: int = field(metadata=_doc("the shard ranked"))
-    shards: int = field(metadata=_doc("number of shards"))
+    shard: int = field(metadata=_doc("the shard ranked (0 for a source of one shard)"))
+    shards: int = field(metadata=_doc("number of shards of this source"))
     viewframes: list = field(metadata=_doc("viewframe indices k, best first"))
-    variances: list = field(metadata=_doc("error variance of each, same order"))
+    variances: list = field(metadata=_doc("the source's error of each, same order (associative: error variance; "
+                                          "skyline: truncated L1 in degrees)"))
     reliability: float = field(metadata=_doc("robust standard deviations the best stands below the rest"))
+    source: str = field(default="associative", metadata=_doc('"associative" or "skyline": whose errors these are'))
+    shifts: list | None = field(default=None, metadata=_doc(
+        "[[heading_deg, pitch_deg], ...] the camera's best turn and tilt against each viewframe, same order, "
+        "or null"))
 
     def id(self) -> str:
-        return ranking_id(self.frame, self.shard)
+        return ranking_id(self.frame, self.shard, self.source)
 
     @classmethod
-    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, shard: int, shards: int) -> Ranking:
+    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, shard: int, shards: int,
+           source: str = "associative", shifts: list | None = None) -> Ranking:
         """The message of a memory's :class:`~models.associative.Ranking`."""
-        return cls(frame=frame, frame_time=frame_time, shard=shard, shards=shards, **ranking.to_dict())
+        return cls(frame=frame, frame_time=frame_time, shard=shard, shards=shards, source=source, shifts=shifts,
+                   **ranking.to_dict())
 
     def ranking(self) -> MemoryRanking:
         """As a :class:`models.associative.Ranking`."""
@@ -438,9 +447,10 @@ class Ranking(Message):
                                         "reliability": self.reliability})
 
 
-def ranking_id(frame: int, shard: int) -> str:
-    """Hypothesis id of shard ``shard``'s ranking of frame ``frame``."""
-    return f"rk-{frame:06d}-{shard}"
+def ranking_id(frame: int, shard: int, source: str = "associative") -> str:
+    """Hypothesis id of ranking source ``source``'s shard ``shard`` for frame ``frame`` (the associative
+    shards keep ``rk-<frame>-<shard>``; another source is ``rk-<frame>-<source>``)."""
+    return f"rk-{frame:06d}-{shard}" if source == "associative" else f"rk-{frame:06d}-{source}"
 
 
 @dataclass(frozen=True, slots=True)
@@ -531,6 +541,38 @@ def position_id(frame: int) -> str:
     return f"pos-{frame:06d}"
 
 
+@dataclass(frozen=True, slots=True)
+class Pose(Message):
+    """The refined camera pose of one decided frame: between route points, with heading and pitch."""
+
+    level: ClassVar[str] = "pose"
+    posted_by: ClassVar[str] = "refiner"
+    id_pattern: ClassVar[str] = "pose-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    position: str = field(metadata=_doc("id of the position hypothesis refined"))
+    viewframe: int = field(metadata=_doc("the decision's viewframe k"))
+    x: float = field(metadata=_doc("world x, metres"))
+    y: float = field(metadata=_doc("world y, metres"))
+    heading_deg: float = field(metadata=_doc("heading, degrees ccw from +x"))
+    pitch_deg: float = field(metadata=_doc("pitch, degrees up"))
+    sigma_along_m: float = field(metadata=_doc("standard deviation along the heading, metres"))
+    sigma_across_m: float = field(metadata=_doc("standard deviation across the heading, metres"))
+    sigma_heading_deg: float = field(metadata=_doc("standard deviation of the heading, degrees"))
+    score: float = field(metadata=_doc("the refined view's score (models.refine; lower is better)"))
+    start_score: float = field(metadata=_doc("the route point's score"))
+    renders: int = field(metadata=_doc("views rendered"))
+    route_position: list = field(metadata=_doc("[x, y] of the route point refined from", length=2))
+    route_heading_deg: float = field(metadata=_doc("its heading, degrees"))
+
+    def id(self) -> str:
+        return pose_id(self.frame)
+
+
+def pose_id(frame: int) -> str:
+    """Hypothesis id of frame ``frame``'s refined pose."""
+    return f"pose-{frame:06d}"
+
+
 SCENARIO = Scenario.level
 VIEWFRAME = Viewframe.level
 MAP = Map.level
@@ -541,6 +583,7 @@ RANKING = Ranking.level
 QUERY = Query.level
 ANSWER = Answer.level
 POSITION = Position.level
+POSE = Pose.level
 
 
 # -- the table ---------------------------------------------------------------------------------------

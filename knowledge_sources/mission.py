@@ -9,7 +9,10 @@ benchmark call. It starts the knowledge sources
   viewframes (``ceil(route points / memory.shard_size)`` shards, each a set of memory banks),
 * ``detector-<kind>``, one :class:`~knowledge_sources.detector.LandmarkDetectorAgent` per
   landmark kind of the scenario,
-* ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`),
+* ``skyline`` (:class:`~knowledge_sources.skyline.SkylineRanker`) when ``skyline.enabled``,
+* ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`), fusing the rankings of the
+  indexers and the skyline,
+* ``refiner`` (:class:`~knowledge_sources.refiner.PoseRefiner`) when ``refine.enabled``,
 
 posts the scenario, runs until the blackboard is quiescent and turns the ``position``
 hypotheses into the results of :mod:`knowledge_sources.results`.
@@ -56,6 +59,14 @@ def agent_plan(
     ]
     for s in range(shards):
         plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{s}", {"shard": s, "shards": shards}))
+    sky = scenario.skyline
+    match = {"step_deg": sky.step_deg, "max_heading_deg": sky.max_heading_deg,
+             "max_pitch_deg": sky.max_pitch_deg, "truncate_deg": sky.truncate_deg}
+    sources = {"associative": 1.0}
+    if sky.enabled:
+        plan.append(("knowledge_sources.skyline:SkylineRanker", "skyline",
+                     {"fov_y_deg": scenario.camera.fov_y_deg, **match}))
+        sources["skyline"] = sky.weight
     for kind in sorted({lm.kind for lm in scenario.landmarks}):
         plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
                      {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold}))
@@ -70,8 +81,14 @@ def agent_plan(
             "beta": sched.beta,
             "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
+            "sources": sources,
         },
     ))
+    ref = scenario.refine
+    if ref.enabled:
+        plan.append(("knowledge_sources.refiner:PoseRefiner", "refiner",
+                     {"along_m": ref.along_m, "across_m": ref.across_m, "levels": ref.levels, "grid": ref.grid,
+                      "edge_weight": ref.edge_weight, **match}))
     return plan
 
 
@@ -185,6 +202,8 @@ def run_mission(
         outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
         positions = {p.frame: p for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses
                                           if h.level == levels.POSITION)}
+        poses = {p.frame: p for p in (levels.Pose.from_hypothesis(h) for h in outcome.hypotheses
+                                      if h.level == levels.POSE)}
         truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
                                        if h.level == levels.TRUTH)}
         frames_seen = sorted(levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
@@ -196,7 +215,8 @@ def run_mission(
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
     why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
-    records = [frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why)
+    records = [frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why,
+                            pose=poses.get(f))
                for f in frames_seen]
     summary = summarize(records)
     summary["wall_s"] = elapsed

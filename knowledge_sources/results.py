@@ -7,12 +7,17 @@
                  "heading_deg": h | null, "confidence": c, "queries": q, "backtracks": b,
                  "latency_ms": t, "ranking": [[k, variance], ...first 5],
                  "truth_viewframe": k | null, "correct": bool | null, "reason": str,
-                 "truth": [x, y, heading_deg] | null, "error_m": e | null}],
+                 "truth": [x, y, heading_deg] | null, "error_m": e | null,
+                 "route_position": [x, y] | null, "route_heading_deg": h | null,
+                 "heading_error_deg": d | null, "pose": {pitch_deg, sigma_along_m, ...} | null}],
      "summary": {"frames": n, "top1": a | null, "mean_queries": q, "mean_error_m": e | null,
+                 "median_error_m": e | null, "median_heading_error_deg": d | null,
                  "latency_ms_p50": t}}
 
 A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
 ``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
+``position`` and ``heading_deg`` are the refined pose's when the refiner posted one
+(``route_position``, ``route_heading_deg``: the chosen viewframe's route point).
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
 """
 
@@ -29,6 +34,7 @@ import numpy as np
 from models.errors import InputError
 
 if TYPE_CHECKING:
+    from knowledge_sources.levels import Pose as PoseMessage
     from knowledge_sources.levels import Position, Truth
 
 __all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "write_results"]
@@ -47,10 +53,14 @@ def frame_record(
     truth: Truth | None,
     route_xy: Sequence[Sequence[float]],
     missing: str = "no position was posted",
+    pose: PoseMessage | None = None,
 ) -> dict[str, Any]:
     """One frame's entry of the results file, from the frame's ``position`` message (None: none was
-    posted, the entry says ``missing`` as its reason) and its ``truth`` message (None: unknown).
-    The one function that turns a decision into a results entry."""
+    posted, the entry says ``missing`` as its reason), its ``truth`` message (None: unknown) and its
+    refined ``pose`` (None: not refined). With a pose, ``position`` and ``heading_deg`` are the
+    refined ones and ``route_position``/``route_heading_deg`` the chosen route point's; ``pose``
+    holds the refinement (pitch, uncertainty). The one function that turns a decision into a
+    results entry."""
     t = None if truth is None else [float(v) for v in truth.pose]
     truth_vf = None if t is None else nearest_viewframe(t[0], t[1], route_xy)
     if position is None:
@@ -60,6 +70,9 @@ def frame_record(
         viewframe, xy, heading = position.viewframe, position.position, position.heading_deg
         confidence, queries, backtracks = position.confidence, position.queries, position.backtracks
         latency, ranking, reason = position.latency_ms, position.ranking, position.reason
+    route_xy_, route_heading = xy, heading
+    if pose is not None and position is not None:
+        xy, heading = [pose.x, pose.y], pose.heading_deg
     error = None
     if t is not None and xy is not None:
         error = math.hypot(xy[0] - t[0], xy[1] - t[1])
@@ -79,6 +92,14 @@ def frame_record(
         "error_m": error,
         "reason": reason,
     }
+    record["route_position"] = None if route_xy_ is None else [float(route_xy_[0]), float(route_xy_[1])]
+    record["route_heading_deg"] = None if route_heading is None else float(route_heading)
+    record["heading_error_deg"] = (None if t is None or heading is None
+                                   else abs((float(heading) - t[2] + 180.0) % 360.0 - 180.0))
+    record["pose"] = None if pose is None else {
+        "pitch_deg": pose.pitch_deg, "sigma_along_m": pose.sigma_along_m, "sigma_across_m": pose.sigma_across_m,
+        "sigma_heading_deg": pose.sigma_heading_deg, "score": pose.score, "start_score": pose.start_score,
+        "renders": pose.renders}
     if position is not None:
         record["degraded"] = list(position.degraded)
         record["steps"] = list(position.steps)
@@ -89,6 +110,7 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The ``summary`` block of a results file."""
     judged = [f for f in frames if f["correct"] is not None]
     errors = [f["error_m"] for f in frames if f.get("error_m") is not None]
+    headings = [f["heading_error_deg"] for f in frames if f.get("heading_error_deg") is not None]
     lat = [f["latency_ms"] for f in frames if f["latency_ms"] is not None]
     return {
         "frames": len(frames),
@@ -97,6 +119,8 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "mean_queries": float(np.mean([f["queries"] for f in frames])) if frames else 0.0,
         "mean_backtracks": float(np.mean([f["backtracks"] for f in frames])) if frames else 0.0,
         "mean_error_m": float(np.mean(errors)) if errors else None,
+        "median_error_m": float(np.median(errors)) if errors else None,
+        "median_heading_error_deg": float(np.median(headings)) if headings else None,
         "latency_ms_p50": float(np.percentile(lat, 50)) if lat else 0.0,
         "latency_ms_p99": float(np.percentile(lat, 99)) if lat else 0.0,
     }

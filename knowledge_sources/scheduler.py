@@ -1,6 +1,7 @@
 """The scene-analysis scheduler: verifies the associative ranking by asking landmark detectors.
 
-For each camera frame it waits for the rankings of every shard, merges them, and runs a
+For each camera frame it waits for the rankings of every ranking source (every memory shard, and
+the skyline when enabled), fuses them (:mod:`knowledge_sources.fusion`), and runs a
 :class:`~knowledge_sources.scene_analysis.SceneAnalysis` (the decision rule is documented
 there): each question becomes a ``query`` hypothesis addressed to the detector agent of the
 landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
@@ -39,8 +40,8 @@ def detector_name(kind: str) -> str:
 class _Frame:
     frame: int
     frame_time: float
-    rankings: dict[int, Any] = field(default_factory=dict)
-    shards: int = 1
+    rankings: dict[tuple[str, int], Any] = field(default_factory=dict)  # (source, shard) -> ranking message
+    shards: dict[str, int] = field(default_factory=dict)  # source -> its number of shards
     analysis: SceneAnalysis | None = None
     question: Question | None = None
     query_id: str | None = None
@@ -56,7 +57,10 @@ class Scheduler(KnowledgeSource):
     ``reliability`` (assumed detector reliability), ``beta`` (ranking weight sharpness),
     ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
     the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``; each defaults
-    to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
+    to the scenario schema's (:class:`models.scenario.SchedulerSpec`). ``sources``
+    (``{source: weight}``: the ranking sources a frame waits for, all their shards, before its
+    analysis starts, and their weights in the fusion of :mod:`knowledge_sources.fusion`; default
+    the associative memory alone).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER)
@@ -74,6 +78,7 @@ class Scheduler(KnowledgeSource):
         beta: float = _DEFAULTS.beta,
         min_pixels: int = _DEFAULTS.min_pixels,
         query_timeout_s: float = _DEFAULTS.query_timeout_s,
+        sources: dict[str, float] | None = None,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -86,6 +91,9 @@ class Scheduler(KnowledgeSource):
         self.beta = float(beta)
         self.min_pixels = int(min_pixels)
         self.query_timeout_s = float(query_timeout_s)
+        self.sources = {"associative": 1.0} if sources is None else {str(k): float(v) for k, v in sources.items()}
+        if not self.sources or any(w < 0 for w in self.sources.values()) or not any(self.sources.values()):
+            raise ValueError(f"sources must map ranking sources to weights >= 0, one > 0, got {sources!r}")
         self._map: levels.Map | None = None
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
@@ -138,20 +146,26 @@ class Scheduler(KnowledgeSource):
         return self._map
 
     def _on_ranking(self, h: Hypothesis, board: Board) -> None:
+        from knowledge_sources.fusion import fuse_rankings
         from models.associative import merge_rankings
 
         rk = levels.Ranking.from_hypothesis(h)
         st = self._frames.setdefault(rk.frame, _Frame(rk.frame, rk.frame_time))
-        if st.analysis is not None:
+        if st.analysis is not None or rk.source not in self.sources:
             return
-        st.shards = rk.shards
-        st.rankings[rk.shard] = rk.ranking()
+        st.shards[rk.source] = rk.shards
+        st.rankings[(rk.source, rk.shard)] = rk
         st.links.append(h.id)
-        if len(st.rankings) < st.shards:
+        got = {src: sum(1 for s, _ in st.rankings if s == src) for src in self.sources}
+        if any(src not in st.shards or got[src] < st.shards[src] for src in self.sources):
             return
         mp = self._ensure_map(board)
-        merged = merge_rankings([st.rankings[b] for b in sorted(st.rankings)])
-        st.ranking = [(int(k), float(v)) for k, v in zip(merged.viewframes, merged.variances)]
+        per_source = {}
+        for src in self.sources:
+            parts = [st.rankings[(src, b)] for b in range(st.shards[src])]
+            merged = merge_rankings([p.ranking() for p in parts])
+            per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
+        st.ranking = fuse_rankings(per_source, weights=self.sources)
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,

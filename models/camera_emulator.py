@@ -348,6 +348,20 @@ class CameraEmulator:
             pose=pose,
         )
 
+    def release(self) -> None:
+        """Make the GL context no longer current on the calling thread, so that a later
+        :meth:`render` or :meth:`close` may run on another thread (EGL binds a context to one
+        thread at a time; each render makes it current again)."""
+        r = self._renderer
+        platform = None if r is None else getattr(r, "_platform", None)
+        if platform is not None and getattr(platform, "_egl_context", None) is not None:
+            try:  # pyrender's EGL make_uncurrent does nothing
+                from OpenGL.EGL import EGL_NO_CONTEXT, EGL_NO_SURFACE, eglMakeCurrent
+
+                eglMakeCurrent(platform._egl_display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT)
+            except Exception as exc:  # noqa: BLE001 - nothing to release
+                log.debug("releasing the GL context: %s", exc)
+
     def close(self) -> None:
         """Release the GL context (idempotent).
 

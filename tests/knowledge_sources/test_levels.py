@@ -25,7 +25,8 @@ def _image(h: int = 6, w: int = 8) -> np.ndarray:
 SAMPLES: list[levels.Message] = [
     levels.Scenario(path="/tmp/s.yaml", strategy="associative"),
     levels.Viewframe(index=7, pose=[1.0, 2.0, 3.0, 90.0, 0.0], image=_image(),
-                     mask=np.full((6, 8), -1, np.int16), description={"visible": ["H1"]}),
+                     mask=np.full((6, 8), -1, np.int16), description={"visible": ["H1"]},
+                     skyline=np.array([0.5, 1.5, 2.0], np.float32)),
     levels.Map(scenario="s", path="/tmp/s.yaml", viewframes=2, priors={"H1": 0.5},
                landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
                route=[[0.0, 0.0], [10.0, 0.0]], poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
@@ -34,12 +35,17 @@ SAMPLES: list[levels.Message] = [
     levels.SensorFrame(frame=4, image=_image(), source="simulated"),
     levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
     levels.Ranking(frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[2, 0], variances=[1e-5, 2e-4], reliability=3.0),
+    levels.Ranking(frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[0, 2], variances=[0.2, 1.1],
+                   reliability=2.0, source="skyline", shifts=[[1.5, -0.5], [0.0, 0.0]]),
     levels.Query(frame=4, number=2, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
     levels.Answer(query="q-000004-2", frame=4, landmark="H1", viewframe=2, present=None, score=0.3, location=None,
                   detector="edges", reason="undecided"),
     levels.Position(frame=4, viewframe=2, position=[1.0, 2.0], heading_deg=90.0, confidence=0.9, queries=1,
                     backtracks=0, latency_ms=12.0, ranking=[[2, 1e-5]], reason="accepted", degraded=[], steps=[],
                     strategy="associative"),
+    levels.Pose(frame=4, position="pos-000004", viewframe=2, x=1.5, y=2.5, heading_deg=91.0, pitch_deg=0.5,
+                sigma_along_m=2.0, sigma_across_m=1.0, sigma_heading_deg=0.2, score=0.4, start_score=0.8, renders=40,
+                route_position=[1.0, 2.0], route_heading_deg=90.0),
 ]
 
 

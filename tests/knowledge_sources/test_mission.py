@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import yaml
@@ -33,7 +34,11 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
         assert len(f["ranking"]) == 5
         assert f["truth_viewframe"] is not None  # simulated frames know their truth
         if f["viewframe"] is not None:
-            assert f["position"] == pytest.approx(SMALL["route"][f["viewframe"]], abs=1e-6)
+            # the refiner moved the position off the route point, but not beyond its search
+            assert f["route_position"] == pytest.approx(SMALL["route"][f["viewframe"]], abs=1e-6)
+            assert math.dist(f["position"], f["route_position"]) < 25
+            assert f["pose"]["renders"] > 10 and f["heading_error_deg"] is not None
+    assert any(math.dist(f["position"], f["route_position"]) > 0.1 for f in results["frames"])
     s = results["summary"]
     assert {"frames", "top1", "mean_queries", "mean_error_m", "latency_ms_p50"} <= set(s)
     assert s["frames"] == len(SMALL["route"]) and 0.0 <= s["top1"] <= 1.0
@@ -54,7 +59,8 @@ def test_same_results_in_one_process_and_in_processes(small):
     assert [{k: f[k] for k in keys} for f in a["frames"]] == [{k: f[k] for k in keys} for f in b["frames"]]
     for fa, fb in zip(a["frames"], b["frames"]):  # same ranking; variances equal but for float rounding
         assert [k for k, _ in fa["ranking"]] == [k for k, _ in fb["ranking"]]
-        assert [v for _, v in fa["ranking"]] == pytest.approx([v for _, v in fb["ranking"]], rel=1e-6)
+        # fused scores are robust z-scores: near 0 they need an absolute tolerance too
+        assert [v for _, v in fa["ranking"]] == pytest.approx([v for _, v in fb["ranking"]], rel=1e-6, abs=1e-4)
     assert b["mode"] == "processes"
 
 

@@ -1,0 +1,103 @@
+"""Fusion of ranking sources: one candidate weighting from every ranking on the blackboard.
+
+Several knowledge sources rank all viewframes for a camera frame, each with its own error
+measure: the associative memory banks (error variance, comparable across banks, merged by
+sorting: :func:`models.associative.merge_rankings`) and the skyline (truncated L1 in degrees,
+:mod:`models.skyline`). Their scales have nothing in common, and a source's scale changes from
+frame to frame (a hazy frame, a flat horizon). The rule, stated once:
+
+Per-frame robust standardisation
+    For source ``s`` with errors ``e_s(k)`` over the viewframes it ranked,
+    ``z_s(k) = (e_s(k) - median_k e_s) / (1.4826 * MAD_k e_s)`` (the spread floored at
+    1e-3 of the median's magnitude, and 1e-12, so a source that cannot tell the viewframes apart
+    has z about 0 everywhere rather than infinite). A viewframe a source did not rank gets that
+    source's largest z (the least likely).
+
+Likelihoods
+    Each source's evidence that viewframe k is the true one is taken as
+    ``p_s(obs | k) ∝ exp(-w_s * z_s(k))``: a likelihood falling exponentially with the
+    standardised error, the same form as the scene analysis' candidate weights
+    (:func:`knowledge_sources.scene_analysis.ranking_weights`). ``w_s`` is the source's weight,
+    calibrated on tuning data (scenario ``skyline.weight``; the associative memory's is 1).
+
+Fused
+    Sources are taken as independent given k, so the log-likelihoods add:
+    ``F(k) = sum_s w_s z_s(k) / sum_s w_s`` (lower is better; dividing by the weights' sum keeps
+    F on the z scale). The fused ranking sorts viewframes by F (ties by label), and F is handed
+    to the scene analysis in place of an error variance, where ``ranking_weights`` turns it into
+    the candidate weights ``exp(-beta (F - F_best) / spread(F))``.
+
+A single source is passed through unchanged (its own errors, its own order): the fusion of one
+source is the identity, so a mission without the skyline decides exactly as before.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["standardise", "fuse_rankings"]
+
+_MAD_TO_STD = 1.4826
+
+
+def standardise(errors: Sequence[float] | np.ndarray) -> np.ndarray:
+    """Robust z-scores (module docstring) of one source's errors, shape (H,)."""
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    if e.size == 0:
+        return e
+    if not np.all(np.isfinite(e)):
+        raise ValueError("errors must be finite")
+    med = float(np.median(e))
+    spread = max(_MAD_TO_STD * float(np.median(np.abs(e - med))), 1e-3 * abs(med), 1e-12)
+    return (e - med) / spread
+
+
+def fuse_rankings(
+    rankings: Mapping[str, tuple[Sequence[int], Sequence[float]]],
+    *,
+    weights: Mapping[str, float] | None = None,
+) -> list[tuple[int, float]]:
+    """Fuse ranking sources into one ranking (module docstring).
+
+    Parameters
+    ----------
+    rankings : mapping source -> (labels, errors)
+        Each source's viewframe labels and errors (lower is better), any order.
+    weights : mapping source -> weight, optional
+        ``w_s >= 0``; a source not named weighs 1. A source of weight 0 is ignored.
+
+    Returns
+    -------
+    list of (label, score), best first: the source's own errors for a single source, else F.
+    """
+    weights = dict(weights or {})
+    used = {s: r for s, r in rankings.items() if weights.get(s, 1.0) > 0}
+    if not used:
+        raise ValueError("fuse_rankings needs at least one source of positive weight")
+    for s, w in weights.items():
+        if w < 0:
+            raise ValueError(f"weight of source {s!r} must be >= 0, got {w}")
+    if len(used) == 1:
+        labels, errors = next(iter(used.values()))
+        lab = np.asarray(labels, dtype=np.int64)
+        err = np.asarray(errors, dtype=np.float64)
+        order = np.lexsort((lab, err))
+        return [(int(lab[i]), float(err[i])) for i in order]
+    universe = sorted({int(k) for labels, _ in used.values() for k in labels})
+    pos = {k: i for i, k in enumerate(universe)}
+    total = np.zeros(len(universe))
+    wsum = 0.0
+    for s, (labels, errors) in used.items():
+        w = float(weights.get(s, 1.0))
+        z = standardise(errors)
+        zs = np.full(len(universe), float(z.max()) if z.size else 0.0)
+        for k, v in zip(labels, z):
+            zs[pos[int(k)]] = v
+        total += w * zs
+        wsum += w
+    fused = total / wsum
+    lab = np.asarray(universe, dtype=np.int64)
+    order = np.lexsort((lab, fused))
+    return [(int(lab[i]), float(fused[i])) for i in order]

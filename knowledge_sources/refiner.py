@@ -1,0 +1,124 @@
+"""The pose refiner: after a decision, the camera's pose between route points, and its heading."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+if TYPE_CHECKING:
+    from models.camera_emulator import CameraEmulator
+    from models.world import World
+
+__all__ = ["PoseRefiner"]
+
+log = logging.getLogger(__name__)
+
+
+class PoseRefiner(KnowledgeSource):
+    """Owns a camera emulator of the map (it loads the scenario the ``map`` names, as the map
+    renderer does) and, for every ``position`` with a viewframe, refines the pose from that
+    viewframe's route point against the frame's camera image (:func:`models.refine.refine_pose`:
+    heading and pitch from the skyline shift, then position along and across the route by
+    rendering views around the point, coarse to fine). Posts a ``pose`` linked to the position
+    and the camera frame; the results' ``position`` and ``heading_deg`` are the pose's.
+
+    Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
+    ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
+    ``max_pitch_deg``, ``truncate_deg``. Positions that arrive before the map wait.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
+    produces: ClassVar[tuple[str, ...]] = (levels.POSE,)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.POSE,)
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        along_m: float,
+        across_m: float,
+        levels: int,
+        grid: int,
+        edge_weight: float,
+        step_deg: float,
+        max_heading_deg: float,
+        max_pitch_deg: float,
+        truncate_deg: float,
+        **options: Any,
+    ) -> None:
+        super().__init__(name, **options)
+        if int(levels) < 1 or int(grid) < 2 or float(along_m) < 0 or float(across_m) < 0:
+            raise ValueError(f"refiner options out of range: levels={levels}, grid={grid}, "
+                             f"along_m={along_m}, across_m={across_m}")
+        self.search = {"along_m": float(along_m), "across_m": float(across_m), "levels": int(levels),
+                       "grid": int(grid), "edge_weight": float(edge_weight), "step_deg": float(step_deg),
+                       "max_heading_deg": float(max_heading_deg), "max_pitch_deg": float(max_pitch_deg),
+                       "truncate_deg": float(truncate_deg)}
+        self._world: World | None = None
+        self._emulator: CameraEmulator | None = None
+        self._map: levels.Map | None = None
+        self._waiting: list[Hypothesis] = []
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        return 2.0 if event.hypothesis.level == levels.MAP else 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        try:
+            self._act(event, board)
+        finally:
+            if self._emulator is not None:
+                self._emulator.release()  # shutdown closes it from another thread
+
+    def _act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        if h.level == levels.MAP:
+            self._open(levels.Map.from_hypothesis(h))
+            waiting, self._waiting = self._waiting, []
+            for pos in waiting:
+                self._refine(pos, board)
+        elif h.level == levels.POSITION:
+            if self._emulator is None:
+                self._waiting.append(h)
+            else:
+                self._refine(h, board)
+
+    def _open(self, mp: levels.Map) -> None:
+        from models.world import World
+
+        self._world = World.from_scenario(mp.path)
+        self._emulator = self._world.emulator
+        self._map = mp
+
+    def _refine(self, hypothesis: Hypothesis, board: Board) -> None:
+        from models.refine import refine_pose
+
+        assert self._emulator is not None and self._map is not None
+        position = levels.Position.from_hypothesis(hypothesis)
+        if position.viewframe is None:
+            return
+        got = board.get(levels.frame_id(position.frame))
+        if got is None:
+            log.warning("%s: frame %d: camera frame not on the blackboard: not refined", self.name, position.frame)
+            return
+        image = levels.SensorFrame.from_hypothesis(got).image
+        x, y, _, heading, pitch = self._map.poses[position.viewframe]
+        start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
+        r = refine_pose(image, self._emulator, start, **self.search)
+        levels.post(board, levels.Pose(
+            frame=position.frame, position=hypothesis.id, viewframe=position.viewframe,
+            x=r.x, y=r.y, heading_deg=r.heading_deg, pitch_deg=r.pitch_deg,
+            sigma_along_m=r.sigma_along_m, sigma_across_m=r.sigma_across_m, sigma_heading_deg=r.sigma_heading_deg,
+            score=r.score, start_score=r.start_score, renders=r.renders,
+            route_position=[float(x), float(y)], route_heading_deg=float(heading),
+        ), links=(hypothesis.id, got.id), credibility=hypothesis.credibility)
+
+    def shutdown(self) -> None:
+        if self._world is not None:
+            self._world.close()
+            self._world, self._emulator = None, None

@@ -1,0 +1,126 @@
+"""The skyline ranker: ranks every viewframe for each camera frame by the shape of its horizon."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, ClassVar
+
+import numpy as np
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["SkylineRanker", "SKYLINE_SOURCE"]
+
+log = logging.getLogger(__name__)
+
+#: the ``source`` of this agent's rankings
+SKYLINE_SOURCE = "skyline"
+
+
+class SkylineRanker(KnowledgeSource):
+    """Keeps each viewframe's skyline (from the map renderer's depth buffer, carried by the
+    ``viewframe`` hypothesis), extracts the skyline of every camera frame
+    (:func:`models.skyline.skyline_from_image`), matches it with all of them over heading and
+    pitch shifts (:func:`models.skyline.match_skylines`) and posts a ``ranking`` with
+    ``source: "skyline"``: errors in degrees (truncated L1), and each viewframe's best
+    ``[heading_deg, pitch_deg]`` shift. The scheduler fuses it with the associative rankings
+    (:mod:`knowledge_sources.fusion`).
+
+    Options (from the scenario's ``skyline`` block and camera): ``fov_y_deg``, ``step_deg``,
+    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``. Camera frames that arrive before the
+    map is complete wait; viewframes missed as events are read back from the blackboard.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
+    produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
+
+    def __init__(
+        self,
+        name: str,
+        *,
+        fov_y_deg: float,
+        step_deg: float,
+        max_heading_deg: float,
+        max_pitch_deg: float,
+        truncate_deg: float,
+        **options: Any,
+    ) -> None:
+        super().__init__(name, **options)
+        if not 0 < float(fov_y_deg) < 180:
+            raise ValueError(f"fov_y_deg must be in (0, 180), got {fov_y_deg}")
+        if not float(step_deg) > 0 or not float(truncate_deg) > 0:
+            raise ValueError(f"step_deg and truncate_deg must be > 0, got {step_deg}, {truncate_deg}")
+        self.fov_y_deg = float(fov_y_deg)
+        self.match = {"step_deg": float(step_deg), "max_heading_deg": float(max_heading_deg),
+                      "max_pitch_deg": float(max_pitch_deg), "truncate_deg": float(truncate_deg)}
+        self._profiles: dict[int, np.ndarray] = {}
+        self._refs: np.ndarray | None = None
+        self._labels: np.ndarray | None = None
+        self._waiting: list[Hypothesis] = []
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        return 2.0 if event.hypothesis.level != levels.SENSOR_FRAME else 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        if h.level == levels.VIEWFRAME:
+            if self._refs is None:
+                vf = levels.Viewframe.from_hypothesis(h)
+                self._profiles[vf.index] = np.asarray(vf.skyline, dtype=np.float32)
+        elif h.level == levels.MAP:
+            self._build(levels.Map.from_hypothesis(h), board)
+            waiting, self._waiting = self._waiting, []
+            for frame in waiting:
+                self._rank(frame, board)
+        elif h.level == levels.SENSOR_FRAME:
+            if self._refs is None:
+                self._waiting.append(h)
+            else:
+                self._rank(h, board)
+
+    def _build(self, mp: levels.Map, board: Board) -> None:
+        for k in range(mp.viewframes):
+            if k not in self._profiles:
+                got = board.get(levels.viewframe_id(k))
+                if got is None:
+                    raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
+                self._profiles[k] = np.asarray(levels.Viewframe.from_hypothesis(got).skyline, dtype=np.float32)
+        labels = sorted(self._profiles)
+        sizes = {self._profiles[k].size for k in labels}
+        if len(sizes) != 1:
+            raise RuntimeError(f"{self.name}: viewframe skylines differ in length ({sorted(sizes)})")
+        self._labels = np.asarray(labels, dtype=np.int64)
+        self._refs = np.stack([self._profiles[k] for k in labels])
+        self._profiles.clear()
+        log.info("%s: %d viewframe skylines of %d bins", self.name, len(labels), self._refs.shape[1])
+
+    def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
+        from models.associative import reliability
+        from models.skyline import match_skylines, skyline_from_image
+
+        assert self._refs is not None and self._labels is not None
+        frame = levels.SensorFrame.from_hypothesis(hypothesis)
+        query = skyline_from_image(frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"])
+        if query.size != self._refs.shape[1]:
+            raise RuntimeError(f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "
+                               f"viewframes {self._refs.shape[1]} (another field of view?)")
+        m = match_skylines(query, self._refs, **self.match)
+        order = np.lexsort((self._labels, m.error))
+        rel = reliability(m.error)
+        levels.post(
+            board,
+            levels.Ranking(
+                frame=frame.frame, frame_time=hypothesis.timestamp, shard=0, shards=1,
+                viewframes=[int(k) for k in self._labels[order]],
+                variances=[float(e) for e in m.error[order]],
+                reliability=float(rel),
+                source=SKYLINE_SOURCE,
+                shifts=[[float(m.heading_deg[i]), float(m.pitch_deg[i])] for i in order],
+            ),
+            links=(hypothesis.id,),
+            credibility=float(min(1.0, max(0.0, rel / (1.0 + rel)))),
+        )
