@@ -22,10 +22,13 @@ one boundary per column, solved exactly by dynamic programming over the columns 
 
 ``b_c`` (0..H) is the number of sky pixels at the top of column c. The unaries are negative
 log-likelihoods under per-image Gaussian colour-and-texture models of the two classes (CIE Lab
-plus the log local variance of L), capped at ``cap`` nats so that a few odd pixels cannot
-decide a column; the models start from the top rows (mostly sky) and the bottom rows (always
-terrain for a ground camera) and are refitted from the labelling (``iterations`` rounds, an EM
-of hard labels). ``g`` is the vertical contrast across the boundary (the Lab distance between
+plus the log local variance of L), their difference capped at ``cap`` nats so that a few odd
+pixels cannot decide a column. The sky is a smooth field (quadratic in the row, linear in the
+column: a sky gradient) plus Gaussian residuals; the terrain a mixture of Gaussian clusters
+plus a uniform outlier component, so a pixel that fits neither (a hazy far ridge, a landmark)
+counts as terrain: the sky is the simple class. The models start from the top rows (mostly sky)
+and the bottom rows (always terrain for a ground camera) and are refitted from the labelling
+(``iterations`` rounds, an EM of hard labels). ``g`` is the vertical contrast across the boundary (the Lab distance between
 the two rows' neighbourhoods, over its image median), which pins the boundary to the edge that
 haze leaves between far hills and sky. The truncated-linear smoothness lets silhouettes
 (towers, steep slopes) jump at a bounded price. Images are first reduced to at most
@@ -166,29 +169,70 @@ def skyline_from_depth(
 
 
 def _features(rgb: NDArray[np.float32]) -> NDArray[np.float32]:
-    """(H, W, 4) per-pixel features: CIE Lab and log local variance of L."""
+    """(H, W, 4) per-pixel features: CIE Lab and log local variance of L (over 5 pixels of the row)."""
     lab = cv2.cvtColor(rgb, cv2.COLOR_RGB2Lab)
     L = lab[..., 0]
-    mean = cv2.blur(L, (3, 3))
-    var = np.maximum(cv2.blur(L * L, (3, 3)) - mean * mean, 0.0)
+    # along the row only: a window straddling the boundary would make the last sky row look textured
+    mean = cv2.blur(L, (5, 1))
+    var = np.maximum(cv2.blur(L * L, (5, 1)) - mean * mean, 0.0)
     tex = np.log(var + 1.0)
     return np.concatenate([lab, tex[..., None]], axis=2)
 
 
-def _gauss_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """Negative log-likelihood (up to a shared constant) of every pixel under a Gaussian fitted
-    to the pixels in ``sel``, shape (H, W)."""
+_FLOOR = np.diag([1.0, 0.5, 0.5, 0.05])  # covariance floors: noise-free renders
+_LOG_VOLUME = math.log(100.0 * 256.0 * 256.0 * 10.0)  # the feature box (L, a, b, log variance)
+_OUTLIER = 0.05  # prior weight of "none of the terrain clusters": terrain is everything not sky
+_CLUSTERS = 3
+
+
+def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Negative log density of each row of ``x`` (n, d) under N(mu, cov), shape (n,)."""
+    d = x - mu
+    inv = np.linalg.inv(cov)
+    _, logdet = np.linalg.slogdet(cov)
+    return 0.5 * (np.einsum("ij,jk,ik->i", d, inv, d) + logdet + x.shape[1] * math.log(2 * math.pi))
+
+
+def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
+    residuals, fitted to the pixels in ``sel``; negative log density per pixel, (H, W)."""
+    h, w = feat.shape[:2]
+    r, c = np.mgrid[0:h, 0:w]
+    rr, cc = (r / h).ravel(), (c / w).ravel() - 0.5
+    design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
+    x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
+    m = sel.ravel()
+    if m.sum() < 16:
+        m = np.zeros_like(m)
+        m[: max(16, w)] = True
+    coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
+    res = x - design @ coef
+    cov = np.cov(res[m], rowvar=False) + _FLOOR
+    return _gauss_nll(res, np.zeros(x.shape[1]), cov).reshape(h, w)
+
+
+def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.random.Generator) -> NDArray[np.float64]:
+    """Terrain: a mixture of Gaussian clusters fitted to the pixels in ``sel`` plus a uniform
+    outlier component over the feature box; negative log density per pixel, (H, W)."""
     x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
     s = x[sel.ravel()]
-    if len(s) < 8:
+    if len(s) < 8 * _CLUSTERS:
         s = x
-    mu = s.mean(0)
-    cov = np.cov(s, rowvar=False) + np.diag([1.0, 0.5, 0.5, 0.05])  # floors: noise-free renders
-    inv = np.linalg.inv(cov)
-    d = x - mu
-    maha = np.einsum("ij,jk,ik->i", d, inv, d)
-    _, logdet = np.linalg.slogdet(cov)
-    return (0.5 * (maha + logdet)).reshape(feat.shape[:2])
+    if len(s) > 4000:
+        s = s[rng.choice(len(s), 4000, replace=False)]
+    k = min(_CLUSTERS, len(s) // 8)
+    _, lab, _ = cv2.kmeans(s.astype(np.float32), k, None,
+                           (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5), 1, cv2.KMEANS_PP_CENTERS)
+    lab = lab.ravel()
+    terms = [np.full(len(x), math.log(_OUTLIER) - _LOG_VOLUME)]
+    for j in range(k):
+        part = s[lab == j]
+        if len(part) < 8:
+            continue
+        cov = np.cov(part, rowvar=False) + _FLOOR
+        prior = (1 - _OUTLIER) * len(part) / len(s)
+        terms.append(math.log(prior) - _gauss_nll(x, part.mean(0), cov))
+    return -np.logaddexp.reduce(np.stack(terms), axis=0).reshape(feat.shape[:2])
 
 
 def _contrast(feat: NDArray[np.float32]) -> NDArray[np.float64]:
@@ -256,8 +300,9 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     ter_sel = rows >= h - max(1, h // 4)
     ter_sel = np.broadcast_to(ter_sel, (h, w))
     b = None
+    rng = np.random.default_rng(0)
     for _ in range(_ITERATIONS + 1):
-        cs, ct = _gauss_cost(feat, sky_sel), _gauss_cost(feat, ter_sel)
+        cs, ct = _sky_cost(feat, sky_sel), _terrain_cost(feat, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
         unary = np.vstack([np.zeros((1, w)), np.cumsum(llr, axis=0)]) - _LAM_EDGE * g

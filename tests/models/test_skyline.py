@@ -81,11 +81,11 @@ def test_known_synthetic_horizon_is_recovered(size, haze):
     img, _ = _synthetic(h, w, truth, rng, haze=haze)
     got = skyline_from_image(img, fov_y_deg=FOV)
     want = boundary_to_profile(truth, h, fov_y_deg=FOV)
-    pixel_deg = FOV / h
+    pixel_deg = FOV / min(h, 128)  # a pixel of the working image (at most 128 rows)
     err = np.abs(got - want)
     assert np.isfinite(got).mean() > 0.95
-    assert np.nanmedian(err) <= max(0.5 * pixel_deg, 0.2)
-    assert np.nanpercentile(err, 90) <= 2 * pixel_deg + 0.4
+    assert np.nanmedian(err) <= pixel_deg + 0.05  # within a pixel
+    assert np.nanpercentile(err, 90) <= 3 * pixel_deg  # steep slopes of the small image: a few pixels
 
 
 @pytest.mark.parametrize("haze, noise, gain", [(0.0, 0.0, 0.0), (0.6, 4.0, 0.2), (0.3, 12.0, 0.4)])
