@@ -8,9 +8,10 @@ frame to frame (a hazy frame, a flat horizon). The rule, stated once:
 
 Per-frame robust standardisation
     For source ``s`` with errors ``e_s(k)`` over the viewframes it ranked,
-    ``z_s(k) = (e_s(k) - median_k e_s) / (1.4826 * MAD_k e_s)`` (the spread floored at
-    1e-3 of the median's magnitude, and 1e-12, so a source that cannot tell the viewframes apart
-    has z about 0 everywhere rather than infinite). A viewframe a source did not rank gets that
+    ``z_s(k) = (e_s(k) - median_k e_s) / (1.4826 * MAD_k e_s)``; when more than half the
+    errors are equal (MAD 0: e.g. skylines with no overlap all score the truncation) the
+    standard deviation is the spread, and a source whose errors are all equal gives z = 0
+    (no evidence) rather than infinities. A viewframe a source did not rank gets that
     source's largest z (the least likely).
 
 Likelihoods
@@ -50,7 +51,11 @@ def standardise(errors: Sequence[float] | np.ndarray) -> np.ndarray:
     if not np.all(np.isfinite(e)):
         raise ValueError("errors must be finite")
     med = float(np.median(e))
-    spread = max(_MAD_TO_STD * float(np.median(np.abs(e - med))), 1e-3 * abs(med), 1e-12)
+    spread = _MAD_TO_STD * float(np.median(np.abs(e - med)))
+    if not spread > 1e-9 * abs(med):  # more than half the errors equal: the standard deviation
+        spread = float(np.std(e))
+    if not spread > 1e-9 * abs(med) or spread == 0.0:  # all equal: no evidence
+        return np.zeros_like(e)
     return (e - med) / spread
 
 
@@ -73,12 +78,12 @@ def fuse_rankings(
     list of (label, score), best first: the source's own errors for a single source, else F.
     """
     weights = dict(weights or {})
+    for s, w in weights.items():
+        if not w >= 0:
+            raise ValueError(f"weight of source {s!r} must be >= 0, got {w}")
     used = {s: r for s, r in rankings.items() if weights.get(s, 1.0) > 0}
     if not used:
         raise ValueError("fuse_rankings needs at least one source of positive weight")
-    for s, w in weights.items():
-        if w < 0:
-            raise ValueError(f"weight of source {s!r} must be >= 0, got {w}")
     if len(used) == 1:
         labels, errors = next(iter(used.values()))
         lab = np.asarray(labels, dtype=np.int64)

@@ -277,8 +277,9 @@ class SchedulerSpec(_Spec):
 class SkylineSpec(_Spec):
     """The skyline ranking source (:mod:`models.skyline`, :mod:`knowledge_sources.skyline`):
     ``{enabled: true, step_deg: 0.5, max_heading_deg: 12, max_pitch_deg: 4, truncate_deg: 2,
-    weight: 1.0}``. ``weight`` is the skyline's weight in the fusion of ranking sources
-    (:mod:`knowledge_sources.fusion`; the associative memory's is 1). Defaults: see BENCHMARKS.md.
+    weight: 4.0}``. ``weight`` is the skyline's weight in the fusion of ranking sources
+    (:mod:`knowledge_sources.fusion`; the associative memory's is 1), chosen on the evaluation
+    set's tuning split (bench/skyline_eval.py; BENCHMARKS.md).
     """
 
     enabled: bool = True
@@ -286,7 +287,7 @@ class SkylineSpec(_Spec):
     max_heading_deg: float = Field(default=12.0, ge=0, le=90)
     max_pitch_deg: float = Field(default=4.0, ge=0, le=30)
     truncate_deg: float = Field(default=2.0, gt=0)
-    weight: float = Field(default=1.0, ge=0)
+    weight: float = Field(default=4.0, ge=0)
 
 
 class RefineSpec(_Spec):

@@ -1,0 +1,78 @@
+"""The fusion rule of ranking sources, on synthetic rankings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from knowledge_sources.fusion import fuse_rankings, standardise
+
+
+def _source(rng, n, truth, *, separation, noise=1.0, scale=1.0, offset=0.0):
+    """Errors of n viewframes, the truth ``separation`` noise-sigmas better than the others."""
+    e = rng.normal(0.0, noise, n)
+    e[truth] -= separation * noise
+    return list(range(n)), list(offset + scale * e)
+
+
+def test_standardise_is_robust_and_scale_free():
+    e = np.array([1.0, 2.0, 3.0, 4.0, 100.0])
+    z = standardise(e)
+    assert z[2] == 0.0 and z[4] > 20  # the median is 0; an outlier does not inflate the spread
+    np.testing.assert_allclose(standardise(1e-6 * e + 5.0), z, rtol=1e-6)
+    assert np.all(np.isfinite(standardise([2.0, 2.0, 2.0])))  # no spread: zeros, not infinities
+
+
+def test_a_single_source_passes_through_unchanged():
+    labels, errors = [3, 1, 2], [0.5, 0.1, 0.5]
+    assert fuse_rankings({"associative": (labels, errors)}) == [(1, 0.1), (2, 0.5), (3, 0.5)]
+
+
+def test_fusion_does_not_depend_on_each_sources_units():
+    rng = np.random.default_rng(0)
+    a = _source(rng, 40, 7, separation=2.0)
+    b = _source(rng, 40, 7, separation=2.0)
+    base = fuse_rankings({"associative": a, "skyline": b})
+    rescaled = fuse_rankings({"associative": (a[0], [1e-5 * v + 3.0 for v in a[1]]),
+                              "skyline": (b[0], [40.0 * v for v in b[1]])})
+    assert [k for k, _ in base] == [k for k, _ in rescaled]
+
+
+def test_two_weak_independent_sources_beat_either_alone():
+    """Each source alone puts the truth first in few frames; fused, in many more."""
+    rng = np.random.default_rng(1)
+    hits = {"associative": 0, "skyline": 0, "fused": 0}
+    trials, n = 300, 30
+    for _ in range(trials):
+        truth = int(rng.integers(n))
+        a = _source(rng, n, truth, separation=2.0, scale=1e-4)  # variances
+        b = _source(rng, n, truth, separation=2.0, scale=0.7, offset=1.0)  # degrees
+        hits["associative"] += fuse_rankings({"associative": a})[0][0] == truth
+        hits["skyline"] += fuse_rankings({"skyline": b})[0][0] == truth
+        hits["fused"] += fuse_rankings({"associative": a, "skyline": b})[0][0] == truth
+    assert hits["fused"] > 1.3 * max(hits["associative"], hits["skyline"]), hits
+
+
+def test_weights_follow_the_better_source_and_zero_ignores_one():
+    rng = np.random.default_rng(2)
+    n, truth = 20, 4
+    good = _source(rng, n, truth, separation=6.0)
+    bad = _source(rng, n, 11, separation=6.0)  # confidently wrong
+    assert fuse_rankings({"a": good, "b": bad}, weights={"a": 3.0, "b": 1.0})[0][0] == truth
+    assert fuse_rankings({"a": good, "b": bad}, weights={"a": 1.0, "b": 3.0})[0][0] == 11
+    only = fuse_rankings({"a": good, "b": bad}, weights={"a": 1.0, "b": 0.0})
+    assert only == fuse_rankings({"a": good})
+
+
+def test_a_viewframe_a_source_did_not_rank_counts_as_its_worst():
+    a = ([0, 1, 2, 3], [0.1, 0.2, 0.3, 0.4])
+    b = ([0, 1, 2], [0.3, 0.2, 0.1])  # has no opinion on 3
+    fused = dict(fuse_rankings({"a": a, "b": b}))
+    assert set(fused) == {0, 1, 2, 3}
+    assert fused[3] == max(fused.values())
+
+
+@pytest.mark.parametrize("weights, match", [({"a": -1.0}, "must be >= 0"), ({"a": 0.0}, "positive weight")])
+def test_bad_weights_are_refused(weights, match):
+    with pytest.raises(ValueError, match=match):
+        fuse_rankings({"a": ([0, 1], [0.1, 0.2])}, weights=weights)

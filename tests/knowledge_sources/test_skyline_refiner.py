@@ -1,0 +1,68 @@
+"""The skyline ranker and the pose refiner through the real blackboard, in one process and in processes."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import yaml
+
+from blackboard.trace import read_trace
+from knowledge_sources.mission import agent_plan, run_mission
+from models.scenario import load_scenario
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.mark.parametrize("processes", [False, True], ids=["inprocess", "processes"])
+def test_skyline_rankings_are_fused_and_positions_refined(small, small_data, tmp_path, processes):
+    trace = tmp_path / "run.trace"
+    results = run_mission(small, processes=processes, trace_path=trace)
+    n = len(small_data["route"])
+    records = read_trace(trace)
+    posts = [r for r in records if r["kind"] == "post"]
+    sky = [r for r in posts if r.get("level") == "ranking" and r["id"].endswith("-skyline")]
+    assert len(sky) == n and {r["agent"] for r in sky} == {"skyline"} and {r["body"]["source"] for r in sky} == {"skyline"}
+    # the scheduler waited for both sources: every position links the skyline ranking of its frame
+    positions = {r["id"]: r for r in posts if r.get("level") == "position"}
+    for p in positions.values():
+        frame = int(p["id"].split("-")[1])
+        assert f"rk-{frame:06d}-skyline" in p["links"] and f"rk-{frame:06d}-0" in p["links"]
+    # one pose per localized frame, linked to its position and its camera frame
+    poses = [r for r in posts if r.get("level") == "pose"]
+    localized = [f for f in results["frames"] if f["viewframe"] is not None]
+    assert len(poses) == len(localized) > 0
+    for r in poses:
+        frame = int(r["id"].split("-")[1])
+        assert r["links"][:2] == [f"pos-{frame:06d}", f"sf-{frame:06d}"]
+    for f in localized:
+        assert f["pose"] is not None and f["route_position"] is not None
+        assert math.dist(f["position"], f["route_position"]) < 25
+    # the small scenario's frames are close to their route points: refinement keeps them close
+    assert results["summary"]["median_error_m"] < 6.0
+    assert results["summary"]["median_heading_error_deg"] < 1.5
+
+
+def test_disabled_skyline_and_refiner_leave_todays_pipeline(small_data, tmp_path):
+    small_data["skyline"] = {"enabled": False}
+    small_data["refine"] = {"enabled": False}
+    path = tmp_path / "plain.yaml"
+    path.write_text(yaml.safe_dump(small_data))
+    names = [name for _, name, _ in agent_plan(load_scenario(path))]
+    assert "skyline" not in names and "refiner" not in names
+    results = run_mission(path)
+    for f in results["frames"]:
+        assert f["pose"] is None
+        if f["viewframe"] is not None:
+            assert f["position"] == pytest.approx(small_data["route"][f["viewframe"]])
+
+
+def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_path):
+    small_data["skyline"] = {"weight": 2.5, "max_heading_deg": 8.0}
+    small_data["refine"] = {"along_m": 12.0, "grid": 3}
+    path = tmp_path / "opts.yaml"
+    path.write_text(yaml.safe_dump(small_data))
+    plan = {name: opts for _, name, opts in agent_plan(load_scenario(path))}
+    assert plan["scheduler"]["sources"] == {"associative": 1.0, "skyline": 2.5}
+    assert plan["skyline"]["max_heading_deg"] == 8.0 and plan["skyline"]["fov_y_deg"] == 45
+    assert plan["refiner"]["along_m"] == 12.0 and plan["refiner"]["grid"] == 3
