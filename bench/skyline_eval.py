@@ -157,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     for case in cases(args.split, kinds=["sweep"], names=args.names):
         results.append(evaluate_case(case, weights=args.weights, refine=not args.no_refine,
                                      max_frames=args.max_frames))
-        print(f"# {case.name}: done", file=sys.stderr, flush=True)
+        print(f"# {case.name}: " + json.dumps(summarize(results[-1:])["cases"][case.name]), file=sys.stderr, flush=True)
     summary = summarize(results)
     print(json.dumps({"split": args.split, "summary": summary}, indent=1))
     sources = list(summary["overall"].keys())

@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from models.scenario import RefineSpec
 from models.skyline import (
     DEFAULT_MAX_HEADING_DEG,
     DEFAULT_MAX_PITCH_DEG,
@@ -47,15 +48,10 @@ from models.skyline import (
     skyline_from_image,
 )
 
-if TYPE_CHECKING:  # the scenario schema reads this module's defaults: no renderer import here
+if TYPE_CHECKING:
     from models.camera import CameraEmulator, Pose
 
 __all__ = [
-    "DEFAULT_ALONG_M",
-    "DEFAULT_ACROSS_M",
-    "DEFAULT_LEVELS",
-    "DEFAULT_GRID",
-    "DEFAULT_EDGE_WEIGHT",
     "RefinedPose",
     "refine_pose",
     "edge_image",
@@ -63,16 +59,12 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: half extent of the first level's search along the heading, metres
-DEFAULT_ALONG_M = 20.0
-#: half extent across the heading, metres
-DEFAULT_ACROSS_M = 8.0
-#: coarse-to-fine levels
-DEFAULT_LEVELS = 2
-#: points per side of a level's pattern
-DEFAULT_GRID = 5
-#: weight of the edge term (1 - NCC) against the skyline error in degrees
-DEFAULT_EDGE_WEIGHT = 2.0
+_DEFAULTS = RefineSpec()  # the defaults are the scenario schema's (models.scenario)
+DEFAULT_ALONG_M = _DEFAULTS.along_m
+DEFAULT_ACROSS_M = _DEFAULTS.across_m
+DEFAULT_LEVELS = _DEFAULTS.levels
+DEFAULT_GRID = _DEFAULTS.grid
+DEFAULT_EDGE_WEIGHT = _DEFAULTS.edge_weight
 
 _BLUR_PX = 1.5
 

@@ -55,11 +55,9 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from models.scenario import SkylineSpec
+
 __all__ = [
-    "DEFAULT_STEP_DEG",
-    "DEFAULT_MAX_HEADING_DEG",
-    "DEFAULT_MAX_PITCH_DEG",
-    "DEFAULT_TRUNCATE_DEG",
     "WORK_ROWS",
     "SkylineMatch",
     "profile_bins",
@@ -73,14 +71,11 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: angular sampling of a profile, degrees per bin
-DEFAULT_STEP_DEG = 0.5
-#: heading shifts searched by the match, +- degrees
-DEFAULT_MAX_HEADING_DEG = 12.0
-#: pitch offsets accepted by the match, +- degrees
-DEFAULT_MAX_PITCH_DEG = 4.0
-#: residuals are truncated at this many degrees (the robust error's ceiling)
-DEFAULT_TRUNCATE_DEG = 2.0
+_DEFAULTS = SkylineSpec()  # the defaults are the scenario schema's (models.scenario)
+DEFAULT_STEP_DEG = _DEFAULTS.step_deg
+DEFAULT_MAX_HEADING_DEG = _DEFAULTS.max_heading_deg
+DEFAULT_MAX_PITCH_DEG = _DEFAULTS.max_pitch_deg
+DEFAULT_TRUNCATE_DEG = _DEFAULTS.truncate_deg
 #: images are reduced to at most this many rows before the boundary search
 WORK_ROWS = 128
 
