@@ -160,6 +160,8 @@ def run_mission(
         n_frames = len(range(0, len(scenario.route), sim.stride)) * sim.per_point
     if timeout_s is None:
         timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
+        if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
+            timeout_s += 0.2 * n_frames * (2 + scenario.refine.levels * scenario.refine.grid ** 2)
     done = 0
     posted: dict[str, int] = {}
 
