@@ -185,7 +185,7 @@ def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.
     d = x - mu
     inv = np.linalg.inv(cov)
     _, logdet = np.linalg.slogdet(cov)
-    return 0.5 * (np.einsum("ij,jk,ik->i", d, inv, d) + logdet + x.shape[1] * math.log(2 * math.pi))
+    return 0.5 * (((d @ inv) * d).sum(1) + logdet + x.shape[1] * math.log(2 * math.pi))
 
 
 def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -245,16 +245,26 @@ def _contrast(feat: NDArray[np.float32]) -> NDArray[np.float64]:
 
 
 def _viterbi(unary: NDArray[np.float64], *, lam: float, jump: int) -> NDArray[np.int64]:
-    """Minimise sum_c unary[b_c, c] + lam * min(|b_c - b_{c-1}|, jump); unary (S, W) -> b (W,)."""
+    """Minimise sum_c unary[b_c, c] + lam * min(|b_c - b_{c-1}|, jump); unary (S, W) -> b (W,).
+
+    Per column the pairwise minimum is taken over the 2 * jump + 1 nearby states and the global
+    minimum (plus the truncated cost ``lam * jump``): O(S * jump) instead of O(S**2)."""
     s, w = unary.shape
     idx = np.arange(s)
-    pair = lam * np.minimum(np.abs(idx[:, None] - idx[None, :]), jump)
+    offsets = np.arange(-jump, jump + 1)
+    src = np.clip(idx[None, :] + offsets[:, None], 0, s - 1)  # (2J+1, S) predecessor states
+    pen = lam * np.abs(offsets)[:, None] + np.where(src - idx[None, :] == offsets[:, None], 0.0, np.inf)
     cost = unary[:, 0].copy()
     back = np.zeros((w, s), dtype=np.int64)
     for c in range(1, w):
-        total = cost[:, None] + pair  # (prev, cur)
-        back[c] = np.argmin(total, axis=0)
-        cost = total[back[c], idx] + unary[:, c]
+        near = cost[src] + pen  # (2J+1, S)
+        k = np.argmin(near, axis=0)
+        best_near = near[k, idx]
+        g = int(np.argmin(cost))
+        far = cost[g] + lam * jump
+        use_far = far < best_near
+        back[c] = np.where(use_far, g, src[k, idx])
+        cost = np.where(use_far, far, best_near) + unary[:, c]
     b = np.zeros(w, dtype=np.int64)
     b[-1] = int(np.argmin(cost))
     for c in range(w - 1, 0, -1):
