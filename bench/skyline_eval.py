@@ -31,15 +31,12 @@ import numpy as np  # noqa: E402
 
 from bench.evalset import cases  # noqa: E402
 from knowledge_sources.fusion import fuse_rankings  # noqa: E402
-from models.associative import memory_from_spec  # noqa: E402
-from models.camera import CameraEmulator  # noqa: E402
-from models.environment import build_environment  # noqa: E402
-from models.preprocess import preprocess_with  # noqa: E402
+from models.index import ViewframeIndex  # noqa: E402
 from models.refine import refine_pose  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 from models.sensor import load_frame_image  # noqa: E402
 from models.skyline import match_skylines, skyline_from_image  # noqa: E402
-from models.viewframes import build_viewframes  # noqa: E402
+from models.world import World  # noqa: E402
 
 
 def _rank_of(truth: int, ranking: list[tuple[int, float]]) -> int:
@@ -53,15 +50,18 @@ def _wrap(d: float) -> float:
 def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int | None) -> dict:
     scenario = load_scenario(case.scenario_path)
     cam_spec, sky = scenario.camera, scenario.skyline
-    match = {"step_deg": sky.step_deg, "max_heading_deg": sky.max_heading_deg,
-             "max_pitch_deg": sky.max_pitch_deg, "truncate_deg": sky.truncate_deg}
-    env = build_environment(scenario)
+    match = {
+        "step_deg": sky.step_deg,
+        "max_heading_deg": sky.max_heading_deg,
+        "max_pitch_deg": sky.max_pitch_deg,
+        "truncate_deg": sky.truncate_deg,
+    }
     out: dict = {"case": case.name, "frames": 0, "ranks": {}, "cost_ms": {}}
-    with CameraEmulator(env, cam_spec) as emulator:
-        vfs = build_viewframes(scenario, emulator=emulator)
-        spec = scenario.memory.model_dump()
-        memory = memory_from_spec(spec, seed=0)
-        memory.write_many((preprocess_with(v.image, memory=spec) for v in vfs), [v.index for v in vfs])
+    with World(scenario) as world:
+        emulator = world.emulator
+        vfs = world.viewframes
+        index = ViewframeIndex(scenario.memory, seed=0)
+        index.add((v.image for v in vfs), [v.index for v in vfs])
         refs = np.stack([v.skyline for v in vfs])
         labels = [v.index for v in vfs]
         ranks: dict[str, list[int]] = {"associative": [], "skyline": [], **{f"fused@{w:g}": [] for w in weights}}
@@ -72,14 +72,17 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
             image = load_frame_image(fr.image, width=cam_spec.width, height=cam_spec.height)
             truth = int(fr.route_index)
             t0 = time.perf_counter()
-            rk = memory.rank(preprocess_with(image, memory=spec))
+            rk = index.rank(image)
             t1 = time.perf_counter()
             q = skyline_from_image(image, fov_y_deg=cam_spec.fov_y_deg, step_deg=sky.step_deg)
             m = match_skylines(q, refs, **match)
             t2 = time.perf_counter()
             t_assoc += t1 - t0
             t_sky += t2 - t1
-            per = {"associative": (rk.labels.tolist(), rk.variances.tolist()), "skyline": (labels, m.error.tolist())}
+            per = {
+                "associative": (rk.viewframes.tolist(), rk.variances.tolist()),
+                "skyline": (labels, m.error.tolist()),
+            }
             ranks["associative"].append(_rank_of(truth, fuse_rankings({"associative": per["associative"]})))
             ranks["skyline"].append(_rank_of(truth, fuse_rankings({"skyline": per["skyline"]})))
             fused_first = None
@@ -91,9 +94,17 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
             if refine and fused_first is not None:
                 p = vfs[fused_first].pose
                 t3 = time.perf_counter()
-                r = refine_pose(image, emulator, p, along_m=scenario.refine.along_m, across_m=scenario.refine.across_m,
-                                levels=scenario.refine.levels, grid=scenario.refine.grid,
-                                edge_weight=scenario.refine.edge_weight, **match)
+                r = refine_pose(
+                    image,
+                    emulator,
+                    p,
+                    along_m=scenario.refine.along_m,
+                    across_m=scenario.refine.across_m,
+                    levels=scenario.refine.levels,
+                    grid=scenario.refine.grid,
+                    edge_weight=scenario.refine.edge_weight,
+                    **match,
+                )
                 t_ref += time.perf_counter() - t3
                 pos_err.append(math.hypot(r.x - fr.x, r.y - fr.y))
                 pos_err_route.append(math.hypot(p.x - fr.x, p.y - fr.y))
@@ -106,8 +117,13 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
         out["cost_ms"] = {"associative": 1000 * t_assoc / n, "skyline": 1000 * t_sky / n}
         if refine:
             out["cost_ms"]["refine"] = 1000 * t_ref / n
-            out["refine"] = {"error_m": pos_err, "route_error_m": pos_err_route, "heading_error_deg": head_err,
-                             "route_heading_error_deg": head_err_route, "renders": renders}
+            out["refine"] = {
+                "error_m": pos_err,
+                "route_error_m": pos_err_route,
+                "heading_error_deg": head_err,
+                "route_heading_error_deg": head_err_route,
+                "renders": renders,
+            }
     return out
 
 
@@ -118,14 +134,17 @@ def summarize(results: list[dict]) -> dict:
     sources = list(results[0]["ranks"]) if results else []
     total: dict = {"frames": sum(r["frames"] for r in results), "cases": {}, "overall": {}}
     for r in results:
-        total["cases"][r["case"]] = {s: {"top1": topk(r["ranks"][s], 1), "top5": topk(r["ranks"][s], 5)}
-                                     for s in sources}
+        total["cases"][r["case"]] = {
+            s: {"top1": topk(r["ranks"][s], 1), "top5": topk(r["ranks"][s], 5)} for s in sources
+        }
         if "refine" in r:
             e = r["refine"]
             total["cases"][r["case"]]["refine"] = {
-                "median_m": float(np.median(e["error_m"])), "mean_m": float(np.mean(e["error_m"])),
+                "median_m": float(np.median(e["error_m"])),
+                "mean_m": float(np.mean(e["error_m"])),
                 "route_median_m": float(np.median(e["route_error_m"])),
-                "heading_median_deg": float(np.median(e["heading_error_deg"]))}
+                "heading_median_deg": float(np.median(e["heading_error_deg"])),
+            }
     for s in sources:
         allr = [x for r in results for x in r["ranks"][s]]
         total["overall"][s] = {"top1": topk(allr, 1), "top5": topk(allr, 5)}
@@ -133,14 +152,18 @@ def summarize(results: list[dict]) -> dict:
     if refs:
         cat = {k: [x for e in refs for x in e[k]] for k in refs[0]}
         total["overall"]["refine"] = {
-            "median_m": float(np.median(cat["error_m"])), "mean_m": float(np.mean(cat["error_m"])),
-            "route_median_m": float(np.median(cat["route_error_m"])), "route_mean_m": float(np.mean(cat["route_error_m"])),
+            "median_m": float(np.median(cat["error_m"])),
+            "mean_m": float(np.mean(cat["error_m"])),
+            "route_median_m": float(np.median(cat["route_error_m"])),
+            "route_mean_m": float(np.mean(cat["route_error_m"])),
             "heading_median_deg": float(np.median(cat["heading_error_deg"])),
             "route_heading_median_deg": float(np.median(cat["route_heading_error_deg"])),
-            "renders_mean": float(np.mean(cat["renders"]))}
+            "renders_mean": float(np.mean(cat["renders"])),
+        }
     n = max(1, len(results))
-    total["overall"]["cost_ms"] = {k: float(np.mean([r["cost_ms"][k] for r in results]))
-                                   for k in (results[0]["cost_ms"] if results else {})}
+    total["overall"]["cost_ms"] = {
+        k: float(np.mean([r["cost_ms"][k] for r in results])) for k in (results[0]["cost_ms"] if results else {})
+    }
     del n
     return total
 
@@ -155,8 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     results = []
     for case in cases(args.split, kinds=["sweep"], names=args.names):
-        results.append(evaluate_case(case, weights=args.weights, refine=not args.no_refine,
-                                     max_frames=args.max_frames))
+        results.append(evaluate_case(case, weights=args.weights, refine=not args.no_refine, max_frames=args.max_frames))
         print(f"# {case.name}: " + json.dumps(summarize(results[-1:])["cases"][case.name]), file=sys.stderr, flush=True)
     summary = summarize(results)
     print(json.dumps({"split": args.split, "summary": summary}, indent=1))
@@ -167,17 +189,25 @@ def main(argv: list[str] | None = None) -> int:
         extra = ""
         if "refine" in c:
             rf = c["refine"]
-            extra = f"  refine med {rf['route_median_m']:.1f}->{rf['median_m']:.1f} m, head {rf['heading_median_deg']:.2f}"
+            extra = (
+                f"  refine med {rf['route_median_m']:.1f}->{rf['median_m']:.1f} m, head {rf['heading_median_deg']:.2f}"
+            )
         print(f"{name:28s} " + " ".join(f"{x:>16s}" for x in cells) + extra)
     o = summary["overall"]
-    print(f"{'ALL (top1/top5)':28s} " + " ".join(f"{o[s]['top1']:.2f}/{o[s]['top5']:.2f}".rjust(16)
-                                                 for s in sources if s not in ("refine", "cost_ms")))
+    print(
+        f"{'ALL (top1/top5)':28s} "
+        + " ".join(
+            f"{o[s]['top1']:.2f}/{o[s]['top5']:.2f}".rjust(16) for s in sources if s not in ("refine", "cost_ms")
+        )
+    )
     if "refine" in o:
         rf = o["refine"]
-        print(f"refined error median {rf['median_m']:.1f} m (route point {rf['route_median_m']:.1f}), mean "
-              f"{rf['mean_m']:.1f} m (route point {rf['route_mean_m']:.1f}); heading median "
-              f"{rf['heading_median_deg']:.2f} deg (route {rf['route_heading_median_deg']:.2f}); "
-              f"{rf['renders_mean']:.0f} renders/frame")
+        print(
+            f"refined error median {rf['median_m']:.1f} m (route point {rf['route_median_m']:.1f}), mean "
+            f"{rf['mean_m']:.1f} m (route point {rf['route_mean_m']:.1f}); heading median "
+            f"{rf['heading_median_deg']:.2f} deg (route {rf['route_heading_median_deg']:.2f}); "
+            f"{rf['renders_mean']:.0f} renders/frame"
+        )
     print("cost ms/frame: " + ", ".join(f"{k} {v:.1f}" for k, v in o["cost_ms"].items()))
     return 0
 

@@ -52,12 +52,20 @@ class PoseRefiner(KnowledgeSource):
     ) -> None:
         super().__init__(name, **options)
         if int(levels) < 1 or int(grid) < 2 or float(along_m) < 0 or float(across_m) < 0:
-            raise ValueError(f"refiner options out of range: levels={levels}, grid={grid}, "
-                             f"along_m={along_m}, across_m={across_m}")
-        self.search = {"along_m": float(along_m), "across_m": float(across_m), "levels": int(levels),
-                       "grid": int(grid), "edge_weight": float(edge_weight), "step_deg": float(step_deg),
-                       "max_heading_deg": float(max_heading_deg), "max_pitch_deg": float(max_pitch_deg),
-                       "truncate_deg": float(truncate_deg)}
+            raise ValueError(
+                f"refiner options out of range: levels={levels}, grid={grid}, along_m={along_m}, across_m={across_m}"
+            )
+        self.search = {
+            "along_m": float(along_m),
+            "across_m": float(across_m),
+            "levels": int(levels),
+            "grid": int(grid),
+            "edge_weight": float(edge_weight),
+            "step_deg": float(step_deg),
+            "max_heading_deg": float(max_heading_deg),
+            "max_pitch_deg": float(max_pitch_deg),
+            "truncate_deg": float(truncate_deg),
+        }
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None
         self._map: levels.Map | None = None
@@ -110,13 +118,28 @@ class PoseRefiner(KnowledgeSource):
         x, y, _, heading, pitch = self._map.poses[position.viewframe]
         start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
         r = refine_pose(image, self._emulator, start, **self.search)
-        levels.post(board, levels.Pose(
-            frame=position.frame, position=hypothesis.id, viewframe=position.viewframe,
-            x=r.x, y=r.y, heading_deg=r.heading_deg, pitch_deg=r.pitch_deg,
-            sigma_along_m=r.sigma_along_m, sigma_across_m=r.sigma_across_m, sigma_heading_deg=r.sigma_heading_deg,
-            score=r.score, start_score=r.start_score, renders=r.renders,
-            route_position=[float(x), float(y)], route_heading_deg=float(heading),
-        ), links=(hypothesis.id, got.id), credibility=hypothesis.credibility)
+        levels.post(
+            board,
+            levels.Pose(
+                frame=position.frame,
+                position=hypothesis.id,
+                viewframe=position.viewframe,
+                x=r.x,
+                y=r.y,
+                heading_deg=r.heading_deg,
+                pitch_deg=r.pitch_deg,
+                sigma_along_m=r.sigma_along_m,
+                sigma_across_m=r.sigma_across_m,
+                sigma_heading_deg=r.sigma_heading_deg,
+                score=r.score,
+                start_score=r.start_score,
+                renders=r.renders,
+                route_position=[float(x), float(y)],
+                route_heading_deg=float(heading),
+            ),
+            links=(hypothesis.id, got.id),
+            credibility=hypothesis.credibility,
+        )
 
     def shutdown(self) -> None:
         if self._world is not None:

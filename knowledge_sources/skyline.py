@@ -53,8 +53,12 @@ class SkylineRanker(KnowledgeSource):
         if not float(step_deg) > 0 or not float(truncate_deg) > 0:
             raise ValueError(f"step_deg and truncate_deg must be > 0, got {step_deg}, {truncate_deg}")
         self.fov_y_deg = float(fov_y_deg)
-        self.match = {"step_deg": float(step_deg), "max_heading_deg": float(max_heading_deg),
-                      "max_pitch_deg": float(max_pitch_deg), "truncate_deg": float(truncate_deg)}
+        self.match = {
+            "step_deg": float(step_deg),
+            "max_heading_deg": float(max_heading_deg),
+            "max_pitch_deg": float(max_pitch_deg),
+            "truncate_deg": float(truncate_deg),
+        }
         self._profiles: dict[int, np.ndarray] = {}
         self._refs: np.ndarray | None = None
         self._labels: np.ndarray | None = None
@@ -106,15 +110,20 @@ class SkylineRanker(KnowledgeSource):
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         query = skyline_from_image(frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"])
         if query.size != self._refs.shape[1]:
-            raise RuntimeError(f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "
-                               f"viewframes {self._refs.shape[1]} (another field of view?)")
+            raise RuntimeError(
+                f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "
+                f"viewframes {self._refs.shape[1]} (another field of view?)"
+            )
         m = match_skylines(query, self._refs, **self.match)
         order = np.lexsort((self._labels, m.error))
         rel = reliability(m.error)
         levels.post(
             board,
             levels.Ranking(
-                frame=frame.frame, frame_time=hypothesis.timestamp, shard=0, shards=1,
+                frame=frame.frame,
+                frame_time=hypothesis.timestamp,
+                shard=0,
+                shards=1,
                 viewframes=[int(k) for k in self._labels[order]],
                 variances=[float(e) for e in m.error[order]],
                 reliability=float(rel),

@@ -49,7 +49,7 @@ from models.skyline import (
 )
 
 if TYPE_CHECKING:
-    from models.camera import CameraEmulator, Pose
+    from models.camera_emulator import CameraEmulator, Pose
 
 __all__ = [
     "RefinedPose",
@@ -101,10 +101,10 @@ def edge_image(image: NDArray, *, blur_px: float = _BLUR_PX) -> NDArray[np.float
     gray = img @ np.array([0.299, 0.587, 0.114], np.float32) if img.ndim == 3 else img
     gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
-    e = cv2.GaussianBlur(cv2.magnitude(gx, gy), (0, 0), blur_px)
+    e = np.asarray(cv2.GaussianBlur(cv2.magnitude(gx, gy), (0, 0), blur_px), dtype=np.float32)
     e -= e.mean()
     n = float(np.linalg.norm(e))
-    return e / n if n > 0 else e
+    return (e / n if n > 0 else e).astype(np.float32)
 
 
 def _ncc_shifted(a: NDArray[np.float32], b: NDArray[np.float32], rows: range, cols: range) -> float:
@@ -116,8 +116,8 @@ def _ncc_shifted(a: NDArray[np.float32], b: NDArray[np.float32], rows: range, co
         for dc in cols:
             if abs(dc) >= w // 2 or abs(dr) >= h // 2:
                 continue
-            aa = a[max(0, dr): h + min(0, dr), max(0, dc): w + min(0, dc)]
-            bb = b[max(0, -dr): h - max(0, dr), max(0, -dc): w - max(0, dc)]
+            aa = a[max(0, dr) : h + min(0, dr), max(0, dc) : w + min(0, dc)]
+            bb = b[max(0, -dr) : h - max(0, dr), max(0, -dc) : w - max(0, dc)]
             aa = aa - aa.mean()
             bb = bb - bb.mean()
             den = float(np.linalg.norm(aa) * np.linalg.norm(bb))
@@ -151,8 +151,9 @@ def _shifted(profile: NDArray, s: int) -> NDArray[np.float64]:
 
 
 class _Scorer:
-    def __init__(self, image, emulator: CameraEmulator, *, step_deg, max_heading_deg, max_pitch_deg,
-                 truncate_deg, edge_weight) -> None:
+    def __init__(
+        self, image, emulator: CameraEmulator, *, step_deg, max_heading_deg, max_pitch_deg, truncate_deg, edge_weight
+    ) -> None:
         self.emulator = emulator
         self.fov = float(emulator.camera.fov_y_deg)
         self.step = step_deg
@@ -177,8 +178,12 @@ class _Scorer:
         m = match_skylines(self.query, ref[None], max_heading_deg=mh, **self.kw)
         dh, dp = float(m.heading_deg[0]), float(m.pitch_deg[0])
         # the errors one bin either side of the best shift, for the sub-bin parabola
-        around = [match_skylines(self.query, _shifted(ref, int(round(dh / self.step)) + k)[None],
-                                 max_heading_deg=0.0, **self.kw).error[0] for k in (-1, 0, 1)]
+        around = [
+            match_skylines(
+                self.query, _shifted(ref, int(round(dh / self.step)) + k)[None], max_heading_deg=0.0, **self.kw
+            ).error[0]
+            for k in (-1, 0, 1)
+        ]
         off, sig = _subbin(m, np.array(around), self.step)
         dh += off
         sky_err = float(m.error[0])
@@ -214,8 +219,15 @@ def refine_pose(
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
     if along_m < 0 or across_m < 0:
         raise ValueError(f"along_m and across_m must be >= 0, got {along_m}, {across_m}")
-    sc = _Scorer(image, emulator, step_deg=step_deg, max_heading_deg=max_heading_deg,
-                 max_pitch_deg=max_pitch_deg, truncate_deg=truncate_deg, edge_weight=edge_weight)
+    sc = _Scorer(
+        image,
+        emulator,
+        step_deg=step_deg,
+        max_heading_deg=max_heading_deg,
+        max_pitch_deg=max_pitch_deg,
+        truncate_deg=truncate_deg,
+        edge_weight=edge_weight,
+    )
     # 1. heading and pitch at the start point, then score it again at that heading
     _, heading, pitch, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg)
     s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
@@ -254,5 +266,15 @@ def refine_pose(
     floor = ext
     sig_along, sig_across = np.maximum(spread, floor)
     x, y = np.array([start.x, start.y]) + centre[0] * fwd + centre[1] * side
-    return RefinedPose(float(x), float(y), float(best[1]), float(best[2]), float(sig_along), float(sig_across),
-                       float(best[3]), float(best[0]), float(s0), sc.renders)
+    return RefinedPose(
+        float(x),
+        float(y),
+        float(best[1]),
+        float(best[2]),
+        float(sig_along),
+        float(sig_across),
+        float(best[3]),
+        float(best[0]),
+        float(s0),
+        sc.renders,
+    )

@@ -2,7 +2,7 @@
 
 A *skyline* is the elevation angle of the sky/terrain boundary at each azimuth of the view,
 sampled on a fixed angular grid so that views of other resolutions (and other fields of view)
-compare bin by bin. Conventions (the pinhole of :mod:`models.camera`): a pixel (row, col) sees
+compare bin by bin. Conventions (the pinhole of :mod:`models.camera_emulator`): a pixel (row, col) sees
 the camera-frame ray ``(xc, yc, 1)`` with ``xc = (col - cx) / f``, ``yc = (cy - row) / f``; its
 **azimuth** is ``atan(xc)`` (degrees, positive to the right of the optical axis) and its
 **elevation** ``atan2(yc, sqrt(1 + xc**2))`` (degrees, positive above the optical axis). Bin i
@@ -104,7 +104,7 @@ def profile_bins(width: int, height: int, *, fov_y_deg: float, step_deg: float =
 
 def profile_azimuths(n: int, *, step_deg: float = DEFAULT_STEP_DEG) -> NDArray[np.float64]:
     """Azimuth in degrees (positive right of the optical axis) of each of ``n`` bins, shape (n,)."""
-    return (np.arange(n) - (n - 1) / 2) * step_deg
+    return (np.arange(n, dtype=np.float64) - (n - 1) / 2) * float(step_deg)
 
 
 def boundary_to_profile(
@@ -150,9 +150,7 @@ def boundary_to_profile(
     return out.astype(np.float32)
 
 
-def skyline_from_depth(
-    depth: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG
-) -> NDArray[np.float32]:
+def skyline_from_depth(depth: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG) -> NDArray[np.float32]:
     """The profile of a rendered view from its depth buffer (H, W) (0 = sky), shape (n,)."""
     d = np.asarray(depth)
     if d.ndim != 2:
@@ -216,8 +214,14 @@ def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.ran
     if len(s) > 4000:
         s = s[rng.choice(len(s), 4000, replace=False)]
     k = min(_CLUSTERS, len(s) // 8)
-    _, lab, _ = cv2.kmeans(s.astype(np.float32), k, None,
-                           (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5), 1, cv2.KMEANS_PP_CENTERS)
+    _, lab, _ = cv2.kmeans(  # type: ignore[call-overload]  # bestLabels None: let OpenCV allocate them
+        s.astype(np.float32),
+        k,
+        None,
+        (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5),
+        1,
+        cv2.KMEANS_PP_CENTERS,
+    )
     lab = lab.ravel()
     terms = [np.full(len(x), math.log(_OUTLIER) - _LOG_VOLUME)]
     for j in range(k):
@@ -295,7 +299,7 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     h, w = rgb.shape[:2]
     if h > WORK_ROWS:
         w2 = max(2, int(round(w * WORK_ROWS / h)))
-        rgb = cv2.resize(rgb, (w2, WORK_ROWS), interpolation=cv2.INTER_AREA)
+        rgb = np.asarray(cv2.resize(rgb, (w2, WORK_ROWS), interpolation=cv2.INTER_AREA), dtype=np.float32)
         h, w = rgb.shape[:2]
     feat = _features(np.ascontiguousarray(rgb))
     g = _contrast(feat)
@@ -304,7 +308,7 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     sky_sel[: max(1, h // 12)] = True
     ter_sel = rows >= h - max(1, h // 4)
     ter_sel = np.broadcast_to(ter_sel, (h, w))
-    b = None
+    b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
     for _ in range(_ITERATIONS + 1):
         cs, ct = _sky_cost(feat, sky_sel), _terrain_cost(feat, ter_sel, rng)
@@ -319,9 +323,7 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     return b.astype(np.float64), h
 
 
-def skyline_from_image(
-    image: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG
-) -> NDArray[np.float32]:
+def skyline_from_image(image: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG) -> NDArray[np.float32]:
     """The profile (n,) of a camera image (H, W, 3) uint8 RGB (module docstring)."""
     b, rows = image_boundary(image)
     return boundary_to_profile(b, rows, fov_y_deg=fov_y_deg, step_deg=step_deg)
@@ -387,7 +389,7 @@ def match_skylines(
     for s in shifts:
         # q(i) against r(i - s)
         lo, hi = max(0, s), min(n, n + s)
-        d = r[:, lo - s: hi - s] - q[None, lo:hi]  # r - q = pitch offset where they agree
+        d = r[:, lo - s : hi - s] - q[None, lo:hi]  # r - q = pitch offset where they agree
         ok = np.isfinite(d)
         cnt = ok.sum(1)
         use = cnt >= need

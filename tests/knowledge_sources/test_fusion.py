@@ -33,8 +33,9 @@ def test_fusion_does_not_depend_on_each_sources_units():
     a = _source(rng, 40, 7, separation=2.0)
     b = _source(rng, 40, 7, separation=2.0)
     base = fuse_rankings({"associative": a, "skyline": b})
-    rescaled = fuse_rankings({"associative": (a[0], [1e-5 * v + 3.0 for v in a[1]]),
-                              "skyline": (b[0], [40.0 * v for v in b[1]])})
+    rescaled = fuse_rankings(
+        {"associative": (a[0], [1e-5 * v + 3.0 for v in a[1]]), "skyline": (b[0], [40.0 * v for v in b[1]])}
+    )
     assert [k for k, _ in base] == [k for k, _ in rescaled]
 
 

@@ -22,7 +22,9 @@ def test_skyline_rankings_are_fused_and_positions_refined(small, small_data, tmp
     records = read_trace(trace)
     posts = [r for r in records if r["kind"] == "post"]
     sky = [r for r in posts if r.get("level") == "ranking" and r["id"].endswith("-skyline")]
-    assert len(sky) == n and {r["agent"] for r in sky} == {"skyline"} and {r["body"]["source"] for r in sky} == {"skyline"}
+    assert (
+        len(sky) == n and {r["agent"] for r in sky} == {"skyline"} and {r["body"]["source"] for r in sky} == {"skyline"}
+    )
     # the scheduler waited for both sources: every position links the skyline ranking of its frame
     positions = {r["id"]: r for r in posts if r.get("level") == "position"}
     for p in positions.values():

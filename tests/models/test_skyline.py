@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from models.camera import CameraEmulator
+from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
 from models.scenario import SimulateSpec, scenario_from_dict
 from models.sensor import degrade
@@ -24,13 +24,22 @@ FOV = 45.0
 
 
 def _scenario(width=160, height=120, pitch=0.0):
-    return scenario_from_dict({
-        "name": "sky",
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
-        "route": [[300, 300], [400, 400]],
-        "camera": {"width": width, "height": height, "fov_y_deg": FOV, "eye_height": 2.0, "pitch_deg": pitch,
-                   "near": 1.0, "far": 5000.0},
-    })
+    return scenario_from_dict(
+        {
+            "name": "sky",
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
+            "route": [[300, 300], [400, 400]],
+            "camera": {
+                "width": width,
+                "height": height,
+                "fov_y_deg": FOV,
+                "eye_height": 2.0,
+                "pitch_deg": pitch,
+                "near": 1.0,
+                "far": 5000.0,
+            },
+        }
+    )
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +86,7 @@ def test_known_synthetic_horizon_is_recovered(size, haze):
     rng = np.random.default_rng(11)
     cols = np.arange(w)
     truth = (0.45 * h + 0.12 * h * np.sin(cols / w * 2 * math.pi * 1.5)).round()
-    truth[w // 3: w // 3 + max(2, w // 40)] = 0.2 * h  # a tower: a steep, narrow silhouette
+    truth[w // 3 : w // 3 + max(2, w // 40)] = 0.2 * h  # a tower: a steep, narrow silhouette
     img, _ = _synthetic(h, w, truth, rng, haze=haze)
     got = skyline_from_image(img, fov_y_deg=FOV)
     want = boundary_to_profile(truth, h, fov_y_deg=FOV)

@@ -8,10 +8,10 @@ import pytest
 from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
 from models.scenario import scenario_from_dict
+from models.skyline import profile_bins, skyline_from_depth
 from models.symbolic import SymbolicDescription
 from models.viewframes import render_viewframes, route_headings, route_poses
 from models.world import World
-from models.skyline import profile_bins, skyline_from_depth
 
 
 def _scenario(route, **extra):
