@@ -66,7 +66,7 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
         labels = [v.index for v in vfs]
         ranks: dict[str, list[int]] = {"associative": [], "skyline": [], **{f"fused@{w:g}": [] for w in weights}}
         t_assoc = t_sky = t_ref = 0.0
-        pos_err, pos_err_route, head_err, head_err_route, renders = [], [], [], [], []
+        pos_err, pos_err_route, head_err, head_err_route, renders, scores = [], [], [], [], [], []
         frames = case.frames[:max_frames] if max_frames else case.frames
         for fr in frames:
             image = load_frame_image(fr.image, width=cam_spec.width, height=cam_spec.height)
@@ -111,6 +111,7 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
                 head_err.append(_wrap(r.heading_deg - fr.heading_deg))
                 head_err_route.append(_wrap(p.heading_deg - fr.heading_deg))
                 renders.append(r.renders)
+                scores.append([r.start_score, r.score, int(fused_first == truth)])
         n = len(frames)
         out["frames"] = n
         out["ranks"] = ranks
