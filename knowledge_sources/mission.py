@@ -87,7 +87,8 @@ def agent_plan(
     ref = scenario.refine
     if ref.enabled:
         plan.append(("knowledge_sources.refiner:PoseRefiner", "refiner",
-                     {"along_m": ref.along_m, "across_m": ref.across_m, "levels": ref.levels, "grid": ref.grid,
+                     {"position": ref.position, "along_m": ref.along_m, "across_m": ref.across_m, "levels": ref.levels,
+                      "grid": ref.grid,
                       "edge_weight": ref.edge_weight, **match}))
     return plan
 
@@ -161,7 +162,8 @@ def run_mission(
     if timeout_s is None:
         timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
         if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
-            timeout_s += 0.2 * n_frames * (2 + scenario.refine.levels * scenario.refine.grid ** 2)
+            renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
+            timeout_s += 0.2 * n_frames * renders
     done = 0
     posted: dict[str, int] = {}
 

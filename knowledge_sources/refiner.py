@@ -28,7 +28,8 @@ class PoseRefiner(KnowledgeSource):
 
     Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``. Positions that arrive before the map wait.
+    ``max_pitch_deg``, ``truncate_deg``, ``position`` (search the position too, or refine heading
+    and pitch only). Positions that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
@@ -48,6 +49,7 @@ class PoseRefiner(KnowledgeSource):
         max_heading_deg: float,
         max_pitch_deg: float,
         truncate_deg: float,
+        position: bool,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -65,6 +67,7 @@ class PoseRefiner(KnowledgeSource):
             "max_heading_deg": float(max_heading_deg),
             "max_pitch_deg": float(max_pitch_deg),
             "truncate_deg": float(truncate_deg),
+            "position": bool(position),
         }
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None

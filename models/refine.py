@@ -65,6 +65,7 @@ DEFAULT_ACROSS_M = _DEFAULTS.across_m
 DEFAULT_LEVELS = _DEFAULTS.levels
 DEFAULT_GRID = _DEFAULTS.grid
 DEFAULT_EDGE_WEIGHT = _DEFAULTS.edge_weight
+DEFAULT_POSITION = _DEFAULTS.position
 
 _BLUR_PX = 1.5
 
@@ -209,11 +210,15 @@ def refine_pose(
     max_heading_deg: float = DEFAULT_MAX_HEADING_DEG,
     max_pitch_deg: float = DEFAULT_MAX_PITCH_DEG,
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
+    position: bool = DEFAULT_POSITION,
 ) -> RefinedPose:
     """Refine ``start`` (the chosen route point's pose) against the camera ``image`` (H, W, 3).
 
     See the module docstring for the search, the score and the uncertainty. Renders about
-    ``2 + levels * grid**2`` views (fewer where the patterns of two levels overlap).
+    ``2 + levels * grid**2`` views (fewer where the patterns of two levels overlap). With
+    ``position=False`` only heading and pitch are refined (step 1, two views): the position
+    stays the start's, its uncertainty that of a uniform spread over ``+-along_m`` and
+    ``+-across_m``.
     """
     if levels < 1 or grid < 2:
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
@@ -238,6 +243,19 @@ def refine_pose(
     seen: dict[tuple[float, float], float] = {(0.0, 0.0): s0}
     ext = np.array([along_m, across_m], dtype=np.float64)
     last: list[tuple[float, float, float]] = []
+    if not position:
+        return RefinedPose(
+            start.x,
+            start.y,
+            float(heading),
+            float(pitch),
+            along_m / math.sqrt(3),
+            across_m / math.sqrt(3),
+            float(sig_h),
+            float(s0),
+            float(s0),
+            sc.renders,
+        )
     for _ in range(levels):
         ticks = np.linspace(-1.0, 1.0, grid)
         last = []

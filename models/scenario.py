@@ -295,9 +295,12 @@ class RefineSpec(_Spec):
     ``{enabled: true, along_m: 20, across_m: 8, levels: 2, grid: 5, edge_weight: 2}``: positions
     within ``along_m`` along and ``across_m`` across the chosen route point's heading are
     searched, ``levels`` times on a ``grid`` x ``grid`` pattern that shrinks each time; a view's
-    score is its skyline error plus ``edge_weight`` times one minus its edge correlation."""
+    score is its skyline error plus ``edge_weight`` times one minus its edge correlation.
+    ``position: false`` (default) refines heading and pitch only: on the evaluation set's tuning
+    split the position search made the median error worse than the route point's (BENCHMARKS.md)."""
 
     enabled: bool = True
+    position: bool = False
     along_m: float = Field(default=20.0, ge=0)
     across_m: float = Field(default=8.0, ge=0)
     levels: int = Field(default=2, ge=1, le=8)

@@ -15,7 +15,10 @@ pytestmark = pytest.mark.slow
 
 
 @pytest.mark.parametrize("processes", [False, True], ids=["inprocess", "processes"])
-def test_skyline_rankings_are_fused_and_positions_refined(small, small_data, tmp_path, processes):
+def test_skyline_rankings_are_fused_and_positions_refined(small_data, tmp_path, processes):
+    small_data["refine"] = {"position": True}  # the position search too (default: heading and pitch only)
+    small = tmp_path / "small.yaml"
+    small.write_text(yaml.safe_dump(small_data))
     trace = tmp_path / "run.trace"
     results = run_mission(small, processes=processes, trace_path=trace)
     n = len(small_data["route"])
@@ -38,7 +41,7 @@ def test_skyline_rankings_are_fused_and_positions_refined(small, small_data, tmp
         frame = int(r["id"].split("-")[1])
         assert r["links"][:2] == [f"pos-{frame:06d}", f"sf-{frame:06d}"]
     for f in localized:
-        assert f["pose"] is not None and f["route_position"] is not None
+        assert f["pose"] is not None and f["route_position"] is not None and f["pose"]["renders"] > 10
         assert math.dist(f["position"], f["route_position"]) < 25
     # the small scenario's frames are close to their route points: refinement keeps them close
     assert results["summary"]["median_error_m"] < 6.0
@@ -61,10 +64,10 @@ def test_disabled_skyline_and_refiner_leave_todays_pipeline(small_data, tmp_path
 
 def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_path):
     small_data["skyline"] = {"weight": 2.5, "max_heading_deg": 8.0}
-    small_data["refine"] = {"along_m": 12.0, "grid": 3}
+    small_data["refine"] = {"along_m": 12.0, "grid": 3, "position": True}
     path = tmp_path / "opts.yaml"
     path.write_text(yaml.safe_dump(small_data))
     plan = {name: opts for _, name, opts in agent_plan(load_scenario(path))}
     assert plan["scheduler"]["sources"] == {"associative": 1.0, "skyline": 2.5}
     assert plan["skyline"]["max_heading_deg"] == 8.0 and plan["skyline"]["fov_y_deg"] == 45
-    assert plan["refiner"]["along_m"] == 12.0 and plan["refiner"]["grid"] == 3
+    assert plan["refiner"]["along_m"] == 12.0 and plan["refiner"]["grid"] == 3 and plan["refiner"]["position"]

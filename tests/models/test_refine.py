@@ -38,7 +38,7 @@ def test_refinement_recovers_a_known_offset(emulator, along, across, turn, pitch
     true = emulator.pose_at(x, y, start.heading_deg + turn, pitch_deg=pitch)
     view = emulator.render(true, light_intensity=1.2, light_direction=(0.3, -0.5, -0.8))
     image = degrade(view.image, depth=view.depth, spec=SimulateSpec(haze=0.3, noise=5.0), rng=4)
-    r = refine_pose(image, emulator, start)
+    r = refine_pose(image, emulator, start, position=True)
     before = math.hypot(start.x - x, start.y - y)
     after = math.hypot(r.x - x, r.y - y)
     assert after < 3.0 < before, (before, after)
@@ -51,7 +51,7 @@ def test_refinement_recovers_a_known_offset(emulator, along, across, turn, pitch
 def test_refinement_of_the_true_pose_stays_put(emulator):
     start = emulator.pose_at(420.0, 380.0, 60.0)
     image = emulator.render(start).image
-    r = refine_pose(image, emulator, start)
+    r = refine_pose(image, emulator, start, position=True)
     assert math.hypot(r.x - start.x, r.y - start.y) < 1.5
     assert r.heading_deg == pytest.approx(60.0, abs=0.3)
 
@@ -60,3 +60,11 @@ def test_refinement_options_are_checked(emulator):
     start = emulator.pose_at(420.0, 380.0, 60.0)
     with pytest.raises(ValueError, match="levels"):
         refine_pose(np.zeros((120, 160, 3), np.uint8), emulator, start, levels=0)
+
+
+def test_heading_only_refinement_keeps_the_position_and_renders_two_views(emulator):
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    view = emulator.render(emulator.pose_at(425.0, 383.0, 64.0))
+    r = refine_pose(view.image, emulator, start, position=False)
+    assert (r.x, r.y) == (start.x, start.y) and r.renders == 2
+    assert r.heading_deg == pytest.approx(64.0, abs=0.75)
