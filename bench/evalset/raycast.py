@@ -1,7 +1,7 @@
 """An evaluation renderer independent of the viewframes' pyrender path: a height-field ray caster.
 
-Nothing here calls pyrender, OpenGL or :mod:`models.camera`; it shares only the pinhole
-convention of :mod:`models.camera` (world (x, y, z) metres, x east, y north, z up; heading
+Nothing here calls pyrender, OpenGL or :mod:`models.camera_emulator`; it shares only the pinhole
+convention of :mod:`models.camera_emulator` (world (x, y, z) metres, x east, y north, z up; heading
 counterclockwise from +x; image (row, col), row 0 at the top, principal point at the centre,
 ``f = (H / 2) / tan(fov_y / 2)``) so that truth poses mean the same thing.
 
