@@ -17,10 +17,11 @@ import logging
 import os
 import sys
 from collections.abc import Sequence
+from typing import NoReturn
 
 from knowledge_sources.errors import MAPINTERP_ERRORS
 
-__all__ = ["COMMANDS", "build_parser", "main"]
+__all__ = ["COMMANDS", "build_parser", "console_main", "main"]
 
 #: sub-command name -> module in knowledge_sources.commands
 COMMANDS: dict[str, str] = {
@@ -45,9 +46,17 @@ _HELP: dict[str, str] = {
 EXIT_BROKEN_PIPE = 141
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line (``mapinterp run: error: argument --rate:
+    must be in (0, 10000] Hz, got nan``), exit status 2; the usage is in ``--help``."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see: {self.prog} --help)\n")
+
+
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """Build the argument parser; only the chosen sub-command's module is imported."""
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="mapinterp",
         description="Localize a ground vehicle on a terrain map from its camera images, with agents "
                     "cooperating on a zenoh blackboard.",
@@ -71,8 +80,14 @@ def _command_module(name: str):
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mapinterp`` console script; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser(argv)
+        args = parser.parse_args(argv)
+    except SystemExit as stop:  # a usage error (one line, status 2) or --help (status 0)
+        return stop.code if isinstance(stop.code, int) else 2
+    except KeyboardInterrupt:  # Ctrl-C while the command's modules load
+        print("mapinterp: interrupted", file=sys.stderr)
+        return 130
     level = [logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     try:
@@ -96,5 +111,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+def console_main() -> int:
+    """The console script: :func:`main`, except that an interrupted command (status 128 + signal,
+    its results and trace already written and flushed) leaves at once, not after the interpreter
+    has waited for activations still running in agent threads and torn down their sessions."""
+    status = main()
+    if status > 128:
+        logging.shutdown()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(status)
+    return status
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(console_main())

@@ -13,7 +13,8 @@ has a top-level ``expect:`` block runs end to end through the blackboard and mus
       processes: false             # run every agent in its own process
 
 A miss is reported as a table of expectation, wanted, got and by how much. A malformed scenario
-fails its item with the scenario error (file and field), not with a traceback.
+fails its item with the scenario error (file and field), not with a traceback; so does a run
+that localized no frame, whatever its expectations (``top1_min`` or not).
 """
 
 from __future__ import annotations
@@ -61,6 +62,20 @@ def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, An
     return misses
 
 
+def _check_ran(results: dict[str, Any]) -> None:
+    """A run that localized no frame fails its item whatever the expectations say; an
+    interrupted one stops pytest as the Ctrl-C would have."""
+    from knowledge_sources.errors import RunFailed
+
+    if results.get("interrupted"):
+        raise KeyboardInterrupt(results["interrupted"])
+    s = results["summary"]
+    if s["localized"] == 0:
+        degraded = "; ".join(results.get("degraded") or [])
+        raise RunFailed(f"no frame localized ({s.get('frames_expected', s['frames'])} expected, "
+                        f"{s.get('posted', s['frames'])} posted{'; ' + degraded if degraded else ''})")
+
+
 def pytest_collect_file(parent: pytest.Collector, file_path: Path):
     if file_path.suffix not in (".yaml", ".yml"):
         return None
@@ -96,9 +111,11 @@ class ScenarioItem(pytest.Item):
         expect = scenario.expect
         strategy = expect.strategy or scenario.scheduler.strategy
         self.results = run_mission(scenario, strategy=strategy, processes=expect.processes)
+        _check_ran(self.results)
         prior = None
         if expect.fewer_queries_than_prior:
             prior = run_mission(scenario, strategy="prior", processes=expect.processes)
+            _check_ran(prior)
         misses = check_expectations(expect, self.results, prior)
         if misses:
             raise ExpectationMissed(misses)

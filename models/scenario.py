@@ -64,6 +64,7 @@ __all__ = [
     "load_scenario",
     "scenario_from_dict",
     "SAMPLE_DEMS",
+    "validation_problem",
 ]
 
 log = logging.getLogger(__name__)
@@ -72,8 +73,20 @@ log = logging.getLogger(__name__)
 SAMPLE_DEMS: tuple[str, ...] = ("jacksboro",)
 
 
+#: bounds shared by several fields: world coordinates and lengths (metres), seeds
+MAX_COORD_M = 1e7
+MAX_SIZE_M = 1e4
+MAX_SEED = 2**32 - 1
+#: at most this many route points and camera frames in one scenario
+MAX_ROUTE_POINTS = 1_000_000
+MAX_FRAMES = 1_000_000
+#: smallest camera image on file accepted, pixels per side (the camera's own lower bound)
+MIN_IMAGE_PX = 8
+
+
 class _Spec(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # no inf/NaN anywhere: every float is finite (pydantic's finite_number error)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _resolve_path(value: Path, info: ValidationInfo, *, must_exist: bool = True) -> Path:
@@ -91,14 +104,14 @@ class ProceduralSpec(_Spec):
     """Procedural hills: ``{size: 256, relief: 120.0, seed: 3}`` (seed None -> scenario seed)."""
 
     size: int = Field(ge=8, le=4096)
-    relief: float = Field(gt=0)
-    seed: int | None = None
+    relief: float = Field(gt=0, le=MAX_SIZE_M)
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
 
 
 class TerrainSpec(_Spec):
     """``cell_size`` plus exactly one source: ``dem``, ``procedural``, ``contours`` or ``sample``."""
 
-    cell_size: float = Field(gt=0)
+    cell_size: float = Field(gt=0, le=MAX_SIZE_M)
     dem: Path | None = None
     procedural: ProceduralSpec | None = None
     contours: Path | None = None
@@ -121,14 +134,14 @@ class TerrainSpec(_Spec):
 class LandmarkSpec(_Spec):
     """A box landmark: footprint centre (x, y), width along local x, depth along local y."""
 
-    id: str = Field(min_length=1)
-    kind: str = Field(min_length=1)
-    x: float
-    y: float
-    width: float = Field(gt=0)
-    depth: float = Field(gt=0)
-    height: float = Field(gt=0)
-    yaw_deg: float = 0.0
+    id: str = Field(min_length=1, max_length=64)
+    kind: str = Field(min_length=1, max_length=64)
+    x: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    y: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    width: float = Field(gt=0, le=MAX_SIZE_M)
+    depth: float = Field(gt=0, le=MAX_SIZE_M)
+    height: float = Field(gt=0, le=MAX_SIZE_M)
+    yaw_deg: float = Field(default=0.0, ge=-360, le=360)
 
 
 class CameraSpec(_Spec):
@@ -137,10 +150,10 @@ class CameraSpec(_Spec):
     width: int = Field(ge=8, le=4096)
     height: int = Field(ge=8, le=4096)
     fov_y_deg: float = Field(gt=0, lt=180)
-    eye_height: float = Field(ge=0)
+    eye_height: float = Field(ge=0, le=MAX_SIZE_M)
     pitch_deg: float = Field(default=0.0, gt=-90, lt=90)
-    near: float = Field(gt=0)
-    far: float = Field(gt=0)
+    near: float = Field(gt=0, le=MAX_SIZE_M)
+    far: float = Field(gt=0, le=MAX_COORD_M)
 
     @field_validator("far")
     @classmethod
@@ -154,9 +167,9 @@ class CameraSpec(_Spec):
 class TruthSpec(_Spec):
     """True pose of a camera frame (for evaluation only)."""
 
-    x: float
-    y: float
-    heading_deg: float
+    x: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    y: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    heading_deg: float = Field(ge=-360, le=360)
 
 
 class FrameSpec(_Spec):
@@ -174,25 +187,25 @@ class FrameSpec(_Spec):
 class SimulateSpec(_Spec):
     """Simulated camera frames near the route points (see the end-to-end issue)."""
 
-    per_point: int = Field(default=1, ge=1)
-    stride: int = Field(default=1, ge=1)  # frames at every stride-th route point only
-    jitter_m: float = Field(default=1.5, ge=0)
-    jitter_deg: float = Field(default=3.0, ge=0)
+    per_point: int = Field(default=1, ge=1, le=1000)
+    stride: int = Field(default=1, ge=1, le=MAX_ROUTE_POINTS)  # frames at every stride-th route point only
+    jitter_m: float = Field(default=1.5, ge=0, le=1000)
+    jitter_deg: float = Field(default=3.0, ge=0, le=180)
     advance: float = Field(default=0.15, ge=0, lt=1)
-    lighting: float = Field(default=0.3, ge=0)
-    haze: float = Field(default=0.2, ge=0)
-    gain: float = Field(default=0.2, ge=0)
-    gamma: float = Field(default=0.2, ge=0)
-    noise: float = Field(default=4.0, ge=0)
-    blur: float = Field(default=0.7, ge=0)
-    texture: float = Field(default=0.3, ge=0)
-    seed: int | None = Field(default=None, ge=0)
+    lighting: float = Field(default=0.3, ge=0, le=1)  # light intensity 1 ± lighting: must stay >= 0
+    haze: float = Field(default=0.2, ge=0, le=1)  # a blend fraction
+    gain: float = Field(default=0.2, ge=0, le=1)  # gain 1 ± gain
+    gamma: float = Field(default=0.2, ge=0, le=5)
+    noise: float = Field(default=4.0, ge=0, le=255)  # gray levels
+    blur: float = Field(default=0.7, ge=0, le=50)  # pixels
+    texture: float = Field(default=0.3, ge=0, le=4)
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
 
 
 class SensorSpec(_Spec):
     """Exactly one of ``frames`` (real images) or ``simulate``."""
 
-    frames: list[FrameSpec] | None = Field(default=None, min_length=1)
+    frames: list[FrameSpec] | None = Field(default=None, min_length=1, max_length=MAX_FRAMES)
     simulate: SimulateSpec | None = None
 
     @model_validator(mode="after")
@@ -219,9 +232,9 @@ class MemorySpec(_Spec):
 
     size: int = 128
     edge: Literal["canny", "sobel"] = "sobel"
-    blur_sigma: float = Field(default=1.0, gt=0)
-    bank_size: int = Field(default=2, ge=1)
-    shard_size: int = Field(default=512, ge=1)
+    blur_sigma: float = Field(default=1.0, gt=0, le=64)
+    bank_size: int = Field(default=2, ge=1, le=4096)
+    shard_size: int = Field(default=512, ge=1, le=MAX_ROUTE_POINTS)
     max_shift: tuple[int, int] = (2, 16)
     key: Literal["phase", "quantized"] = "phase"
 
@@ -255,14 +268,15 @@ class SchedulerSpec(_Spec):
         scheduler: {candidates: 8, accept: 0.6, min_pixels: 60, detector_threshold: 0.65}
     """
 
-    candidates: int = Field(default=8, ge=1)
+    candidates: int = Field(default=8, ge=1, le=MAX_ROUTE_POINTS)
     accept: float = Field(default=0.6, gt=0, le=1)
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
-    beta: float = Field(default=3.0, gt=0)
-    min_pixels: int = Field(default=60, ge=1)
+    beta: float = Field(default=3.0, gt=0, le=100)
+    min_pixels: int = Field(default=60, ge=1, le=4096 * 4096)
     detector_threshold: float = Field(default=0.65, ge=0, le=1)
     absent_threshold: float = Field(default=0.15, ge=0, le=1)
-    query_timeout_s: float = Field(default=10.0, gt=0)
+    # a question unanswered this long is given up (its detector is taken as dead for it)
+    query_timeout_s: float = Field(default=10.0, ge=0.01, le=3600)
     strategy: Literal["associative", "prior"] = "associative"
 
     @model_validator(mode="after")
@@ -277,8 +291,8 @@ class ExpectSpec(_Spec):
 
     strategy: Literal["associative", "prior"] | None = None
     top1_min: float | None = Field(default=None, ge=0, le=1)
-    mean_queries_max: float | None = Field(default=None, gt=0)
-    mean_error_m_max: float | None = Field(default=None, gt=0)
+    mean_queries_max: float | None = Field(default=None, gt=0, le=1e6)
+    mean_error_m_max: float | None = Field(default=None, gt=0, le=MAX_COORD_M)
     fewer_queries_than_prior: bool = False
     processes: bool = False
 
@@ -286,11 +300,11 @@ class ExpectSpec(_Spec):
 class Scenario(_Spec):
     """A validated scenario. Build it with :func:`load_scenario` or :func:`scenario_from_dict`."""
 
-    name: str = Field(min_length=1)
-    seed: int = 0
+    name: str = Field(min_length=1, max_length=200)
+    seed: int = Field(default=0, ge=0, le=MAX_SEED)
     terrain: TerrainSpec
     landmarks: list[LandmarkSpec] = Field(default_factory=list)
-    route: list[tuple[float, float]] = Field(min_length=2)
+    route: list[tuple[float, float]] = Field(min_length=2, max_length=MAX_ROUTE_POINTS)
     camera: CameraSpec
     sensor: SensorSpec | None = None
     memory: MemorySpec = MemorySpec()
@@ -312,9 +326,10 @@ class Scenario(_Spec):
     @field_validator("route")
     @classmethod
     def _distinct(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for i, point in enumerate(value):
+            if not all(math.isfinite(v) and abs(v) <= MAX_COORD_M for v in point):
+                raise ValueError(f"point {i} must be finite, within ±{MAX_COORD_M:g} m")
         for i, (a, b) in enumerate(zip(value, value[1:]), start=1):
-            if not all(math.isfinite(v) for v in (*a, *b)):
-                raise ValueError(f"point {i} is not finite")
             if math.hypot(b[0] - a[0], b[1] - a[1]) < 1e-6:
                 raise ValueError(f"points {i - 1} and {i} coincide")
         return value
@@ -340,6 +355,7 @@ _MESSAGES = {
     "too_short": "needs at least {min_length} items",
     "too_long": "allows at most {max_length} items",
     "string_too_short": "must not be empty",
+    "string_too_long": "must be at most {max_length} characters",
     "int_parsing": "must be an integer",
     "int_from_float": "must be an integer",
     "int_type": "must be an integer",
@@ -384,12 +400,18 @@ def _message(err: ErrorDetails) -> str:
         return err["msg"]
 
 
-def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
+def validation_problem(exc: ValidationError) -> tuple[str | None, str]:
+    """``(field path, message)`` of a pydantic error, worded as this module's scenario errors
+    (``landmarks[3].height``, ``must be > 0 (and 2 more errors)``); for other user files too."""
     errors = exc.errors()
     # union members (e.g. route tuple) report the deepest location first; keep the first error
     err = errors[0]
     more = f" (and {len(errors) - 1} more error{'s' if len(errors) > 2 else ''})" if len(errors) > 1 else ""
-    return ScenarioError(path, _field_path(tuple(err["loc"])) or None, _message(err) + more)
+    return _field_path(tuple(err["loc"])) or None, _message(err) + more
+
+
+def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
+    return ScenarioError(path, *validation_problem(exc))
 
 
 def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:

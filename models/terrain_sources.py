@@ -18,22 +18,27 @@ from models.errors import InputError, ScenarioError
 from models.terrain import Terrain, procedural_terrain, sample_terrain
 
 if TYPE_CHECKING:
-    from models.scenario import TerrainSpec
+    from models.scenario import Scenario, TerrainSpec
 
-__all__ = ["load_terrain"]
+__all__ = ["load_terrain", "scenario_terrain", "MAX_ABS_HEIGHT_M"]
 
 log = logging.getLogger(__name__)
+
+#: ground heights beyond this (metres, either sign) are taken for a broken file
+MAX_ABS_HEIGHT_M = 1e5
 
 
 def _load_dem(path: Path, cell_size: float) -> Terrain:
     try:
         heights = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
         raise InputError(path, f"cannot read DEM as a .npy array: {exc}") from None
     if not isinstance(heights, np.ndarray) or heights.ndim != 2 or min(heights.shape) < 2:
         raise InputError(path, f"DEM must be a 2-D array of at least 2x2 cells, got shape {np.shape(heights)}")
-    if not np.issubdtype(heights.dtype, np.number) or not np.all(np.isfinite(heights)):
-        raise InputError(path, "DEM heights must be finite numbers")
+    if not (np.issubdtype(heights.dtype, np.integer) or np.issubdtype(heights.dtype, np.floating)):
+        raise InputError(path, f"DEM heights must be real numbers, not {heights.dtype}")
+    if not np.all(np.isfinite(heights)):
+        raise InputError(path, "DEM heights must be finite numbers (found NaN or inf)")
     return Terrain(heights=heights.astype(np.float64), cell_size=cell_size)
 
 
@@ -65,4 +70,23 @@ def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
     else:  # pragma: no cover - the spec validator forbids it
         raise ScenarioError(None, "terrain", "needs exactly one source")
     log.info("terrain %s x %s cells, %.0f..%.0f m", *terrain.shape, terrain.heights.min(), terrain.heights.max())
+    return terrain
+
+
+def scenario_terrain(scenario: Scenario) -> Terrain:
+    """:func:`load_terrain` of a scenario, its errors naming the scenario file and the field as
+    well as the data file (``x.yaml: terrain.dem: x.npy: DEM must be ...``): the one message the
+    pre-run check and an agent meeting the file during a run both give."""
+    spec = scenario.terrain
+    field = "terrain." + next(k for k in ("dem", "contours", "procedural", "sample") if getattr(spec, k) is not None)
+    try:
+        terrain = load_terrain(spec, base_dir=scenario.base_dir, seed=scenario.seed)
+    except InputError as err:
+        raise ScenarioError(scenario.path, field, str(err)) from None
+    except (ValueError, OSError) as err:
+        raise ScenarioError(scenario.path, field, f"cannot build the terrain: {err}") from None
+    low, high = float(np.min(terrain.heights)), float(np.max(terrain.heights))
+    if max(abs(low), abs(high)) > MAX_ABS_HEIGHT_M:
+        raise ScenarioError(scenario.path, field, f"heights {low:g}..{high:g} m are beyond "
+                                                  f"±{MAX_ABS_HEIGHT_M:g} m: not a terrain")
     return terrain

@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from knowledge_sources.commands import bounded_number
+
 HELP = "plot a results file: map, frames beside their viewframes, rankings, queries"
 
 __all__ = ["HELP", "add_arguments", "main"]
@@ -21,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("results", type=Path, nargs="+", help="results JSON from 'mapinterp run' (several: compared)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--scenario", type=Path, default=None, help="scenario file (default: from the results)")
-    parser.add_argument("--max-frames", type=int, default=40, help="frame panels to draw at most (default 40)")
+    parser.add_argument("--max-frames", type=bounded_number(0, 10_000, "", integer=True, low_inclusive=True), default=40, help="frame panels to draw at most (default 40)")
 
 
 def main(args: argparse.Namespace) -> int:
