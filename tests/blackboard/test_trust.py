@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 import zenoh
 
-
 from blackboard.codec import decode, encode
 from blackboard.config import ZenohOptions, open_session, zenoh_config
 from blackboard.errors import CodecError
