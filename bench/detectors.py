@@ -86,12 +86,12 @@ def main(argv: list[str] | None = None) -> int:
         pos, neg = max(1, sum(y)), max(1, len(y) - sum(y))
         bins = []
         for lo, hi in ((-99, -2), (-2, 0), (0, 2), (2, 99)):
-            sel = [(l, t) for l, t in zip(llr, y) if lo <= l < hi]
+            sel = [(v, t) for v, t in zip(llr, y) if lo <= v < hi]
             if sel:
                 wp = sum(1 / pos for _, t in sel if t == 1)
                 wn = sum(1 / neg for _, t in sel if t == 0)
                 bins.append({"llr": [lo, hi], "n": len(sel),
-                             "predicted": round(float(np.mean([1 / (1 + math.exp(-l)) for l, _ in sel])), 3),
+                             "predicted": round(float(np.mean([1 / (1 + math.exp(-v)) for v, _ in sel])), 3),
                              "observed": round(wp / (wp + wn), 3)})
         result["kinds"][kind] = {
             "questions": len(rr), "positives": int(sum(y)),

@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
@@ -286,6 +286,7 @@ class EdgeTemplateDetector:
         sc = self.align_px[1] + int(0.5 * (c1 - c0))
         pad = max(sr, sc) + 1
         cam = np.pad(_gray(image), pad, mode="edge")[r0 - sr + pad:r1 + sr + pad, c0 - sc + pad:c1 + sc + pad]
+        assert view.without is not None  # checked by the callers
         behind = _gray(view.without)[r0:r1, c0:c1]
         return float(_ring_contrast(cam, m_in, m_ring).max()) - float(_ring_contrast(behind, m_in, m_ring).max())
 
@@ -349,6 +350,7 @@ class EdgeTemplateDetector:
         rows, cols = np.nonzero(sil)
         r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
         m = sil[r0:r1, c0:c1].astype(np.float32)
+        assert view.without is not None  # checked by the callers
         t1 = _chromaticity(view.image)[r0:r1, c0:c1]
         t0 = _chromaticity(view.without)[r0:r1, c0:c1]
         d2 = float((m[..., None] * (t1 - t0) ** 2).sum())
@@ -394,13 +396,12 @@ def _chromaticity(image: np.ndarray) -> np.ndarray:
 def _masked_ssd(window: np.ndarray, template: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``sum mask * |window_o - template|^2`` over channels for every offset ``o`` of the template
     (H_t, W_t, C) inside the window (H_w, W_w, C); returns (H_w - H_t + 1, W_w - W_t + 1)."""
-    out = None
+    out = np.zeros((window.shape[0] - template.shape[0] + 1, window.shape[1] - template.shape[1] + 1), np.float32)
     for c in range(template.shape[2]):
         w = np.ascontiguousarray(window[..., c])
         t = np.ascontiguousarray(template[..., c])
-        term = (cv2.matchTemplate(w * w, mask, cv2.TM_CCORR) - 2.0 * cv2.matchTemplate(w, mask * t, cv2.TM_CCORR)
+        out += (cv2.matchTemplate(w * w, mask, cv2.TM_CCORR) - 2.0 * cv2.matchTemplate(w, mask * t, cv2.TM_CCORR)
                 + float((mask * t * t).sum()))
-        out = term if out is None else out + term
     return out
 
 
@@ -444,7 +445,8 @@ def align_pixels(
     if any(t < 0 or t >= 45 for t in tolerance_deg):
         raise ValueError("tolerance_deg must be two angles in [0, 45) degrees")
     f = (height / 2) / math.tan(math.radians(fov_y_deg) / 2)
-    return tuple(int(math.ceil(f * math.tan(math.radians(t)))) + int(margin) for t in tolerance_deg)
+    rows, cols = (int(math.ceil(f * math.tan(math.radians(t)))) + int(margin) for t in tolerance_deg)
+    return rows, cols
 
 
 #: landmark kind -> detector family (the calibration is per family); other kinds: "outline"
@@ -470,11 +472,12 @@ def default_registry(
     """
     cal = {k: Calibration.from_sequence(v) for k, v in (calibration or {}).items()}
 
-    def make(name: str, kind: str | None, **kw) -> EdgeTemplateDetector:
+    def make(name: str, kind: str | None, **kw: Any) -> EdgeTemplateDetector:
         family = KIND_FAMILY.get(kind or "", "outline")
-        extra = {} if align_px is None else {"align_px": tuple(int(v) for v in align_px)}
+        if align_px is not None:
+            kw["align_px"] = (int(align_px[0]), int(align_px[1]))
         return EdgeTemplateDetector(name=name, threshold=threshold, absent_threshold=absent_threshold,
-                                    calibration=cal.get(kind or "", cal.get(family)), **extra, **kw)
+                                    calibration=cal.get(kind or "", cal.get(family)), **kw)
 
     reg = DetectorRegistry(fallback=make("box-outline", None))
     reg.register("house", make("house-outline", "house"))

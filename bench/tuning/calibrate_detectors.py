@@ -75,7 +75,7 @@ def main() -> int:
         llr = np.c_[np.ones(len(x)), x] @ w
         out["families"][family] = {
             "calibration": [round(float(v), 4) for v in w], "questions": len(rr), "positives": int(y.sum()),
-            "auc": dp.roc_auc(llr, y), "auc_by_kind": {k: dp.roc_auc([l for l, r in zip(llr, rr) if r["kind"] == k],
+            "auc": dp.roc_auc(llr, y), "auc_by_kind": {k: dp.roc_auc([v for v, r in zip(llr, rr) if r["kind"] == k],
                                                                        [r["label"] for r in rr if r["kind"] == k])
                                                         for k in sorted({r["kind"] for r in rr})}}
     print(json.dumps(out, indent=1))
