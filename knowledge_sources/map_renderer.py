@@ -52,6 +52,7 @@ class MapRenderer(KnowledgeSource):
                 image=np.ascontiguousarray(vf.image),
                 mask=vf.mask.astype(np.int16),
                 description=vf.description.to_dict(),
+                background=None if vf.background is None else np.ascontiguousarray(vf.background),
             ), links=(source.id,))
         levels.post(board, levels.Map(
             scenario=scenario.name,

@@ -70,7 +70,10 @@ def agent_plan(
                                 f"name the detector agent {detector_name(kind)!r}: rename one")
         named[detector_name(kind)] = kind
         plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
-                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold}))
+                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold,
+                      "calibration": {k: list(v) for k, v in sched.calibration.items()},
+                      "align_deg": list(sched.align_deg), "camera_height": scenario.camera.height,
+                      "fov_y_deg": scenario.camera.fov_y_deg}))
     plan.append((
         "knowledge_sources.scheduler:Scheduler",
         "scheduler",
@@ -82,6 +85,10 @@ def agent_plan(
             "beta": sched.beta,
             "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
+            "backtracking": sched.backtracking,
+            "questions": sched.questions,
+            "floor": sched.floor,
+            "max_llr": sched.max_llr,
         },
     ))
     return plan

@@ -253,6 +253,14 @@ class MemorySpec(_Spec):
         return value
 
 
+#: the detectors' calibration by family (models.detectors.KIND_FAMILY), fitted by
+#: bench/tuning/calibrate_detectors.py on simulated frames of tuning seeds (see BENCHMARKS.md)
+DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float]] = {
+    "outline": (0.0653, 3.7564, 1.9014, 2.0618),
+    "vertical": (-2.9711, 0.4912, 6.028, 0.9215),
+}
+
+
 class SchedulerSpec(_Spec):
     """Scene-analysis scheduler and landmark detector settings (the rule is documented in
     :mod:`knowledge_sources.scene_analysis`).
@@ -278,6 +286,28 @@ class SchedulerSpec(_Spec):
     # a question unanswered this long is given up (its detector is taken as dead for it)
     query_timeout_s: float = Field(default=10.0, ge=0.01, le=3600)
     strategy: Literal["associative", "prior"] = "associative"
+    #: how detector answers enter the posterior: "hard" (an absent landmark discards its
+    #: viewframes, the seed paper's) or "soft" (the answer's likelihood ratio enters it)
+    backtracking: Literal["hard", "soft"] = "soft"
+    #: question order: "information" (expected information gain) or "probability" (P(L|A))
+    questions: Literal["information", "probability"] = "information"
+    #: soft: a candidate whose posterior falls below this is discarded
+    floor: float = Field(default=1e-3, ge=0, lt=1)
+    #: soft: no single answer moves a candidate's log-odds by more than this
+    max_llr: float = Field(default=3.0, gt=0)
+    #: pose errors, (pitch, heading) degrees, the detectors' likelihood ratio must tolerate
+    align_deg: tuple[float, float] = (2.0, 5.0)
+    #: detector calibration, {landmark kind or detector family: [bias, w_statistic, w_score, w_contrast]}:
+    #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
+    #: by bench/tuning/calibrate_detectors.py on tuning seeds
+    calibration: dict[str, tuple[float, float, float, float]] = Field(default_factory=lambda: dict(DETECTOR_CALIBRATION))
+
+    @field_validator("align_deg")
+    @classmethod
+    def _align(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not all(0 <= v < 45 for v in value):
+            raise ValueError("must be two angles in [0, 45) degrees: (pitch, heading)")
+        return value
 
     @model_validator(mode="after")
     def _thresholds(self) -> SchedulerSpec:
