@@ -34,7 +34,7 @@ from blackboard.errors import AgentError
 from blackboard.knowledge_source import Event
 from blackboard.runtime import Runtime
 from knowledge_sources import levels
-from knowledge_sources.results import frame_record, summarize
+from knowledge_sources.results import add_map_coordinates, frame_record, summarize
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.scenario import Scenario, load_scenario
@@ -204,7 +204,7 @@ def run_mission(
     span = None if first_frame is None or last_position is None else last_position - first_frame
     summary["localization_s"] = span
     summary["frames_per_s"] = (len(records) / span) if span else None
-    return {
+    results = {
         "scenario": scenario.name,
         "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
@@ -213,6 +213,9 @@ def run_mission(
         "frames": records,
         "summary": summary,
     }
+    if scenario.map_frame is not None:
+        add_map_coordinates(results, scenario.map_frame)
+    return results
 
 
 def _announce_remote(

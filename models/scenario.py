@@ -24,6 +24,16 @@ functions that use them (:mod:`models.preprocess`, :mod:`models.associative`,
 agents) take their default values from these specs (``MemorySpec().blur_sigma`` ...) and write
 none of their own. Why each default was chosen is in BENCHMARKS.md ("Choosing the memory and
 scheduler defaults").
+
+On a georeferenced map (``terrain.dem`` a GeoTIFF or other GDAL raster, or contour lines with a
+CRS) the route, landmark and truth coordinates are in the map's CRS, or in the CRS named by the
+top-level ``crs:`` (``EPSG:4326``: [lon, lat] degrees); they are converted to local metres on
+load (:class:`~models.georef.MapFrame`, in :attr:`Scenario.map_frame`), so every model and agent
+sees local metres::
+
+    terrain: {dem: data/dem.tif}        # cell size and CRS from the GeoTIFF
+    crs: EPSG:4326
+    route: [[-84.301, 36.402], [-84.300, 36.403]]
 """
 
 from __future__ import annotations
@@ -96,13 +106,22 @@ class ProceduralSpec(_Spec):
 
 
 class TerrainSpec(_Spec):
-    """``cell_size`` plus exactly one source: ``dem``, ``procedural``, ``contours`` or ``sample``."""
+    """Exactly one source, ``dem``, ``procedural``, ``contours`` or ``sample``, and ``cell_size``.
 
-    cell_size: float = Field(gt=0)
+    ``cell_size`` (metres) is required but for a raster ``dem`` (a GeoTIFF or any GDAL raster),
+    whose own cells are used unless ``cell_size`` asks for others (it is then resampled, see
+    :mod:`models.georaster`). ``nodata`` says what a raster's nodata cells become: ``fill``
+    (nearest valid height, with a warning) or ``refuse`` (an error). ``elevation_attribute``
+    names the contour files' height attribute.
+    """
+
+    cell_size: float | None = Field(default=None, gt=0)
     dem: Path | None = None
     procedural: ProceduralSpec | None = None
     contours: Path | None = None
     sample: Literal["jacksboro"] | None = None
+    nodata: Literal["fill", "refuse"] = "fill"
+    elevation_attribute: str = Field(default="elevation", min_length=1)
 
     @field_validator("dem", "contours")
     @classmethod
@@ -115,6 +134,9 @@ class TerrainSpec(_Spec):
         if len(given) != 1:
             got = ", ".join(given) if given else "none"
             raise ValueError(f"needs exactly one of dem, procedural, contours, sample (got {got})")
+        raster = self.dem is not None and self.dem.suffix.lower() != ".npy"
+        if self.cell_size is None and not raster:
+            raise ValueError("cell_size is required (metres per DEM cell) but for a georeferenced raster dem")
         return self
 
 
@@ -288,6 +310,7 @@ class Scenario(_Spec):
 
     name: str = Field(min_length=1)
     seed: int = 0
+    crs: str | None = None
     terrain: TerrainSpec
     landmarks: list[LandmarkSpec] = Field(default_factory=list)
     route: list[tuple[float, float]] = Field(min_length=2)
@@ -298,6 +321,16 @@ class Scenario(_Spec):
     expect: ExpectSpec | None = None
 
     _path: Path | None = PrivateAttr(default=None)
+    _frame: Any = PrivateAttr(default=None)
+
+    @field_validator("crs")
+    @classmethod
+    def _known_crs(cls, value: str | None) -> str | None:
+        if value is not None:
+            from models.georef import parse_crs
+
+            parse_crs(value)
+        return value
 
     @field_validator("landmarks")
     @classmethod
@@ -323,6 +356,11 @@ class Scenario(_Spec):
     def path(self) -> Path | None:
         """The scenario file, or None for a scenario built from a dict without a path."""
         return self._path
+
+    @property
+    def map_frame(self):
+        """The :class:`~models.georef.MapFrame` of a georeferenced map, else None (local metres)."""
+        return self._frame
 
     @property
     def base_dir(self) -> Path:
@@ -409,7 +447,54 @@ def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     except ValidationError as exc:
         raise _to_scenario_error(exc, path) from None
     scenario._path = path
-    return scenario
+    return _georeferenced(scenario, path)
+
+
+def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
+    """The scenario with its coordinates in local metres and its map frame, for a georeferenced map."""
+    from models.errors import InputError
+    from models.terrain_sources import terrain_frame
+
+    try:
+        frame = terrain_frame(scenario.terrain, base_dir=scenario.base_dir)
+    except InputError as exc:  # name the scenario field as well as the file
+        field = "terrain.dem" if scenario.terrain.dem is not None else "terrain.contours"
+        raise ScenarioError(path, field, str(exc)) from None
+    if frame is None:
+        if scenario.crs is not None:
+            raise ScenarioError(path, "crs", "needs a georeferenced map: terrain.dem a GeoTIFF (or other GDAL "
+                                             "raster) with a CRS, or contour lines with a CRS")
+        return scenario
+    src = scenario.crs or frame.crs
+    label = scenario.crs or frame.name
+
+    def convert(fields: list[str], pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        x, y = frame.to_local([p[0] for p in pts], [p[1] for p in pts], crs=src)
+        for field, p, a, b in zip(fields, pts, x.tolist(), y.tolist()):
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise ScenarioError(path, field, f"({p[0]:g}, {p[1]:g}) cannot be converted from {label}")
+        return [(float(a), float(b)) for a, b in zip(x.tolist(), y.tolist())]
+
+    route = list(scenario.route)
+    update: dict[str, Any] = {"route": convert([f"route[{i}]" for i in range(len(route))], route)}
+    if scenario.landmarks:
+        xy = convert([f"landmarks[{i}]" for i in range(len(scenario.landmarks))],
+                     [(lm.x, lm.y) for lm in scenario.landmarks])
+        update["landmarks"] = [lm.model_copy(update={"x": x, "y": y}) for lm, (x, y) in zip(scenario.landmarks, xy)]
+    sensor = scenario.sensor
+    if sensor is not None and sensor.frames:
+        frames = list(sensor.frames)
+        with_truth = [i for i, f in enumerate(frames) if f.truth is not None]
+        if with_truth:
+            xy = convert([f"sensor.frames[{i}].truth" for i in with_truth],
+                         [(frames[i].truth.x, frames[i].truth.y) for i in with_truth])
+            for i, (x, y) in zip(with_truth, xy):
+                frames[i] = frames[i].model_copy(update={"truth": frames[i].truth.model_copy(update={"x": x, "y": y})})
+            update["sensor"] = sensor.model_copy(update={"frames": frames})
+    out = scenario.model_copy(update=update)
+    out._path, out._frame = scenario._path, frame
+    log.debug("scenario %s: coordinates in %s converted to local metres (origin %s)", path, label, frame.origin)
+    return out
 
 
 def load_scenario(path: str | Path) -> Scenario:
