@@ -123,7 +123,7 @@ def add_map_coordinates(results: dict[str, Any], frame: Any) -> dict[str, Any]:
             mx, my = frame.to_map(xy[0], xy[1])
             lon, lat = frame.to_lonlat(xy[0], xy[1])
             rec[f"{key}_map"] = [float(mx), float(my)]
-            rec[f"{key}_lonlat"] = [round(float(lon), 9), round(float(lat), 9)]
+            rec[f"{key}_lonlat"] = [float(lon), float(lat)]
     return results
 
 
