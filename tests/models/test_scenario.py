@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from pydantic import ValidationError
@@ -39,13 +40,37 @@ def _with(path: str, value):
     return data
 
 
-@pytest.mark.parametrize("name", ["hills", "jacksboro", "contours"])
+@pytest.mark.parametrize("name", ["hills", "jacksboro", "contours", "jacksboro_geo"])
 def test_bundled_scenarios_load(name):
     s = load_scenario(SCENARIOS / f"{name}.yaml")
     assert s.name == name and s.path == SCENARIOS / f"{name}.yaml"
     assert s.base_dir == SCENARIOS
     assert len(s.route) >= 20 and len(s.landmarks) >= 5
     assert s.sensor is not None and s.sensor.simulate is not None
+
+
+def test_bundled_lonlat_scenario_lies_on_its_geotiff():
+    """jacksboro_geo: lon/lat route on a lon/lat GeoTIFF, converted to local metres inside the DEM."""
+    from models.terrain import load_terrain
+
+    s = load_scenario(SCENARIOS / "jacksboro_geo.yaml")
+    assert s.crs == "EPSG:4326" and s.map_frame is not None and s.map_frame.name == "EPSG:4326"
+    t = load_terrain(s.terrain, base_dir=s.base_dir, seed=s.seed)
+    assert 70 < t.cell_size < 80  # 3 arc-seconds east-west at 36.6 N, the smaller ground side
+    assert all(t.contains(x, y) for x, y in s.route)
+    # consecutive route points are 50 m apart on the ground (they were laid out in metres)
+    steps = np.hypot(*np.diff(np.asarray(s.route), axis=0).T)
+    np.testing.assert_allclose(steps, 50.0, atol=0.15)  # drive() rounds to 0.1 m
+    # heights agree with the raw npz shipped with matplotlib at the first route point's cell
+    from matplotlib import cbook
+
+    lon, lat = s.map_frame.to_lonlat(*s.route[0])
+    with cbook.get_sample_data("jacksboro_fault_dem.npz") as raw:
+        z, west, north, d = raw["elevation"], float(raw["xmin"]), float(raw["ymin"]), float(raw["dx"])
+    r, c = (north - float(lat)) / d - 0.5, (float(lon) - west) / d - 0.5
+    r0, c0 = int(r), int(c)
+    near = z[r0:r0 + 2, c0:c0 + 2].astype(float)
+    assert near.min() - 1 <= t.height_at(*s.route[0]) <= near.max() + 1
 
 
 def test_valid_scenario_defaults(tmp_path):
