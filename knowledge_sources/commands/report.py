@@ -3,7 +3,9 @@
 Writes ``positions.png`` (map, true and estimated positions), ``rankings.png``,
 ``queries.png`` (one series per results file, e.g. associative and prior on the same frames),
 ``frames/frame_NNN.png`` (camera frame beside the chosen viewframe and their edge images) for the
-first results file, and ``report.md`` linking them with the summary. The scenario is read from
+first results file, and ``report.md`` linking them with the summary. On a georeferenced map it
+also writes ``positions.geojson`` (route, landmarks, true and estimated positions in lon/lat,
+:mod:`knowledge_sources.geojson`), which QGIS opens. The scenario is read from
 the results' ``scenario_path`` (or ``--scenario``) to redraw the map and the images.
 """
 
@@ -59,6 +61,16 @@ def main(args: argparse.Namespace) -> int:
         save(plot_rankings(main_run), "rankings.png"),
         save(plot_queries(runs), "queries.png"),
     ]
+    if scenario.map_frame is not None:
+        import json
+
+        from knowledge_sources.geojson import results_geojson
+
+        doc = results_geojson(main_run, frame=scenario.map_frame, route=scenario.route, landmarks=scenario.landmarks)
+        (out / "positions.geojson").write_text(json.dumps(doc) + "\n")
+        written_geojson = ["positions.geojson"]
+    else:
+        written_geojson = []
     index = ViewframeIndex(scenario.memory)  # its preprocessing, for the edge images
     for rec in main_run["frames"][: args.max_frames]:
         cam_img = frames[rec["frame"]].image if rec["frame"] in frames else None
@@ -78,6 +90,7 @@ def main(args: argparse.Namespace) -> int:
                      f"{err} | {s['latency_ms_p50']:.0f} |")
     lines.append("")
     lines += [f"![{name}]({name})" for name in written]
+    lines += [f"[{name}]({name}) (route, landmarks, true and estimated positions, lon/lat)" for name in written_geojson]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     print(f"report written to {out}/report.md ({len(written)} figures)")
     return 0

@@ -82,3 +82,31 @@ def test_lonlat_geotiff_gives_the_npy_results(three):
         assert fc["position_lonlat"] == pytest.approx([lon, lat], abs=1e-6)
         assert fc["position_map"] == fc["position_lonlat"]
         assert fc["error_m"] == pytest.approx(fa["error_m"], abs=0.05)
+
+
+def test_report_writes_geojson_that_gdal_reads(three, tmp_path):
+    """positions.geojson of a lon/lat run: GDAL (pyogrio) reads it as EPSG:4326 with every feature."""
+    import json
+
+    import pyogrio
+
+    from knowledge_sources.cli import main
+    from knowledge_sources.results import write_results
+
+    run = three["lonlat"]
+    out = tmp_path / "report"
+    assert main(["report", str(write_results(tmp_path / "r.json", run)), "--out", str(out), "--max-frames", "1"]) == 0
+    path = out / "positions.geojson"
+    assert "positions.geojson" in (out / "report.md").read_text()
+    info = pyogrio.read_info(path)
+    assert info["crs"] == "EPSG:4326"
+    doc = json.loads(path.read_text())
+    kinds = [f["properties"]["kind"] for f in doc["features"]]
+    n = len(run["frames"])
+    assert kinds.count("route") == 1 and kinds.count("route_point") == n and kinds.count("landmark") == 3
+    assert kinds.count("truth") == n and kinds.count("estimate") == n and kinds.count("error") == n
+    assert info["features"] == len(kinds)
+    estimates = [f for f in doc["features"] if f["properties"]["kind"] == "estimate"]
+    for feat, rec in zip(estimates, run["frames"]):
+        assert feat["properties"]["frame"] == rec["frame"]
+        assert feat["geometry"]["coordinates"] == pytest.approx(rec["position_lonlat"])
