@@ -184,7 +184,8 @@ def _body_summary(r: TraceRecord) -> str:
         score = body.get("score")
         score = f" (score {float(score):.2f})" if isinstance(score, (int, float)) else ""
         where = f" in viewframe {body['viewframe']}" if "viewframe" in body else ""
-        return f"{body.get('landmark', '?')} {'present' if body['present'] else 'absent'}{score}{where}"
+        verdict = {True: "present", False: "absent"}.get(body["present"], "uncertain")
+        return f"{body.get('landmark', '?')} {verdict}{score}{where}"
     shown = []
     for key, value in body.items():
         if isinstance(value, bool) or value is None or isinstance(value, (int, str)):

@@ -90,6 +90,7 @@ def run_mission(
     run_id: str | None = None,
     wait_remote_s: float = 60.0,
     on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
+    on_hypothesis: Callable[[str, Any, float], None] | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -123,6 +124,8 @@ def run_mission(
     on_wait_remote : callable(commands), optional
         Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
         logged at WARNING.
+    on_hypothesis : callable(level, body, timestamp), optional
+        Called with every hypothesis as it is first posted (phase labels, live viewers).
 
     Raises
     ------
@@ -152,6 +155,8 @@ def run_mission(
         if h.version != 1:
             return
         posted[h.level] = posted.get(h.level, 0) + 1
+        if on_hypothesis is not None:
+            on_hypothesis(h.level, h.body, h.timestamp)
         if h.level == levels.POSITION:
             done += 1
             if progress is not None:
