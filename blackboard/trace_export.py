@@ -72,6 +72,7 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
     events: list[dict[str, Any]] = []
     post_at: dict[str, tuple[float, int]] = {}  # hypothesis id -> (ts, tid) of its first post
     flow_id = 0
+    args: dict[str, Any]
     for r in sorted(records, key=lambda rec: (float(rec.get("t", t0)), rec.get("seq", 0))):
         kind = r.get("kind", "?")
         t = float(r.get("t", t0))
@@ -80,17 +81,39 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
         if kind in ("activation_finish", "activation_error") and r.get("duration_s") is not None:
             dur = max(0.0, float(r["duration_s"]))
             args = {k: _jsonable(r[k]) for k in ("id", "version", "event", "rating", "reason", "message") if k in r}
-            events.append({**base, "ph": "X", "name": f"{r.get('level', '?')} <- {r.get('event', '?')}",
-                           "cat": "activation" if kind == "activation_finish" else "activation_error",
-                           "ts": us(t - dur), "dur": round(dur * 1e6, 3), "args": args})
+            events.append(
+                {
+                    **base,
+                    "ph": "X",
+                    "name": f"{r.get('level', '?')} <- {r.get('event', '?')}",
+                    "cat": "activation" if kind == "activation_finish" else "activation_error",
+                    "ts": us(t - dur),
+                    "dur": round(dur * 1e6, 3),
+                    "args": args,
+                }
+            )
         elif kind in ("post", "update", "retract"):
             hid = r.get("id", "?")
             ts = us(t)
-            args = {"id": hid, "level": r.get("level"), "version": r.get("version"),
-                    "links": list(r.get("links") or ()), "credibility": r.get("credibility"),
-                    "body": _short(_jsonable(r.get("body")))}
-            events.append({**base, "ph": "i", "s": "t", "name": f"{kind} {r.get('level', '?')}", "cat": kind,
-                           "ts": ts, "args": args})
+            args = {
+                "id": hid,
+                "level": r.get("level"),
+                "version": r.get("version"),
+                "links": list(r.get("links") or ()),
+                "credibility": r.get("credibility"),
+                "body": _short(_jsonable(r.get("body"))),
+            }
+            events.append(
+                {
+                    **base,
+                    "ph": "i",
+                    "s": "t",
+                    "name": f"{kind} {r.get('level', '?')}",
+                    "cat": kind,
+                    "ts": ts,
+                    "args": args,
+                }
+            )
             if kind == "post":
                 post_at.setdefault(hid, (ts, tid))
                 for link in r.get("links") or ():
@@ -99,22 +122,48 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
                     flow_id += 1
                     src_ts, src_tid = post_at[link]
                     name = f"{link} -> {hid}"
-                    events.append({"pid": _PID, "tid": src_tid, "ph": "s", "id": flow_id, "cat": "link",
-                                   "name": name, "ts": src_ts})
-                    events.append({**base, "ph": "f", "bp": "e", "id": flow_id, "cat": "link", "name": name,
-                                   "ts": ts})
+                    events.append(
+                        {
+                            "pid": _PID,
+                            "tid": src_tid,
+                            "ph": "s",
+                            "id": flow_id,
+                            "cat": "link",
+                            "name": name,
+                            "ts": src_ts,
+                        }
+                    )
+                    events.append({**base, "ph": "f", "bp": "e", "id": flow_id, "cat": "link", "name": name, "ts": ts})
         elif kind not in ("activation_start",):
             args = {k: _jsonable(v) for k, v in r.items() if k not in ("t", "kind", "agent", "seq")}
-            events.append({**base, "ph": "i", "s": "g" if kind in _GLOBAL else "t", "name": kind, "cat": "event",
-                           "ts": us(t), "args": args})
-    meta = [{"pid": _PID, "tid": 0, "ph": "M", "name": "process_name", "args": {"name": f"mapinterp {run_id}"}},
-            {"pid": _PID, "tid": 0, "ph": "M", "name": "thread_name", "args": {"name": "blackboard"}}]
-    meta += [{"pid": _PID, "tid": tid, "ph": "M", "name": "thread_name", "args": {"name": agent}}
-             for agent, tid in tids.items()]
-    meta += [{"pid": _PID, "tid": tid, "ph": "M", "name": "thread_sort_index", "args": {"sort_index": tid}}
-             for tid in [0, *tids.values()]]
-    return {"traceEvents": meta + events, "displayTimeUnit": "ms",
-            "otherData": {"run_id": run_id, "t0_unix_s": t0, "records": len(records)}}
+            events.append(
+                {
+                    **base,
+                    "ph": "i",
+                    "s": "g" if kind in _GLOBAL else "t",
+                    "name": kind,
+                    "cat": "event",
+                    "ts": us(t),
+                    "args": args,
+                }
+            )
+    meta = [
+        {"pid": _PID, "tid": 0, "ph": "M", "name": "process_name", "args": {"name": f"mapinterp {run_id}"}},
+        {"pid": _PID, "tid": 0, "ph": "M", "name": "thread_name", "args": {"name": "blackboard"}},
+    ]
+    meta += [
+        {"pid": _PID, "tid": tid, "ph": "M", "name": "thread_name", "args": {"name": agent}}
+        for agent, tid in tids.items()
+    ]
+    meta += [
+        {"pid": _PID, "tid": tid, "ph": "M", "name": "thread_sort_index", "args": {"sort_index": tid}}
+        for tid in [0, *tids.values()]
+    ]
+    return {
+        "traceEvents": meta + events,
+        "displayTimeUnit": "ms",
+        "otherData": {"run_id": run_id, "t0_unix_s": t0, "records": len(records)},
+    }
 
 
 def chrome_trace_json(records: Sequence[TraceRecord]) -> str:

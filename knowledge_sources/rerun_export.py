@@ -1,7 +1,8 @@
 """A run as a Rerun recording (``.rrd``, or sent to a Rerun viewer): rerun-sdk is optional.
 
 ``pip install 'mapinterp[rerun]'`` installs it; without it :func:`require_rerun` raises a
-:class:`~blackboard.errors.MapinterpError` saying so. Entities, on the ``frame`` timeline
+:class:`RerunMissingError` (a :class:`~models.errors.ModelError`, so the command line prints it
+as one line) saying so. Entities, on the ``frame`` timeline
 (sequence: the camera frame index) and the ``run_time`` timeline (seconds since the run started,
 when the frame's position was posted):
 
@@ -38,9 +39,17 @@ from typing import Any
 
 import numpy as np
 
-from blackboard.errors import InputError, MapinterpError
+from models.errors import InputError, ModelError
 
-__all__ = ["require_rerun", "RerunLogger", "open_stream", "export_trace", "log_run", "run_from_trace"]
+__all__ = [
+    "RerunMissingError",
+    "require_rerun",
+    "RerunLogger",
+    "open_stream",
+    "export_trace",
+    "log_run",
+    "run_from_trace",
+]
 
 log = logging.getLogger(__name__)
 
@@ -51,12 +60,16 @@ _VERDICT_COLOUR = {"present": [40, 200, 60], "absent": [230, 40, 40], "uncertain
 MISSING = "rerun-sdk is not installed: pip install 'mapinterp[rerun]' (or pip install rerun-sdk)"
 
 
-def require_rerun():
-    """The ``rerun`` module, or a MapinterpError saying how to install it."""
+class RerunMissingError(ModelError):
+    """The optional rerun-sdk is not installed."""
+
+
+def require_rerun() -> Any:
+    """The ``rerun`` module, or a :class:`RerunMissingError` saying how to install it."""
     try:
         import rerun
     except ImportError:
-        raise MapinterpError(MISSING) from None
+        raise RerunMissingError(MISSING) from None
     return rerun
 
 
@@ -82,8 +95,13 @@ def run_from_trace(records: list[dict[str, Any]]) -> dict[str, Any]:
             answers[f].append(body)
         elif level == "truth":
             truths[f] = list(body.get("pose") or [])
-    return {"run_id": start.get("run_id", "run"), "positions": positions, "times": times,
-            "answers": dict(answers), "truths": truths}
+    return {
+        "run_id": start.get("run_id", "run"),
+        "positions": positions,
+        "times": times,
+        "answers": dict(answers),
+        "truths": truths,
+    }
 
 
 def _u8(image: np.ndarray) -> np.ndarray:
@@ -102,9 +120,14 @@ def _hillshade_rgb(terrain) -> np.ndarray:
 
 
 def _steps_markdown(body: dict[str, Any]) -> str:
-    lines = [f"**frame {body.get('frame')}**: viewframe {body.get('viewframe')}, confidence "
-             f"{float(body.get('confidence', 0.0)):.2f}, {body.get('queries', 0)} queries, "
-             f"{body.get('backtracks', 0)} backtracks", "", f"reason: {body.get('reason', '')}", ""]
+    lines = [
+        f"**frame {body.get('frame')}**: viewframe {body.get('viewframe')}, confidence "
+        f"{float(body.get('confidence', 0.0)):.2f}, {body.get('queries', 0)} queries, "
+        f"{body.get('backtracks', 0)} backtracks",
+        "",
+        f"reason: {body.get('reason', '')}",
+        "",
+    ]
     for i, step in enumerate(body.get("steps") or []):
         lines.append(f"{i + 1}. " + json.dumps(step, sort_keys=True, default=str))
     return "\n".join(lines)
@@ -127,12 +150,21 @@ class RerunLogger:
         self.frames_logged = 0
         rr = self.rr
         rec.log("map/terrain", rr.Image(_hillshade_rgb(terrain)), static=True)
-        rec.log("map/route", rr.LineStrips2D([[self.px(x, y) for x, y in self.route]], colors=[[20, 20, 20]]),
-                static=True)
+        rec.log(
+            "map/route", rr.LineStrips2D([[self.px(x, y) for x, y in self.route]], colors=[[20, 20, 20]]), static=True
+        )
         lms = replay.environment.landmarks
         if lms:
-            rec.log("map/landmarks", rr.Points2D([self.px(lm.x, lm.y) for lm in lms], labels=[lm.id for lm in lms],
-                                                 colors=[[250, 200, 0]] * len(lms), radii=2.0), static=True)
+            rec.log(
+                "map/landmarks",
+                rr.Points2D(
+                    [self.px(lm.x, lm.y) for lm in lms],
+                    labels=[lm.id for lm in lms],
+                    colors=[[250, 200, 0]] * len(lms),
+                    radii=2.0,
+                ),
+                static=True,
+            )
 
     def px(self, x: float, y: float) -> list[float]:
         """Map-image pixel coordinates of world (x, y) metres."""
@@ -152,8 +184,15 @@ class RerunLogger:
         elif level == "position":
             self.frame(f, body, answers=self._answers.pop(f, []), truth=self._truths.get(f), run_time=t - self._t0)
 
-    def frame(self, f: int, body: dict[str, Any], *, answers: list[dict[str, Any]] = (),
-              truth: list[float] | None = None, run_time: float | None = None) -> None:
+    def frame(
+        self,
+        f: int,
+        body: dict[str, Any],
+        *,
+        answers: list[dict[str, Any]] = (),
+        truth: list[float] | None = None,
+        run_time: float | None = None,
+    ) -> None:
         """Log camera frame ``f`` with its position ``body`` (empty: not localized), answers and truth."""
         from knowledge_sources.replay import answer_box
         from knowledge_sources.results import nearest_viewframe
@@ -169,8 +208,11 @@ class RerunLogger:
         mins, sizes, labels, colours = [], [], [], []
         for a in answers:
             vf_index = a.get("viewframe")
-            box = None if vf_index is None or not 0 <= int(vf_index) < len(replay.viewframes) else \
-                answer_box(replay.viewframes[int(vf_index)], str(a.get("landmark")))
+            box = (
+                None
+                if vf_index is None or not 0 <= int(vf_index) < len(replay.viewframes)
+                else answer_box(replay.viewframes[int(vf_index)], str(a.get("landmark")))
+            )
             if box is None:
                 continue
             r0, c0, r1, c1 = box
@@ -179,8 +221,10 @@ class RerunLogger:
             verdict = _VERDICT[a.get("present")]
             labels.append(f"{a.get('landmark')} {verdict} {float(a.get('score', 0.0)):.2f} (V{vf_index})")
             colours.append(_VERDICT_COLOUR[verdict])
-        rec.log("camera/image/answers", rr.Boxes2D(mins=mins, sizes=sizes, labels=labels, colors=colours)
-                if mins else rr.Clear(recursive=False))
+        rec.log(
+            "camera/image/answers",
+            rr.Boxes2D(mins=mins, sizes=sizes, labels=labels, colors=colours) if mins else rr.Clear(recursive=False),
+        )
         chosen = body.get("viewframe")
         if chosen is not None and 0 <= int(chosen) < len(replay.viewframes):
             vf = replay.viewframes[int(chosen)]
@@ -194,20 +238,26 @@ class RerunLogger:
         if truth:
             true_vf = nearest_viewframe(truth[0], truth[1], self.route)
             rec.log("viewframe/true", rr.Image(replay.viewframes[true_vf].image))
-            rec.log("map/truth", rr.Points2D([self.px(truth[0], truth[1])], colors=[[0, 0, 0]], radii=2.5,
-                                             labels=[f"truth {f}"]))
+            rec.log(
+                "map/truth",
+                rr.Points2D([self.px(truth[0], truth[1])], colors=[[0, 0, 0]], radii=2.5, labels=[f"truth {f}"]),
+            )
         ranking = body.get("ranking") or []
         if ranking:
             rec.log("ranking", rr.BarChart([float(v) for _, v in ranking]))
-            rec.log("ranking/labels", rr.TextDocument(
-                "  ".join(f"#{i + 1} V{int(k)} {float(v):.4g}" for i, (k, v) in enumerate(ranking))))
+            rec.log(
+                "ranking/labels",
+                rr.TextDocument("  ".join(f"#{i + 1} V{int(k)} {float(v):.4g}" for i, (k, v) in enumerate(ranking))),
+            )
         position = body.get("position")
         if position is not None:
             p = self.px(float(position[0]), float(position[1]))
             self.track.append(p)
             ok = true_vf is not None and chosen == true_vf
-            rec.log("map/estimate", rr.Points2D([p], colors=[[40, 200, 60] if ok else [230, 40, 40]], radii=2.5,
-                                                labels=[f"V{chosen}"]))
+            rec.log(
+                "map/estimate",
+                rr.Points2D([p], colors=[[40, 200, 60] if ok else [230, 40, 40]], radii=2.5, labels=[f"V{chosen}"]),
+            )
             rec.log("map/track", rr.LineStrips2D([self.track], colors=[[30, 120, 255]]))
         if body:
             rec.log("scheduler/steps", rr.TextDocument(_steps_markdown(body), media_type="text/markdown"))
@@ -219,8 +269,13 @@ def log_run(rec, run: dict[str, Any], replay) -> int:
     ``rec``; returns the number of frames logged."""
     logger = RerunLogger(rec, replay)
     for f in sorted(set(replay.frames) | set(run["positions"])):
-        logger.frame(f, run["positions"].get(f, {}), answers=run["answers"].get(f, []),
-                     truth=run["truths"].get(f), run_time=run["times"].get(f))
+        logger.frame(
+            f,
+            run["positions"].get(f, {}),
+            answers=run["answers"].get(f, []),
+            truth=run["truths"].get(f),
+            run_time=run["times"].get(f),
+        )
     return logger.frames_logged
 
 
@@ -239,8 +294,13 @@ def open_stream(target: str, *, recording_id: str):
     return rec
 
 
-def export_trace(records: list[dict[str, Any]], out: str | Path, *, scenario_path: str | Path | None = None,
-                 trace_path: str | Path | None = None) -> Path:
+def export_trace(
+    records: list[dict[str, Any]],
+    out: str | Path,
+    *,
+    scenario_path: str | Path | None = None,
+    trace_path: str | Path | None = None,
+) -> Path:
     """Write the Rerun recording of a traced run to ``out`` (.rrd); images are rendered again from
     the run's scenario (``scenario_path``, default: the path the trace names)."""
     require_rerun()

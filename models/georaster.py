@@ -75,14 +75,20 @@ def _open(path: Path):
 
 def _grid(ds, path: Path, cell_size: float | None) -> RasterGrid:
     if ds.crs is None:
-        raise InputError(path, "the raster has no CRS: georeference it (gdal_edit.py -a_srs EPSG:nnnn) "
-                               "or save its heights as .npy with terrain.cell_size")
+        raise InputError(
+            path,
+            "the raster has no CRS: georeference it (gdal_edit.py -a_srs EPSG:nnnn) "
+            "or save its heights as .npy with terrain.cell_size",
+        )
     if ds.width < 2 or ds.height < 2:
         raise InputError(path, f"DEM must be at least 2x2 cells, got {ds.height} x {ds.width}")
     t = ds.transform
     if abs(t.b) > 1e-9 * abs(t.a) or abs(t.d) > 1e-9 * abs(t.e) or t.a == 0 or t.e == 0:
-        raise InputError(path, f"the raster is rotated or sheared (geotransform {tuple(t)[:6]}): "
-                               "only north-up rasters are read; warp it north-up first (gdalwarp)")
+        raise InputError(
+            path,
+            f"the raster is rotated or sheared (geotransform {tuple(t)[:6]}): "
+            "only north-up rasters are read; warp it north-up first (gdalwarp)",
+        )
     crs = parse_crs(ds.crs.to_wkt())
     sx, sy = abs(t.a), abs(t.e)
     h, w = ds.height, ds.width
@@ -173,10 +179,18 @@ def read_raster_dem(
     if n_bad:
         r, c = map(int, np.argwhere(invalid)[0])
         if nodata == "refuse":
-            raise InputError(path, f"{n_bad} of {invalid.size} cells are nodata (the first at raster row {r}, "
-                                   f"col {c}); set terrain.nodata: fill to fill them from their nearest neighbours")
-        log.warning("%s: %d of %d nodata cells (%.1f %%) filled with the nearest valid height",
-                    path, n_bad, invalid.size, 100.0 * n_bad / invalid.size)
+            raise InputError(
+                path,
+                f"{n_bad} of {invalid.size} cells are nodata (the first at raster row {r}, "
+                f"col {c}); set terrain.nodata: fill to fill them from their nearest neighbours",
+            )
+        log.warning(
+            "%s: %d of %d nodata cells (%.1f %%) filled with the nearest valid height",
+            path,
+            n_bad,
+            invalid.size,
+            100.0 * n_bad / invalid.size,
+        )
         values = _fill_nearest(values, invalid)
     if not grid.resampled:
         heights = values[::-1] if src_transform.e < 0 else values
@@ -187,9 +201,17 @@ def read_raster_dem(
         from rasterio.warp import Resampling, reproject
 
         out = np.full(grid.shape, np.nan, dtype=np.float64)
-        reproject(values, out, src_transform=src_transform, src_crs=src_crs, dst_transform=grid.dst_transform,
-                  dst_crs=RioCRS.from_wkt(grid.frame.work.to_wkt()), resampling=Resampling.bilinear,
-                  src_nodata=None, dst_nodata=np.nan)
+        reproject(
+            values,
+            out,
+            src_transform=src_transform,
+            src_crs=src_crs,
+            dst_transform=grid.dst_transform,
+            dst_crs=RioCRS.from_wkt(grid.frame.work.to_wkt()),
+            resampling=Resampling.bilinear,
+            src_nodata=None,
+            dst_nodata=np.nan,
+        )
         holes = ~np.isfinite(out)
         if holes.all():
             raise InputError(path, "resampling the DEM to a local metric grid gave no data")

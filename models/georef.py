@@ -133,5 +133,8 @@ class MapFrame:
 
     def describe(self) -> dict[str, Any]:
         """A JSON-able summary: map CRS, working CRS, origin."""
-        return {"crs": self.name, "working_crs": crs_name(self.work),
-                "origin": [float(self.origin[0]), float(self.origin[1])]}
+        return {
+            "crs": self.name,
+            "working_crs": crs_name(self.work),
+            "origin": [float(self.origin[0]), float(self.origin[1])],
+        }

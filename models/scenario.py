@@ -484,12 +484,11 @@ def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
     sensor = scenario.sensor
     if sensor is not None and sensor.frames:
         frames = list(sensor.frames)
-        with_truth = [i for i, f in enumerate(frames) if f.truth is not None]
-        if with_truth:
-            xy = convert([f"sensor.frames[{i}].truth" for i in with_truth],
-                         [(frames[i].truth.x, frames[i].truth.y) for i in with_truth])
-            for i, (x, y) in zip(with_truth, xy):
-                frames[i] = frames[i].model_copy(update={"truth": frames[i].truth.model_copy(update={"x": x, "y": y})})
+        truths = {i: f.truth for i, f in enumerate(frames) if f.truth is not None}
+        if truths:
+            xy = convert([f"sensor.frames[{i}].truth" for i in truths], [(t.x, t.y) for t in truths.values()])
+            for (i, t), (x, y) in zip(truths.items(), xy):
+                frames[i] = frames[i].model_copy(update={"truth": t.model_copy(update={"x": x, "y": y})})
             update["sensor"] = sensor.model_copy(update={"frames": frames})
     out = scenario.model_copy(update=update)
     out._path, out._frame = scenario._path, frame

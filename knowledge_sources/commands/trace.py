@@ -38,14 +38,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--level", help="only records on this level")
     parser.add_argument("--id", dest="hypothesis_id", metavar="H", help="only records of this hypothesis")
     parser.add_argument("--frame", help="only hypotheses of this frame (body.frame) and those derived from them")
-    parser.add_argument("--chain", metavar="H", help="the derivation chain of hypothesis H back to the inputs, as a tree")
-    parser.add_argument("--timeline", action="store_true", help="one line per event, in time order, instead of the summary")
+    parser.add_argument(
+        "--chain", metavar="H", help="the derivation chain of hypothesis H back to the inputs, as a tree"
+    )
+    parser.add_argument(
+        "--timeline", action="store_true", help="one line per event, in time order, instead of the summary"
+    )
     parser.add_argument("--json", action="store_true", help="JSON output")
-    parser.add_argument("--export", type=Path, metavar="OUT",
-                        help="write OUT.json (Perfetto/Chrome trace events), OUT.dot (Graphviz, with --chain) "
-                             "or OUT.rrd (Rerun recording)")
-    parser.add_argument("--scenario", type=Path, default=None,
-                        help="scenario file for --export .rrd (default: the one the trace's run used)")
+    parser.add_argument(
+        "--export",
+        type=Path,
+        metavar="OUT",
+        help="write OUT.json (Perfetto/Chrome trace events), OUT.dot (Graphviz, with --chain) "
+        "or OUT.rrd (Rerun recording)",
+    )
+    parser.add_argument(
+        "--scenario",
+        type=Path,
+        default=None,
+        help="scenario file for --export .rrd (default: the one the trace's run used)",
+    )
 
 
 def summary_tables(summary: dict) -> list:
@@ -59,21 +71,43 @@ def summary_tables(summary: dict) -> list:
     counts = Table(title=None, show_header=True, header_style="bold", box=None, pad_edge=False)
     counts.add_column("events")
     counts.add_column("levels (posts)")
-    counts.add_row(", ".join(f"{k} {n}" for k, n in summary["kinds"].items()) or "-",
-                   ", ".join(f"{k} {n}" for k, n in summary["levels"].items()) or "-")
+    counts.add_row(
+        ", ".join(f"{k} {n}" for k, n in summary["kinds"].items()) or "-",
+        ", ".join(f"{k} {n}" for k, n in summary["levels"].items()) or "-",
+    )
     agents = Table(show_header=True, header_style="bold")
-    for name, justify in (("agent", "left"), ("posts", "right"), ("upd", "right"), ("acts", "right"),
-                          ("errors", "right"), ("obviated", "right"), ("timeouts", "right"), ("act s", "right"),
-                          ("max s", "right"), ("state", "left")):
+    for name, justify in (
+        ("agent", "left"),
+        ("posts", "right"),
+        ("upd", "right"),
+        ("acts", "right"),
+        ("errors", "right"),
+        ("obviated", "right"),
+        ("timeouts", "right"),
+        ("act s", "right"),
+        ("max s", "right"),
+        ("state", "left"),
+    ):
         agents.add_column(name, justify=justify)  # type: ignore[arg-type]
     for name, a in summary["agents"].items():
-        agents.add_row(name, str(a["posts"]), str(a["updates"]), str(a["activations"]), str(a["errors"]),
-                       str(a["obviated"]), str(a["timeouts"]), f"{a['act_s']:.3f}", f"{a['act_max_s']:.3f}",
-                       str(a["state"]), style="red" if a["errors"] or a["timeouts"] else None)
+        agents.add_row(
+            name,
+            str(a["posts"]),
+            str(a["updates"]),
+            str(a["activations"]),
+            str(a["errors"]),
+            str(a["obviated"]),
+            str(a["timeouts"]),
+            f"{a['act_s']:.3f}",
+            f"{a['act_max_s']:.3f}",
+            str(a["state"]),
+            style="red" if a["errors"] or a["timeouts"] else None,
+        )
     out = [head, counts, agents]
     out += [Text(f"rejected: {m}", style="yellow") for m in summary["rejected"]]
-    out += [Text(f"timeout: {t['id']} (poster {t['agent']}): {t['reason']}", style="yellow")
-            for t in summary["timeouts"]]
+    out += [
+        Text(f"timeout: {t['id']} (poster {t['agent']}): {t['reason']}", style="yellow") for t in summary["timeouts"]
+    ]
     return out
 
 

@@ -40,13 +40,23 @@ def three(tmp_path_factory, request):
         return [round(float(lon), 9), round(float(lat), 9)]
 
     local = {**SMALL, "terrain": {"cell_size": 10.0, "dem": "dem.npy"}}
-    projected = {**SMALL, "terrain": {"dem": "utm.tif"}, "route": [[X0 + x, Y0 + y] for x, y in SMALL["route"]],
-                 "landmarks": [{**lm, "x": X0 + lm["x"], "y": Y0 + lm["y"]} for lm in SMALL["landmarks"]]}
-    geographic = {**SMALL, "crs": "EPSG:4326", "terrain": {"dem": "ll.tif", "cell_size": 10.0},
-                  "route": [lonlat(x, y) for x, y in SMALL["route"]],
-                  "landmarks": [{**lm, **dict(zip("xy", lonlat(lm["x"], lm["y"])))} for lm in SMALL["landmarks"]]}
-    return {name: run_mission(_write(tmp / f"{name}.yaml", doc))
-            for name, doc in (("npy", local), ("utm", projected), ("lonlat", geographic))}
+    projected = {
+        **SMALL,
+        "terrain": {"dem": "utm.tif"},
+        "route": [[X0 + x, Y0 + y] for x, y in SMALL["route"]],
+        "landmarks": [{**lm, "x": X0 + lm["x"], "y": Y0 + lm["y"]} for lm in SMALL["landmarks"]],
+    }
+    geographic = {
+        **SMALL,
+        "crs": "EPSG:4326",
+        "terrain": {"dem": "ll.tif", "cell_size": 10.0},
+        "route": [lonlat(x, y) for x, y in SMALL["route"]],
+        "landmarks": [{**lm, **dict(zip("xy", lonlat(lm["x"], lm["y"])))} for lm in SMALL["landmarks"]],
+    }
+    return {
+        name: run_mission(_write(tmp / f"{name}.yaml", doc))
+        for name, doc in (("npy", local), ("utm", projected), ("lonlat", geographic))
+    }
 
 
 def test_projected_geotiff_gives_the_npy_results(three):

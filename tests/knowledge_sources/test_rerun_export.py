@@ -48,8 +48,12 @@ def run(tmp_path_factory):
     scenario = tmp / "small.yaml"
     scenario.write_text(yaml.safe_dump(SMALL))
     trace, results, live = tmp / "run.trace", tmp / "r.json", tmp / "live.rrd"
-    assert main(["run", str(scenario), "--trace", str(trace), "--out", str(results), "--no-progress",
-                 "--rerun", str(live)]) == 0
+    assert (
+        main(
+            ["run", str(scenario), "--trace", str(trace), "--out", str(results), "--no-progress", "--rerun", str(live)]
+        )
+        == 0
+    )
     return {"trace": trace, "results": load_results(results), "live": live, "tmp": tmp}
 
 
@@ -72,8 +76,9 @@ def _check_recording(data: dict, results: dict, records: list) -> None:
     for r in records:
         if r["kind"] == "post" and r.get("level") == "answer":
             answers[r["body"]["frame"]].append(r["body"])
-    labelled = {f: row["Boxes2D:labels"] for f, row in data["/camera/image/answers"].items()
-                if row.get("Boxes2D:labels")}
+    labelled = {
+        f: row["Boxes2D:labels"] for f, row in data["/camera/image/answers"].items() if row.get("Boxes2D:labels")
+    }
     assert labelled, "no answer boxes at all"
     for f, labels in labelled.items():
         assert len(labels) <= len(answers[f])
@@ -97,12 +102,20 @@ def test_live_stream_of_run_reads_back_with_rerun(run) -> None:
 
 def test_missing_rerun_is_one_clear_line(run, tmp_path) -> None:
     """Without the extra (the module hidden), the export says how to install it, exit 2."""
-    code = ("import sys; sys.modules['rerun'] = None\n"
-            "from knowledge_sources.cli import main\n"
-            f"sys.exit(main(['trace', {str(run['trace'])!r}, '--export', {str(tmp_path / 'x.rrd')!r}]))")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          cwd=Path(__file__).resolve().parents[2])
+    code = (
+        "import sys; sys.modules['rerun'] = None\n"
+        "from knowledge_sources.cli import main\n"
+        f"sys.exit(main(['trace', {str(run['trace'])!r}, '--export', {str(tmp_path / 'x.rrd')!r}]))"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[2],
+    )
     assert proc.returncode == 2, proc.stderr
-    assert proc.stderr.strip() == ("mapinterp trace: error: rerun-sdk is not installed: "
-                                   "pip install 'mapinterp[rerun]' (or pip install rerun-sdk)")
+    assert proc.stderr.strip() == (
+        "mapinterp trace: error: rerun-sdk is not installed: pip install 'mapinterp[rerun]' (or pip install rerun-sdk)"
+    )
     assert not (tmp_path / "x.rrd").exists()

@@ -17,12 +17,23 @@ UTM = "EPSG:32617"
 X0, Y0 = 500000.0, 4000000.0
 
 
-def write_geotiff(path: Path, heights_north_first: np.ndarray, transform: Affine, crs: str | None, *,
-                  nodata: float | None = None) -> Path:
+def write_geotiff(
+    path: Path, heights_north_first: np.ndarray, transform: Affine, crs: str | None, *, nodata: float | None = None
+) -> Path:
     """A one-band float64 GeoTIFF; ``heights_north_first`` ndarray (rows, cols), raster row 0 first."""
     h = np.asarray(heights_north_first, dtype=np.float64)
-    with rasterio.open(path, "w", driver="GTiff", width=h.shape[1], height=h.shape[0], count=1, dtype="float64",
-                       crs=crs, transform=transform, nodata=nodata) as ds:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=h.shape[1],
+        height=h.shape[0],
+        count=1,
+        dtype="float64",
+        crs=crs,
+        transform=transform,
+        nodata=nodata,
+    ) as ds:
         ds.write(h, 1)
     return path
 
@@ -38,12 +49,24 @@ def terrain_as_utm(path: Path, terrain: Terrain, *, x0: float = X0, y0: float = 
 def reproject_to_lonlat(src_path: Path, path: Path, *, oversample: int = 2) -> Path:
     """The GeoTIFF ``src_path`` warped (cubic) to EPSG:4326 with ``oversample`` times its cell count per axis."""
     with rasterio.open(src_path) as src:
-        transform, w, h = calculate_default_transform(src.crs, "EPSG:4326", src.width, src.height, *src.bounds,
-                                                      dst_width=src.width * oversample,
-                                                      dst_height=src.height * oversample)
+        transform, w, h = calculate_default_transform(
+            src.crs,
+            "EPSG:4326",
+            src.width,
+            src.height,
+            *src.bounds,
+            dst_width=src.width * oversample,
+            dst_height=src.height * oversample,
+        )
         out = np.full((h, w), np.nan)
-        reproject(rasterio.band(src, 1), out, dst_transform=transform, dst_crs="EPSG:4326",
-                  resampling=Resampling.cubic, dst_nodata=np.nan)
+        reproject(
+            rasterio.band(src, 1),
+            out,
+            dst_transform=transform,
+            dst_crs="EPSG:4326",
+            resampling=Resampling.cubic,
+            dst_nodata=np.nan,
+        )
     return write_geotiff(path, out, transform, "EPSG:4326", nodata=float("nan"))
 
 
@@ -57,14 +80,21 @@ def wkb_multilinestring(parts: list[np.ndarray]) -> bytes:
     return struct.pack("<BII", 1, 5, len(parts)) + b"".join(wkb_linestring(p) for p in parts)
 
 
-def write_contour_vector(path: Path, lines: list[tuple[np.ndarray, float]], *, crs: str | None,
-                         attribute: str = "elevation", driver: str | None = None) -> Path:
+def write_contour_vector(
+    path: Path,
+    lines: list[tuple[np.ndarray, float]],
+    *,
+    crs: str | None,
+    attribute: str = "elevation",
+    driver: str | None = None,
+) -> Path:
     """Contour lines as a vector file (driver from the suffix: .shp, .gpkg, .geojson) via pyogrio."""
     import pyogrio
 
     geometry = np.array([wkb_linestring(p) for p, _ in lines], dtype=object)
     values = np.array([float(e) for _, e in lines])
     ids = np.arange(len(lines), dtype=np.int32)
-    pyogrio.raw.write(path, geometry, [ids, values], ["id", attribute], geometry_type="LineString", crs=crs,
-                      driver=driver)
+    pyogrio.raw.write(
+        path, geometry, [ids, values], ["id", attribute], geometry_type="LineString", crs=crs, driver=driver
+    )
     return path

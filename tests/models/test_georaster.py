@@ -49,8 +49,11 @@ def test_scenario_on_a_projected_geotiff_equals_the_npy_scenario(hills, tmp_path
     route = [(120.0, 130.0), (160.0, 170.0), (220.0, 200.0)]
     lm = {"id": "H1", "kind": "house", "x": 150.0, "y": 180.0, "width": 18, "depth": 12, "height": 8}
     local = scenario({"dem": str(tmp_path / "dem.npy"), "cell_size": 10.0}, route, landmarks=[lm])
-    geo = scenario({"dem": str(tmp_path / "utm.tif")}, [(X0 + x, Y0 + y) for x, y in route],
-                   landmarks=[{**lm, "x": X0 + 150.0, "y": Y0 + 180.0}])
+    geo = scenario(
+        {"dem": str(tmp_path / "utm.tif")},
+        [(X0 + x, Y0 + y) for x, y in route],
+        landmarks=[{**lm, "x": X0 + 150.0, "y": Y0 + 180.0}],
+    )
     assert local.map_frame is None and geo.map_frame is not None
     assert geo.route == local.route and geo.landmarks == local.landmarks
     t_local = load_terrain(local.terrain, base_dir=tmp_path, seed=0)
@@ -86,8 +89,9 @@ def test_plane_is_reproduced_through_non_square_cells(tmp_path):
     sx, sy, rows, cols = 10.0, 15.0, 40, 60
     transform = Affine(sx, 0, X0, 0, -sy, Y0 + rows * sy)
     jj, ii = np.meshgrid(np.arange(cols), np.arange(rows))
-    path = write_geotiff(tmp_path / "rect.tif", plane(X0 + (jj + 0.5) * sx, Y0 + rows * sy - (ii + 0.5) * sy),
-                         transform, UTM)
+    path = write_geotiff(
+        tmp_path / "rect.tif", plane(X0 + (jj + 0.5) * sx, Y0 + rows * sy - (ii + 0.5) * sy), transform, UTM
+    )
     heights, grid = read_raster_dem(path)
     assert grid.resampled and grid.cell_size == 10.0 and "not square" in grid.reason
     t = Terrain(heights=heights, cell_size=grid.cell_size, frame=grid.frame)
@@ -119,19 +123,24 @@ def test_nodata_cells_are_filled_or_refused(hills, tmp_path, caplog):
     # a filled cell takes a neighbour's height
     r = h.shape[0] - 1 - 30
     assert heights[r, 5] in {heights[r, 4], heights[r, 6], heights[r - 1, 5], heights[r + 1, 5]}
-    with pytest.raises(InputError, match=r"holes.tif: 21 of 4096 cells are nodata \(the first at raster row 10, col 20\)"):
+    with pytest.raises(
+        InputError, match=r"holes.tif: 21 of 4096 cells are nodata \(the first at raster row 10, col 20\)"
+    ):
         read_raster_dem(path, nodata="refuse")
     every = write_geotiff(tmp_path / "none.tif", np.full((4, 4), -9999.0), transform, UTM, nodata=-9999.0)
     with pytest.raises(InputError, match="every cell of the DEM is nodata"):
         read_raster_dem(every)
 
 
-@pytest.mark.parametrize("case, match", [
-    ("rotated", "rotated or sheared"),
-    ("no_crs", "has no CRS"),
-    ("garbage", "cannot read the DEM as a raster"),
-    ("missing", "DEM file not found"),
-])
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("rotated", "rotated or sheared"),
+        ("no_crs", "has no CRS"),
+        ("garbage", "cannot read the DEM as a raster"),
+        ("missing", "DEM file not found"),
+    ],
+)
 def test_rasters_that_cannot_be_placed_are_refused_with_the_file_named(case, match, tmp_path):
     path = tmp_path / f"{case}.tif"
     if case == "rotated":
@@ -150,18 +159,22 @@ def test_scenario_coordinates_in_another_crs(hills, tmp_path):
     terrain_as_utm(tmp_path / "utm.tif", hills)
     route = [(120.0, 130.0), (160.0, 170.0)]
     lon, lat = Transformer.from_crs(UTM, "EPSG:4326", always_xy=True).transform(
-        [X0 + x for x, _ in route], [Y0 + y for _, y in route])
+        [X0 + x for x, _ in route], [Y0 + y for _, y in route]
+    )
     s = scenario({"dem": str(tmp_path / "utm.tif")}, list(zip(lon, lat)), crs="EPSG:4326")
     np.testing.assert_allclose(s.route, route, atol=1e-6)
 
 
-@pytest.mark.parametrize("terrain, extra, field, match", [
-    ({"dem": "dem.npy"}, {}, "terrain", "cell_size is required"),
-    ({"dem": "dem.npy", "cell_size": 10.0}, {"crs": "EPSG:4326"}, "crs", "needs a georeferenced map"),
-    ({"dem": "utm.tif"}, {"crs": "EPSG:99999999"}, "crs", "unknown CRS"),
-    ({"dem": "utm.tif", "nodata": "zero"}, {}, "terrain.nodata", "must be one of"),
-    ({"dem": "bad.tif"}, {}, "terrain.dem", "cannot read the DEM as a raster"),
-])
+@pytest.mark.parametrize(
+    "terrain, extra, field, match",
+    [
+        ({"dem": "dem.npy"}, {}, "terrain", "cell_size is required"),
+        ({"dem": "dem.npy", "cell_size": 10.0}, {"crs": "EPSG:4326"}, "crs", "needs a georeferenced map"),
+        ({"dem": "utm.tif"}, {"crs": "EPSG:99999999"}, "crs", "unknown CRS"),
+        ({"dem": "utm.tif", "nodata": "zero"}, {}, "terrain.nodata", "must be one of"),
+        ({"dem": "bad.tif"}, {}, "terrain.dem", "cannot read the DEM as a raster"),
+    ],
+)
 def test_scenario_errors_name_the_field(hills, tmp_path, terrain, extra, field, match):
     np.save(tmp_path / "dem.npy", hills.heights)
     terrain_as_utm(tmp_path / "utm.tif", hills)

@@ -51,7 +51,7 @@ def test_bundled_scenarios_load(name):
 
 def test_bundled_lonlat_scenario_lies_on_its_geotiff():
     """jacksboro_geo: lon/lat route on a lon/lat GeoTIFF, converted to local metres inside the DEM."""
-    from models.terrain import load_terrain
+    from models.terrain_sources import load_terrain
 
     s = load_scenario(SCENARIOS / "jacksboro_geo.yaml")
     assert s.crs == "EPSG:4326" and s.map_frame is not None and s.map_frame.name == "EPSG:4326"
