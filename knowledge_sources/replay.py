@@ -8,6 +8,7 @@ gives the images the run saw (rendering is deterministic on one machine).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,33 +21,30 @@ __all__ = ["Replay", "replay", "scenario_path_of_trace", "answer_box"]
 @dataclass
 class Replay:
     """``scenario``; ``environment``; ``viewframes`` (by route index); ``frames`` camera frames by
-    index; ``memory`` the scenario's memory settings as plain data (for edge images)."""
+    index; ``pattern`` the scenario's memory preprocessing (for edge images)."""
 
     scenario: Any
     environment: Any
     viewframes: list[Any]
     frames: dict[int, Any]
-    memory: dict[str, Any]
+    pattern: Callable[[np.ndarray], np.ndarray]
 
     def edges(self, image: np.ndarray) -> np.ndarray:
         """The edge image the associative memory stores for ``image``, float32 (N, N)."""
-        from models.preprocess import preprocess_with
-
-        return preprocess_with(image, memory=self.memory)
+        return self.pattern(image)
 
 
-def replay(scenario: Any) -> Replay:
-    """Render the scenario's viewframes and camera frames again (offscreen)."""
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
-    from models.sensor import sensor_frames
-    from models.viewframes import build_viewframes
+def replay(scenario: Any, *, progress: Callable[[int, int], None] | None = None) -> Replay:
+    """Render the scenario's viewframes and camera frames again (offscreen), through its
+    :class:`~models.world.World`; ``progress(done, total)`` follows the viewframes."""
+    from models.index import ViewframeIndex
+    from models.world import World
 
-    env = build_environment(scenario)
-    with CameraEmulator(env, scenario.camera) as cam:
-        viewframes = build_viewframes(scenario, emulator=cam)
-        frames = {f.index: f for f in sensor_frames(scenario, emulator=cam, poses=[v.pose for v in viewframes])}
-    return Replay(scenario, env, viewframes, frames, scenario.memory.model_dump())
+    with World(scenario, progress=progress) as world:
+        env = world.environment
+        viewframes = world.viewframes
+        frames = {f.index: f for f in world.sensor_frames}
+    return Replay(scenario, env, viewframes, frames, ViewframeIndex(scenario.memory).pattern)
 
 
 def scenario_path_of_trace(records: list[dict[str, Any]]) -> Path | None:

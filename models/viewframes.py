@@ -52,12 +52,17 @@ def route_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
-def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[Viewframe]:
-    """Render and describe the viewframe at every pose (the route poses), numbered in order."""
+def render_viewframes(
+    emulator: CameraEmulator, poses: Sequence[Pose], *, progress: Callable[[int, int], None] | None = None
+) -> list[Viewframe]:
+    """Render and describe the viewframe at every pose (the route poses), numbered in order;
+    ``progress(done, total)`` is called after each."""
     env = emulator.environment
     frames = []
     for i, pose in enumerate(poses):
         view = emulator.render(pose)
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
         frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc))
+        if progress is not None:
+            progress(i + 1, len(poses))
     return frames
