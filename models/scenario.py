@@ -422,19 +422,70 @@ def _message(err: ErrorDetails) -> str:
         return err["msg"]
 
 
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The spec class whose fields are at ``loc`` (a field path into :class:`Scenario`), or None."""
+    import typing
+
+    cls: type[BaseModel] = Scenario
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = cls.model_fields.get(str(part))
+        if field is None:
+            return None
+        todo, found = [field.annotation], None
+        while todo and found is None:
+            t = todo.pop()
+            if isinstance(t, type) and issubclass(t, BaseModel):
+                found = t
+            else:
+                todo.extend(typing.get_args(t))
+        if found is None:
+            return None
+        cls = found
+    return cls
+
+
+def _did_you_mean(err: ErrorDetails) -> str:
+    """`` (did you mean cell_size?)`` for a misspelt field, else ``""``."""
+    import difflib
+
+    loc = tuple(err["loc"])
+    if err["type"] != "extra_forbidden" or not loc or not isinstance(loc[-1], str):
+        return ""
+    model = _model_at(loc[:-1])
+    if model is None:
+        return ""
+    close = difflib.get_close_matches(loc[-1], list(model.model_fields), n=2, cutoff=0.6)
+    if not close:
+        return f" (known: {', '.join(model.model_fields)})"
+    return f" (did you mean {' or '.join(close)}?)"
+
+
 def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
-    errors = exc.errors()
-    # union members (e.g. route tuple) report the deepest location first; keep the first error
-    err = errors[0]
-    more = f" (and {len(errors) - 1} more error{'s' if len(errors) > 2 else ''})" if len(errors) > 1 else ""
-    return ScenarioError(path, _field_path(tuple(err["loc"])) or None, _message(err) + more)
+    """One error listing every problem, one line each naming the file and field; the first
+    problem's field is ``.field`` and ``.problems`` holds all (field, message) pairs."""
+    problems: list[tuple[str | None, str]] = []
+    seen: set[str | None] = set()
+    for err in exc.errors():
+        field = _field_path(tuple(err["loc"])) or None
+        if field in seen:  # members of a union report one mistake several times
+            continue
+        seen.add(field)
+        problems.append((field, _message(err) + _did_you_mean(err)))
+    first_field, first = problems[0]
+    rest = "".join("\n" + ": ".join(str(p) for p in (path, f, m) if p) for f, m in problems[1:])
+    error = ScenarioError(path, first_field, first + rest)
+    error.problems = problems  # type: ignore[attr-defined]
+    return error
 
 
 def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     """Validate ``data`` (the parsed YAML) into a :class:`Scenario`.
 
     ``path`` is the file it came from: relative paths resolve against its folder and errors
-    name it. Raises :class:`ScenarioError` naming the field path on the first problem.
+    name it. Raises :class:`ScenarioError` listing every problem, one line each with its field
+    path, a misspelt field with the names it may have meant.
     """
     path = None if path is None else Path(path)
     if not isinstance(data, dict):

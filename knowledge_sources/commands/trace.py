@@ -166,6 +166,8 @@ def main(args: argparse.Namespace) -> int:
         return 0
     complete = any(r.get("kind") == "run_end" for r in records)
     summary = summarize(selected, complete=complete)
+    if summary["run_id"] is None:  # the filter dropped run_start
+        summary["run_id"] = summarize(records[:1])["run_id"] if records else None
     if args.json:
         print(to_json(summary))
     else:

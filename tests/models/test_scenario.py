@@ -185,3 +185,54 @@ def test_scenario_is_frozen():
     s = scenario_from_dict(VALID)
     with pytest.raises(ValidationError):
         s.seed = 3
+
+
+def test_every_problem_is_listed_at_once_with_did_you_mean(tmp_path):
+    data = _with("camera.fov_y_deg", 200)
+    data["terrain"] = {**data["terrain"], "cell_sise": 10.0}
+    data["camera"]["pich_deg"] = 2.0
+    data["landmarks"][0]["height"] = -1
+    data["landmarks"][0]["colour"] = "red"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    lines = str(info.value).splitlines()
+    assert all(line.startswith(f"{path}: ") for line in lines)
+    got = {line[len(f"{path}: "):] for line in lines}
+    assert got == {
+        "terrain.cell_sise: unknown field (did you mean cell_size?)",
+        "camera.pich_deg: unknown field (did you mean pitch_deg?)",
+        "camera.fov_y_deg: must be < 180",
+        "landmarks[0].height: must be > 0",
+        "landmarks[0].colour: unknown field (known: id, kind, x, y, width, depth, height, yaw_deg)",
+    }
+    assert len(info.value.problems) == 5 and info.value.field == lines[0][len(f"{path}: "):].split(":")[0]
+
+
+def test_json_schema_covers_the_bundled_scenarios():
+    """The schema `mapinterp schema` prints names every field the bundled scenarios use."""
+    schema = Scenario.model_json_schema()
+    defs = schema.get("$defs", {})
+
+    def fields_of(node):
+        if "$ref" in node:
+            node = defs[node["$ref"].split("/")[-1]]
+        for key in ("anyOf", "allOf"):
+            for sub in node.get(key, []):
+                yield from fields_of(sub)
+        yield from node.get("properties", {}).items()
+
+    def walk(value, node, where):
+        if isinstance(value, dict):
+            props = dict(fields_of(node))
+            for k, v in value.items():
+                assert k in props, f"{where}.{k} not in the schema"
+                walk(v, props[k], f"{where}.{k}")
+        elif isinstance(value, list) and value and isinstance(value[0], dict):
+            items = next((n["items"] for n in [node, *node.get("anyOf", [])] if "items" in n), {})
+            for i, v in enumerate(value):
+                walk(v, items, f"{where}[{i}]")
+
+    for path in sorted(SCENARIOS.glob("*.yaml")):
+        walk(yaml.safe_load(path.read_text()), schema, path.name)
