@@ -8,7 +8,7 @@ scenario's viewframes are :attr:`models.world.World.viewframes`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
