@@ -34,21 +34,20 @@ def main(args: argparse.Namespace) -> int:
     """Render every viewframe of the scenario into ``args.out``; returns 0."""
     from dataclasses import asdict
 
+    from knowledge_sources.progress import callback, progress_bar
     from models.overview import draw_overview
+    from models.scenario import load_scenario
     from models.world import World
 
-    world = World.from_scenario(args.scenario)
-    scenario = world.scenario
+    scenario = load_scenario(args.scenario)
     out: Path = args.out
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(out, f"cannot create the output folder: {exc}") from None
-    from knowledge_sources.progress import callback, progress_bar
-
     with progress_bar() as bar:
         task = bar.add_task(f"{scenario.name}: building the environment model", total=None)
-        world._progress = callback(bar, task, f"{scenario.name}: rendering viewframes")
+        world = World(scenario, progress=callback(bar, task, f"{scenario.name}: rendering viewframes"))
         env = world.environment
         t0 = time.perf_counter()
         with world:
