@@ -236,3 +236,37 @@ def test_json_schema_covers_the_bundled_scenarios():
 
     for path in sorted(SCENARIOS.glob("*.yaml")):
         walk(yaml.safe_load(path.read_text()), schema, path.name)
+
+
+def test_readme_documents_every_field_the_bundled_scenarios_use():
+    import re
+
+    readme = (SCENARIOS.parent / "README.md").read_text(encoding="utf-8")
+    documented: set[str] = set()
+    for line in readme.splitlines():
+        if not line.startswith("| `"):
+            continue
+        names = re.findall(r"`([^`]+)`", line.split("|")[1])
+        if not names:
+            continue
+        first = names[0]
+        documented.add(first)
+        base = first.rsplit(".", 1)[0] if "." in first else ""
+        documented |= {base + n for n in names[1:] if n.startswith(".")}
+    used: set[str] = set()
+
+    def walk(value, where):
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(v, f"{where}.{k}" if where else k)
+        elif isinstance(value, list) and value and isinstance(value[0], dict):
+            for v in value:
+                walk(v, where + "[]")
+        else:
+            used.add(where)
+
+    for path in SCENARIOS.glob("*.yaml"):
+        walk(yaml.safe_load(path.read_text()), "")
+    wild = {d[:-1] for d in documented if d.endswith("*")}
+    missing = sorted(u for u in used if u not in documented and not any(u.startswith(w) for w in wild))
+    assert not missing, f"README.md does not document {missing}"
