@@ -34,6 +34,11 @@ sees local metres::
     terrain: {dem: data/dem.tif}        # cell size and CRS from the GeoTIFF
     crs: EPSG:4326
     route: [[-84.301, 36.402], [-84.300, 36.403]]
+
+Positions are converted; directions (``landmarks[].yaw_deg``, ``truth.heading_deg``) are taken
+as they are, counterclockwise from the working CRS's grid east: within a map's extent that
+differs from true east by the grid convergence (zero on a transverse Mercator's central
+meridian, up to a few degrees at a UTM zone's edge).
 """
 
 from __future__ import annotations
