@@ -60,7 +60,11 @@ _VERDICT_COLOUR = {"present": [40, 200, 60], "absent": [230, 40, 40], "uncertain
 MISSING = "rerun-sdk is not installed: pip install 'mapinterp[rerun]' (or pip install rerun-sdk)"
 
 
-class RerunMissingError(ModelError):
+class RerunError(ModelError):
+    """A Rerun viewer could not be started or reached, or a recording not written."""
+
+
+class RerunMissingError(RerunError):
     """The optional rerun-sdk is not installed."""
 
 
@@ -284,13 +288,17 @@ def open_stream(target: str, *, recording_id: str):
     or a viewer's gRPC URL (``rerun+http://127.0.0.1:9876/proxy``)."""
     rr = require_rerun()
     rec = rr.RecordingStream("mapinterp", recording_id=recording_id)
-    if target == "spawn":
-        rec.spawn()
-    elif target.endswith(".rrd"):
-        Path(target).parent.mkdir(parents=True, exist_ok=True)
-        rec.save(target)
-    else:
-        rec.connect_grpc(target)
+    try:
+        if target == "spawn":
+            rec.spawn()
+        elif target.endswith(".rrd"):
+            Path(target).parent.mkdir(parents=True, exist_ok=True)
+            rec.save(target)
+        else:
+            rec.connect_grpc(target)
+    except Exception as exc:  # rerun raises plain RuntimeError/OSError for a viewer it cannot start or reach
+        what = "start a Rerun viewer" if target == "spawn" else f"open {target}"
+        raise RerunError(f"cannot {what} ({exc}); give --rerun FILE.rrd or a running viewer's URL") from None
     return rec
 
 
