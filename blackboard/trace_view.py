@@ -27,6 +27,7 @@ __all__ = [
     "summarize",
     "render_summary",
     "render_timeline",
+    "in_time_order",
     "render_chain",
     "chain_tree",
     "chain_dot",
@@ -201,7 +202,7 @@ def _body_summary(r: TraceRecord) -> str:
     return " ".join(shown)
 
 
-def _in_time_order(records: Sequence[TraceRecord]) -> list[TraceRecord]:
+def in_time_order(records: Sequence[TraceRecord]) -> list[TraceRecord]:
     """Records by time, then by the node's sequence number (records may arrive out of order)."""
     def key(r: TraceRecord) -> tuple[float, int]:
         t = r.get("t")
@@ -236,7 +237,7 @@ def render_timeline(records: Sequence[TraceRecord]) -> str:
     t0 = min(times) if times else 0.0
     return "\n".join(
         f"{float(r.get('t', t0)) - t0:>10.4f}s  {r.get('kind', '?'):<20} {r.get('agent', ''):<16} {_describe(r)}"
-        for r in _in_time_order(records)
+        for r in in_time_order(records)
     )
 
 

@@ -19,6 +19,7 @@ from blackboard.trace_view import (
     check_filters,
     derivation_chain,
     filter_records,
+    in_time_order,
     render_timeline,
     summarize,
     to_json,
@@ -162,7 +163,7 @@ def main(args: argparse.Namespace) -> int:
             print(f"rerun recording written to {export} (open it with: rerun {export})")
         return 0
     if args.timeline:
-        print(to_json(selected) if args.json else render_timeline(selected))
+        print(to_json(in_time_order(selected)) if args.json else render_timeline(selected))
         return 0
     complete = any(r.get("kind") == "run_end" for r in records)
     summary = summarize(selected, complete=complete)
