@@ -119,3 +119,16 @@ def test_missing_rerun_is_one_clear_line(run, tmp_path) -> None:
         "mapinterp trace: error: rerun-sdk is not installed: pip install 'mapinterp[rerun]' (or pip install rerun-sdk)"
     )
     assert not (tmp_path / "x.rrd").exists()
+
+
+def test_run_with_rerun_but_without_the_extra_fails_at_once(run, tmp_path) -> None:
+    """mapinterp run --rerun says how to install the extra before it starts the run."""
+    code = (
+        "import sys; sys.modules['rerun'] = None\n"
+        "from knowledge_sources.cli import main\n"
+        f"sys.exit(main(['run', {str(run['tmp'] / 'small.yaml')!r}, '--rerun', {str(tmp_path / 'y.rrd')!r}]))"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 2 and "mapinterp run: error: rerun-sdk is not installed" in proc.stderr
+    assert not (tmp_path / "y.rrd").exists()
