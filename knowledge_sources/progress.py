@@ -17,12 +17,20 @@ __all__ = ["progress_bar", "callback"]
 
 def progress_bar(*, disable: bool = False) -> Progress:
     """A transient bar on stderr with the phase as its label; disabled off a terminal."""
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    console=Console(stderr=True), disable=disable or not sys.stderr.isatty(), transient=True)
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=Console(stderr=True),
+        disable=disable or not sys.stderr.isatty(),
+        transient=True,
+    )
 
 
 def callback(bar: Progress, task: TaskID, description: str | None = None) -> Callable[[int, int], None]:
     """A ``progress(done, total)`` function updating ``task`` (and relabelling it, when given)."""
+
     def update(done: int, total: int) -> None:
         if description is None:
             bar.update(task, completed=done, total=total)

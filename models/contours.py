@@ -116,8 +116,10 @@ def _ogr_lines(path: Path, attribute: str) -> tuple[list[ContourLine], str | Non
     fields = list(meta.get("fields", []))
     if attribute not in fields:
         known = ", ".join(map(str, fields)) or "none"
-        raise InputError(path, f"no attribute {attribute!r} with the contour heights (terrain.elevation_attribute); "
-                               f"the file has: {known}")
+        raise InputError(
+            path,
+            f"no attribute {attribute!r} with the contour heights (terrain.elevation_attribute); the file has: {known}",
+        )
     values = field_data[fields.index(attribute)]
     if geometry is None or len(geometry) == 0:
         raise InputError(path, "no contour line features")
@@ -137,9 +139,7 @@ def _ogr_lines(path: Path, attribute: str) -> tuple[list[ContourLine], str | Non
     return lines, meta.get("crs")
 
 
-def read_contours(
-    path: str | Path, *, attribute: str = "elevation"
-) -> tuple[list[ContourLine], MapFrame | None]:
+def read_contours(path: str | Path, *, attribute: str = "elevation") -> tuple[list[ContourLine], MapFrame | None]:
     """Contour lines in local metres and, for a file with a CRS, their map frame.
 
     ``attribute`` names the height field. Raises :class:`InputError` naming the file and feature.

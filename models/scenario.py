@@ -518,8 +518,12 @@ def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
         raise ScenarioError(path, field, str(exc)) from None
     if frame is None:
         if scenario.crs is not None:
-            raise ScenarioError(path, "crs", "needs a georeferenced map: terrain.dem a GeoTIFF (or other GDAL "
-                                             "raster) with a CRS, or contour lines with a CRS")
+            raise ScenarioError(
+                path,
+                "crs",
+                "needs a georeferenced map: terrain.dem a GeoTIFF (or other GDAL "
+                "raster) with a CRS, or contour lines with a CRS",
+            )
         return scenario
     src = scenario.crs or frame.crs
     label = scenario.crs or frame.name
@@ -534,8 +538,9 @@ def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
     route = list(scenario.route)
     update: dict[str, Any] = {"route": convert([f"route[{i}]" for i in range(len(route))], route)}
     if scenario.landmarks:
-        xy = convert([f"landmarks[{i}]" for i in range(len(scenario.landmarks))],
-                     [(lm.x, lm.y) for lm in scenario.landmarks])
+        xy = convert(
+            [f"landmarks[{i}]" for i in range(len(scenario.landmarks))], [(lm.x, lm.y) for lm in scenario.landmarks]
+        )
         update["landmarks"] = [lm.model_copy(update={"x": x, "y": y}) for lm, (x, y) in zip(scenario.landmarks, xy)]
     sensor = scenario.sensor
     if sensor is not None and sensor.frames:

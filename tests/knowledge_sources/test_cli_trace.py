@@ -56,10 +56,13 @@ def test_filtered_summary_is_not_called_incomplete(trace, capsys) -> None:
     assert json.loads(out)["complete"] is True
 
 
-@pytest.mark.parametrize("flag, value, known", [
-    ("--agent", "dubler", "doubler, echo"),
-    ("--level", "doubles", "doubled, echo, number"),
-])
+@pytest.mark.parametrize(
+    "flag, value, known",
+    [
+        ("--agent", "dubler", "doubler, echo"),
+        ("--level", "doubles", "doubled, echo, number"),
+    ],
+)
 def test_unknown_filter_name_is_an_error_listing_the_known_ones(trace, capsys, flag, value, known) -> None:
     code, out, err = _run(capsys, str(trace[0]), flag, value)
     assert code == 2 and out == ""

@@ -18,8 +18,9 @@ def test_met_and_missed_expectations(pytester, small_data):
     _write(pytester, "hard.yaml", {**small_data, "name": "hard", "expect": {"mean_queries_max": 0.001}})
     _write(pytester, "plain.yaml", small_data)  # no expect: block, not a test
     # a user's project (pytester's folder: no mapinterp pyproject) that runs with --strict-markers
-    result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-W", "ignore::DeprecationWarning",
-                                           "--strict-markers")
+    result = pytester.runpytest_subprocess(
+        "-p", "no:cacheprovider", "-W", "ignore::DeprecationWarning", "--strict-markers"
+    )
     result.assert_outcomes(passed=1, failed=1)
     out = result.stdout.str()
     assert "hard.yaml: expectations missed" in out

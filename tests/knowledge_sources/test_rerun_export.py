@@ -128,7 +128,12 @@ def test_run_with_rerun_but_without_the_extra_fails_at_once(run, tmp_path) -> No
         "from knowledge_sources.cli import main\n"
         f"sys.exit(main(['run', {str(run['tmp'] / 'small.yaml')!r}, '--rerun', {str(tmp_path / 'y.rrd')!r}]))"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
-                          cwd=Path(__file__).resolve().parents[2])
+    proc = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[2],
+    )
     assert proc.returncode == 2 and "mapinterp run: error: rerun-sdk is not installed" in proc.stderr
     assert not (tmp_path / "y.rrd").exists()
