@@ -36,7 +36,7 @@ from blackboard.runtime import Runtime
 from blackboard.signals import signal_name
 from knowledge_sources import levels
 from knowledge_sources.errors import UsageError
-from knowledge_sources.results import frame_record, summarize
+from knowledge_sources.results import add_map_coordinates, frame_record, summarize
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.preflight import check_scenario, frame_count
@@ -126,6 +126,7 @@ def run_mission(
     on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
     secret: str | None = None,
     auth: bool | None = None,
+    on_hypothesis: Callable[[str, Any, float], None] | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -164,6 +165,8 @@ def run_mission(
     on_wait_remote : callable(commands), optional
         Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
         logged at WARNING.
+    on_hypothesis : callable(level, body, timestamp), optional
+        Called with every hypothesis as it is first posted (phase labels, live viewers).
 
     Raises
     ------
@@ -189,6 +192,8 @@ def run_mission(
         if h.version != 1:
             return
         posted[h.level] = posted.get(h.level, 0) + 1
+        if on_hypothesis is not None:
+            on_hypothesis(h.level, h.body, h.timestamp)
         if h.level == levels.POSITION:
             done += 1
             if progress is not None:
@@ -276,7 +281,7 @@ def run_mission(
         degraded.append(f"{summary['missing']} of {n_frames} frames never posted")
     if interrupted:
         degraded.append(f"interrupted by {interrupted}")
-    return {
+    results = {
         "scenario": scenario.name,
         "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
@@ -287,6 +292,9 @@ def run_mission(
         "degraded": degraded,
         "interrupted": interrupted,
     }
+    if scenario.map_frame is not None:
+        add_map_coordinates(results, scenario.map_frame)
+    return results
 
 
 def _announce_remote(

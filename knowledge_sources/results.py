@@ -11,6 +11,11 @@
      "summary": {"frames": n, "top1": a | null, "mean_queries": q, "mean_error_m": e | null,
                  "latency_ms_p50": t}}
 
+On a georeferenced map the file also has ``"crs"`` (the map CRS, e.g. ``EPSG:32617``) and
+``"map_frame"``, and each frame ``position_map`` / ``truth_map`` ([x, y] in the map CRS) and
+``position_lonlat`` / ``truth_lonlat`` ([lon, lat] WGS84 degrees); ``position`` and ``truth``
+stay in local metres (:mod:`models.georef`).
+
 A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
 ``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
@@ -34,8 +39,8 @@ from models.errors import InputError
 if TYPE_CHECKING:
     from knowledge_sources.levels import Position, Truth
 
-__all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "write_results", "finite_json",
-           "check_writable"]
+__all__ = ["add_map_coordinates", "frame_record", "load_results", "nearest_viewframe", "summarize", "write_results",
+           "finite_json", "check_writable"]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -104,6 +109,26 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "latency_ms_p50": float(np.percentile(lat, 50)) if lat else 0.0,
         "latency_ms_p99": float(np.percentile(lat, 99)) if lat else 0.0,
     }
+
+
+def add_map_coordinates(results: dict[str, Any], frame: Any) -> dict[str, Any]:
+    """Add the map-CRS and lon/lat coordinates of a georeferenced run to ``results`` (in place).
+
+    ``frame`` is the scenario's :class:`~models.georef.MapFrame`; returns ``results``.
+    """
+    results["crs"] = frame.name
+    results["map_frame"] = frame.describe()
+    for rec in results["frames"]:
+        for key in ("position", "truth"):
+            xy = rec.get(key)
+            if xy is None:
+                rec[f"{key}_map"] = rec[f"{key}_lonlat"] = None
+                continue
+            mx, my = frame.to_map(xy[0], xy[1])
+            lon, lat = frame.to_lonlat(xy[0], xy[1])
+            rec[f"{key}_map"] = [float(mx), float(my)]
+            rec[f"{key}_lonlat"] = [float(lon), float(lat)]
+    return results
 
 
 def finite_json(value: Any) -> Any:

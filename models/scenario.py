@@ -24,6 +24,21 @@ functions that use them (:mod:`models.preprocess`, :mod:`models.associative`,
 agents) take their default values from these specs (``MemorySpec().blur_sigma`` ...) and write
 none of their own. Why each default was chosen is in BENCHMARKS.md ("Choosing the memory and
 scheduler defaults").
+
+On a georeferenced map (``terrain.dem`` a GeoTIFF or other GDAL raster, or contour lines with a
+CRS) the route, landmark and truth coordinates are in the map's CRS, or in the CRS named by the
+top-level ``crs:`` (``EPSG:4326``: [lon, lat] degrees); they are converted to local metres on
+load (:class:`~models.georef.MapFrame`, in :attr:`Scenario.map_frame`), so every model and agent
+sees local metres::
+
+    terrain: {dem: data/dem.tif}        # cell size and CRS from the GeoTIFF
+    crs: EPSG:4326
+    route: [[-84.301, 36.402], [-84.300, 36.403]]
+
+Positions are converted; directions (``landmarks[].yaw_deg``, ``truth.heading_deg``) are taken
+as they are, counterclockwise from the working CRS's grid east: within a map's extent that
+differs from true east by the grid convergence (zero on a transverse Mercator's central
+meridian, up to a few degrees at a UTM zone's edge).
 """
 
 from __future__ import annotations
@@ -109,13 +124,22 @@ class ProceduralSpec(_Spec):
 
 
 class TerrainSpec(_Spec):
-    """``cell_size`` plus exactly one source: ``dem``, ``procedural``, ``contours`` or ``sample``."""
+    """Exactly one source, ``dem``, ``procedural``, ``contours`` or ``sample``, and ``cell_size``.
 
-    cell_size: float = Field(gt=0, le=MAX_SIZE_M)
+    ``cell_size`` (metres) is required but for a raster ``dem`` (a GeoTIFF or any GDAL raster),
+    whose own cells are used unless ``cell_size`` asks for others (it is then resampled, see
+    :mod:`models.georaster`). ``nodata`` says what a raster's nodata cells become: ``fill``
+    (nearest valid height, with a warning) or ``refuse`` (an error). ``elevation_attribute``
+    names the contour files' height attribute.
+    """
+
+    cell_size: float | None = Field(default=None, gt=0, le=MAX_SIZE_M)
     dem: Path | None = None
     procedural: ProceduralSpec | None = None
     contours: Path | None = None
     sample: Literal["jacksboro"] | None = None
+    nodata: Literal["fill", "refuse"] = "fill"
+    elevation_attribute: str = Field(default="elevation", min_length=1)
 
     @field_validator("dem", "contours")
     @classmethod
@@ -128,6 +152,9 @@ class TerrainSpec(_Spec):
         if len(given) != 1:
             got = ", ".join(given) if given else "none"
             raise ValueError(f"needs exactly one of dem, procedural, contours, sample (got {got})")
+        raster = self.dem is not None and self.dem.suffix.lower() != ".npy"
+        if self.cell_size is None and not raster:
+            raise ValueError("cell_size is required (metres per DEM cell) but for a georeferenced raster dem")
         return self
 
 
@@ -332,6 +359,7 @@ class Scenario(_Spec):
 
     name: str = Field(min_length=1, max_length=200)
     seed: int = Field(default=0, ge=0, le=MAX_SEED)
+    crs: str | None = Field(default=None, min_length=1, max_length=1000)
     terrain: TerrainSpec
     landmarks: list[LandmarkSpec] = Field(default_factory=list)
     route: list[tuple[float, float]] = Field(min_length=2, max_length=MAX_ROUTE_POINTS)
@@ -342,6 +370,16 @@ class Scenario(_Spec):
     expect: ExpectSpec | None = None
 
     _path: Path | None = PrivateAttr(default=None)
+    _frame: Any = PrivateAttr(default=None)
+
+    @field_validator("crs")
+    @classmethod
+    def _known_crs(cls, value: str | None) -> str | None:
+        if value is not None:
+            from models.georef import parse_crs
+
+            parse_crs(value)
+        return value
 
     @field_validator("landmarks")
     @classmethod
@@ -368,6 +406,11 @@ class Scenario(_Spec):
     def path(self) -> Path | None:
         """The scenario file, or None for a scenario built from a dict without a path."""
         return self._path
+
+    @property
+    def map_frame(self):
+        """The :class:`~models.georef.MapFrame` of a georeferenced map, else None (local metres)."""
+        return self._frame
 
     @property
     def base_dir(self) -> Path:
@@ -440,15 +483,70 @@ def validation_problem(exc: ValidationError) -> tuple[str | None, str]:
     return _field_path(tuple(err["loc"])) or None, _message(err) + more
 
 
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The spec class whose fields are at ``loc`` (a field path into :class:`Scenario`), or None."""
+    import typing
+
+    cls: type[BaseModel] = Scenario
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = cls.model_fields.get(str(part))
+        if field is None:
+            return None
+        todo, found = [field.annotation], None
+        while todo and found is None:
+            t = todo.pop()
+            if isinstance(t, type) and issubclass(t, BaseModel):
+                found = t
+            else:
+                todo.extend(typing.get_args(t))
+        if found is None:
+            return None
+        cls = found
+    return cls
+
+
+def _did_you_mean(err: ErrorDetails) -> str:
+    """`` (did you mean cell_size?)`` for a misspelt field, else ``""``."""
+    import difflib
+
+    loc = tuple(err["loc"])
+    if err["type"] != "extra_forbidden" or not loc or not isinstance(loc[-1], str):
+        return ""
+    model = _model_at(loc[:-1])
+    if model is None:
+        return ""
+    close = difflib.get_close_matches(loc[-1], list(model.model_fields), n=2, cutoff=0.6)
+    if not close:
+        return f" (known: {', '.join(model.model_fields)})"
+    return f" (did you mean {' or '.join(close)}?)"
+
+
 def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
-    return ScenarioError(path, *validation_problem(exc))
+    """One error listing every problem, one line each naming the file and field; the first
+    problem's field is ``.field`` and ``.problems`` holds all (field, message) pairs."""
+    problems: list[tuple[str | None, str]] = []
+    seen: set[str | None] = set()
+    for err in exc.errors():
+        field = _field_path(tuple(err["loc"])) or None
+        if field in seen:  # members of a union report one mistake several times
+            continue
+        seen.add(field)
+        problems.append((field, _message(err) + _did_you_mean(err)))
+    first_field, first = problems[0]
+    rest = "".join("\n" + ": ".join(str(p) for p in (path, f, m) if p) for f, m in problems[1:])
+    error = ScenarioError(path, first_field, first + rest)
+    error.problems = problems  # type: ignore[attr-defined]
+    return error
 
 
 def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     """Validate ``data`` (the parsed YAML) into a :class:`Scenario`.
 
     ``path`` is the file it came from: relative paths resolve against its folder and errors
-    name it. Raises :class:`ScenarioError` naming the field path on the first problem.
+    name it. Raises :class:`ScenarioError` listing every problem, one line each with its field
+    path, a misspelt field with the names it may have meant.
     """
     path = None if path is None else Path(path)
     if not isinstance(data, dict):
@@ -461,7 +559,58 @@ def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     except ValidationError as exc:
         raise _to_scenario_error(exc, path) from None
     scenario._path = path
-    return scenario
+    return _georeferenced(scenario, path)
+
+
+def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
+    """The scenario with its coordinates in local metres and its map frame, for a georeferenced map."""
+    from models.errors import InputError
+    from models.terrain_sources import terrain_frame
+
+    try:
+        frame = terrain_frame(scenario.terrain, base_dir=scenario.base_dir)
+    except InputError as exc:  # name the scenario field as well as the file
+        field = "terrain.dem" if scenario.terrain.dem is not None else "terrain.contours"
+        raise ScenarioError(path, field, str(exc)) from None
+    if frame is None:
+        if scenario.crs is not None:
+            raise ScenarioError(
+                path,
+                "crs",
+                "needs a georeferenced map: terrain.dem a GeoTIFF (or other GDAL "
+                "raster) with a CRS, or contour lines with a CRS",
+            )
+        return scenario
+    src = scenario.crs or frame.crs
+    label = scenario.crs or frame.name
+
+    def convert(fields: list[str], pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        x, y = frame.to_local([p[0] for p in pts], [p[1] for p in pts], crs=src)
+        for field, p, a, b in zip(fields, pts, x.tolist(), y.tolist()):
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise ScenarioError(path, field, f"({p[0]:g}, {p[1]:g}) cannot be converted from {label}")
+        return [(float(a), float(b)) for a, b in zip(x.tolist(), y.tolist())]
+
+    route = list(scenario.route)
+    update: dict[str, Any] = {"route": convert([f"route[{i}]" for i in range(len(route))], route)}
+    if scenario.landmarks:
+        xy = convert(
+            [f"landmarks[{i}]" for i in range(len(scenario.landmarks))], [(lm.x, lm.y) for lm in scenario.landmarks]
+        )
+        update["landmarks"] = [lm.model_copy(update={"x": x, "y": y}) for lm, (x, y) in zip(scenario.landmarks, xy)]
+    sensor = scenario.sensor
+    if sensor is not None and sensor.frames:
+        frames = list(sensor.frames)
+        truths = {i: f.truth for i, f in enumerate(frames) if f.truth is not None}
+        if truths:
+            xy = convert([f"sensor.frames[{i}].truth" for i in truths], [(t.x, t.y) for t in truths.values()])
+            for (i, t), (x, y) in zip(truths.items(), xy):
+                frames[i] = frames[i].model_copy(update={"truth": t.model_copy(update={"x": x, "y": y})})
+            update["sensor"] = sensor.model_copy(update={"frames": frames})
+    out = scenario.model_copy(update=update)
+    out._path, out._frame = scenario._path, frame
+    log.debug("scenario %s: coordinates in %s converted to local metres (origin %s)", path, label, frame.origin)
+    return out
 
 
 def load_scenario(path: str | Path) -> Scenario:

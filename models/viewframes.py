@@ -8,7 +8,7 @@ scenario's viewframes are :attr:`models.world.World.viewframes`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -83,9 +83,12 @@ def route_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
-def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[Viewframe]:
+def render_viewframes(
+    emulator: CameraEmulator, poses: Sequence[Pose], *, progress: Callable[[int, int], None] | None = None
+) -> list[Viewframe]:
     """Render and describe the viewframe at every pose (the route poses), numbered in order; where
-    a landmark is in view, also the same view without landmarks (:attr:`Viewframe.background`)."""
+    a landmark is in view, also the same view without landmarks (:attr:`Viewframe.background`).
+    ``progress(done, total)`` is called after each."""
     env = emulator.environment
     frames = []
     for i, pose in enumerate(poses):
@@ -93,4 +96,6 @@ def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[V
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
         background = emulator.render_background(pose) if (view.mask >= 0).any() else None
         frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc, background))
+        if progress is not None:
+            progress(i + 1, len(poses))
     return frames

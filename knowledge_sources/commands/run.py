@@ -23,6 +23,17 @@ HELP = "localize the vehicle: run the agent ensemble on a scenario over the blac
 __all__ = ["HELP", "EXIT_DEGRADED", "add_arguments", "main", "render_summary"]
 
 
+#: progress-bar phase shown when the first hypothesis of a level is posted, before frames are localized
+PHASES = {
+    "scenario": "rendering viewframes",
+    "viewframe": "rendering viewframes",
+    "map": "storing viewframes in the associative memories",
+    "index": "memories ready; camera posting frames",
+    "sensor_frame": "ranking the first camera frames",
+    "ranking": "asking the landmark detectors",
+}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", type=Path, help="scenario YAML file")
     parser.add_argument("--out", type=Path, default=None, help="write the results JSON here")
@@ -35,6 +46,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=bounded_number(0, MAX_WAIT_S, "s"), default=None, metavar="SECONDS",
                         help="give up (with an error naming the busy agents) after this long")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--rerun", nargs="?", const="spawn", default=None, metavar="TARGET",
+                        help="stream the run to Rerun as frames are localized: a new viewer (no TARGET), "
+                             "a viewer's URL (rerun+http://127.0.0.1:9876/proxy) or a FILE.rrd "
+                             "(needs pip install 'mapinterp[rerun]')")
     parser.add_argument("--run-id", default=None, type=run_id_argument, metavar="RUN",
                         help="the run's id, which remote agents give to join it (default: random)")
     parser.add_argument("--remote", action="append", default=[], metavar="AGENT",
@@ -115,23 +130,46 @@ def main(args: argparse.Namespace) -> int:
     scenario = load_scenario(args.scenario)
     console = Console(stderr=True)
     show = not args.no_progress and sys.stderr.isatty()
+    live = None
+    if args.rerun is not None:
+        from knowledge_sources.rerun_export import RerunLogger, open_stream, require_rerun
+
+        require_rerun()  # before a long run: say at once when the extra is missing
     with interrupt_on_signals(), Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                                           TimeElapsedColumn(), console=console, disable=not show,
                                           transient=True) as bar:
-        task = bar.add_task(f"localizing {scenario.name}", total=None)
+        if args.rerun is not None:
+            from knowledge_sources.replay import replay
+
+            task0 = bar.add_task("rendering the views for rerun", total=None)
+            live = RerunLogger(open_stream(args.rerun, recording_id=args.run_id or scenario.name), replay(scenario))
+            bar.remove_task(task0)
+        task = bar.add_task(f"{scenario.name}: starting agents", total=None)
 
         def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
+            bar.update(task, completed=done, total=total, description=f"{scenario.name}: localizing")
+
+        def on_hypothesis(level: str, body: Any, t: float) -> None:
+            phase = PHASES.get(level)
+            if phase is not None and not bar.tasks[-1].completed:
+                bar.update(task, description=f"{scenario.name}: {phase}")
+            if live is not None:
+                live.on_hypothesis(level, body, t)
 
         results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
                               zenoh=zenoh_options_from_args(args), trace_path=args.trace,
                               timeout_s=args.timeout, progress=progress, frame_rate=args.rate,
                               remote=args.remote, run_id=args.run_id, wait_remote_s=args.wait_remote,
                               secret=args.secret, auth=args.auth,
-                              on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote))
+                              on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
+                              on_hypothesis=on_hypothesis)
         # still under the handlers: a second Ctrl-C while the results are written exits at once
         if args.out is not None:
             write_results(args.out, results)
+    if live is not None:
+        live.rec.flush()
+        live.rec.disconnect()
+        console.print(f"{live.frames_logged} frames sent to rerun ({args.rerun})")
     Console().print(render_summary(results))
     if args.out is not None:
         console.print(f"results written to {args.out}")
