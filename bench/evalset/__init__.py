@@ -65,5 +65,17 @@ from bench.evalset.cases import (
     seeds,
 )
 
-__all__ = ["cases", "case_names", "seeds", "Case", "EvalFrame", "TerrainEntry", "TERRAINS", "SPLITS",
-           "ERROR_BOUNDS", "CAMERA", "GENERATOR_VERSION", "default_out_dir"]
+__all__ = [
+    "cases",
+    "case_names",
+    "seeds",
+    "Case",
+    "EvalFrame",
+    "TerrainEntry",
+    "TERRAINS",
+    "SPLITS",
+    "ERROR_BOUNDS",
+    "CAMERA",
+    "GENERATOR_VERSION",
+    "default_out_dir",
+]
