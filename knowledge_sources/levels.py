@@ -314,6 +314,9 @@ class Viewframe(Message):
     description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
     skyline: np.ndarray = field(metadata=_doc("(n,) float32 horizon elevation per azimuth bin, degrees, NaN: none "
                                               "(models.skyline)", dtype="float32", ndim=1))
+    background: np.ndarray | None = field(default=None, metadata=_doc(
+        "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view",
+        dtype="uint8", ndim=3, channels=3))
 
     def id(self) -> str:
         return viewframe_id(self.index)
@@ -493,6 +496,8 @@ class Answer(Message):
     location: list | None = field(metadata=_doc("(row, col) of the detection in the camera image, or null"))
     detector: str = field(metadata=_doc("detector name"))
     reason: str = field(metadata=_doc("why the detector answered so"))
+    llr: float | None = field(default=None, metadata=_doc(
+        "log-likelihood ratio of the landmark being there (calibrated), or null"))
 
     def id(self) -> str:
         return answer_id(self.query)
