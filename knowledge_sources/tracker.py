@@ -1,0 +1,154 @@
+"""The tracker: the vehicle's place on the route from the sequence of camera frames.
+
+It consumes, per camera frame, the associative rankings (every shard's) and the scene
+analysis's decision (the landmark answers it got, and its single-frame answer), strictly in
+frame order, and keeps a :class:`~models.tracking.RouteFilter` (the model and its calibration
+are documented in :mod:`models.tracking`). For each frame it posts a ``track`` hypothesis: the
+route point, arc length, ``(x, y)``, heading, confidence, ``tracking``/``lost`` state, the
+posterior mass of each route point (``belief``), the predicted probability of each route point for the next frame (``prior_next``, which the
+scheduler uses to condition the next frame's questions), the frame's per-route-point evidence
+log-likelihood and time step (so the drive can be smoothed offline), linked to the rankings and
+the position it used.
+
+Ordering: evidence may arrive in any order and faster than the filter runs; frames are buffered
+and the filter steps through them in frame order only. The track of frame t uses frames <= t;
+the prior the scheduler gets for frame t comes from the track of frame t - 1 (frames < t).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+__all__ = ["Tracker", "FrameOrder"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class _Pending:
+    rankings: dict[int, tuple[list[int], list[float]]] = field(default_factory=dict)
+    banks: int = 1
+    time: float | None = None
+    position: dict[str, Any] | None = None
+    links: list[str] = field(default_factory=list)
+
+    @property
+    def ready(self) -> bool:
+        return len(self.rankings) >= self.banks and self.position is not None
+
+
+class FrameOrder:
+    """Buffers per-frame evidence and releases frames in order, each once it is complete
+    (every bank's ranking and the scene analysis's position)."""
+
+    def __init__(self) -> None:
+        self.pending: dict[int, _Pending] = {}
+        self.next = 0
+
+    def ranking(self, frame: int, bank: int, banks: int, labels, variances, time: float | None, hid: str) -> None:
+        p = self.pending.setdefault(frame, _Pending())
+        p.banks = banks
+        p.rankings[bank] = (list(labels), list(variances))
+        p.time = time if time is not None else p.time
+        p.links.append(hid)
+
+    def position(self, frame: int, body: dict[str, Any], hid: str) -> None:
+        p = self.pending.setdefault(frame, _Pending())
+        p.position = body
+        p.links.append(hid)
+
+    def ready(self) -> list[tuple[int, _Pending]]:
+        """The frames that can be processed now, in order (removed from the buffer)."""
+        out = []
+        while (p := self.pending.get(self.next)) is not None and p.ready:
+            out.append((self.next, self.pending.pop(self.next)))
+            self.next += 1
+        return out
+
+
+def answers_of(position: dict[str, Any]) -> list[tuple[str, bool]]:
+    """The landmark answers (landmark, present) of a position's steps; undecided ones left out."""
+    return [(s["landmark"], bool(s["present"])) for s in position.get("steps", []) if s.get("present") is not None]
+
+
+class Tracker(KnowledgeSource):
+    """Options: the scenario's ``tracking`` block as a dict (``spec``), ``min_pixels`` (a landmark
+    counts as visible in a viewframe from this many pixels, as the scheduler's)."""
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.POSITION)
+    produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.TRACK,)
+
+    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int = 60,
+                 **options: Any) -> None:
+        super().__init__(name, **options)
+        from models.scenario import TrackingSpec
+
+        self.spec = TrackingSpec(**(spec or {}))
+        self.min_pixels = int(min_pixels)
+        self._filter = None
+        self._visible: dict[int, frozenset[str]] = {}
+        self._order = FrameOrder()
+        self._last_time: float | None = None
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        return 2.0 if event.hypothesis.level == levels.MAP else 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        h = event.hypothesis
+        b = h.body
+        if h.level == levels.MAP:
+            self._set_map(b)
+            return
+        if h.level == levels.RANKING:
+            self._order.ranking(int(b["frame"]), int(b["bank"]), int(b["banks"]), b["labels"], b["variances"],
+                                b.get("time"), h.id)
+        elif h.level == levels.POSITION:
+            self._order.position(int(b["frame"]), b, h.id)
+        if self._filter is None:
+            got = board.get("map")
+            if got is None:
+                return  # the map event is on its way; frames wait in the buffer
+            self._set_map(got.body)
+        for frame, pending in self._order.ready():
+            self._step(frame, pending, board)
+
+    def _set_map(self, body: dict[str, Any]) -> None:
+        from models.tracking import RouteFilter
+
+        if self._filter is not None:
+            return
+        self._filter = RouteFilter(body["route"], spec=self.spec)
+        self._visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
+                         for k, v in body["visible"].items()}
+
+    def _step(self, frame: int, p: _Pending, board: Board) -> None:
+        f = self._filter
+        labels = [k for b in sorted(p.rankings) for k in p.rankings[b][0]]
+        variances = [v for b in sorted(p.rankings) for v in p.rankings[b][1]]
+        ll = f.route_loglik(labels, variances, answers=answers_of(p.position), visible=self._visible)
+        dt = None
+        if p.time is not None and self._last_time is not None:
+            dt = float(p.time) - self._last_time
+        self._last_time = None if p.time is None else float(p.time)
+        est = f.step(ll, dt=dt)
+        prior_next = f.grid.point_mass(f.prior(None if dt is None else dt)).astype(np.float32)
+        body = {
+            "frame": frame,
+            **est.to_dict(),
+            "belief": f.grid.point_mass(f.belief).astype(np.float32),
+            "prior_next": prior_next,
+            "loglik": None if ll is None else ll.astype(np.float32),
+            "dt": dt,
+        }
+        board.post(levels.TRACK, body, id=levels.track_id(frame), links=tuple(dict.fromkeys(p.links)),
+                   credibility=float(min(1.0, max(0.0, est.confidence))))
