@@ -5,8 +5,7 @@ scenarios' frames) over the bundled terrains and generated serpentine routes, wi
 seeds below; every frame ranked by the real associative memory (bench/tracking_data.py).
 
 Fit: the observation model of models/tracking.py gives each route point k of a frame the
-likelihood ``L_k = eps_f + exp(gain - z_k / temperature)`` (``eps_f`` grows as the margin falls,
-``margin_scale``). Normalised over the route points, ``L_k / sum_j L_j`` is what one frame alone
+likelihood ``L_k = eps_f + exp(gain - z_k / temperature)``, ``eps_f = eps + margin_scale / margin``. Normalised over the route points, ``L_k / sum_j L_j`` is what one frame alone
 says about where the camera is (a uniform prior); the parameters maximise the mean log of that
 probability at the true route point (nearest to the true position) over all tuning frames
 (Nelder-Mead in log-parameters). Also printed: the histograms of ``z`` for true and for other
@@ -36,7 +35,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import minimize  # noqa: E402
 
 from models.scenario import load_scenario  # noqa: E402
-from models.tracking import ObservationModel, ranking_scores  # noqa: E402
+from models.tracking import ObservationModel, RouteGrid, ranking_scores  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 #: seeds of the tuning drives: the evaluation set's seeds must be different (BENCHMARKS.md)
@@ -89,28 +88,48 @@ def frame_scores(drives: list[dict]) -> tuple[list[np.ndarray], list[float], lis
     return zs, margins, truths
 
 
-def mean_log_prob(params: np.ndarray, zs, margins, truths) -> float:
-    temperature, eps, margin_scale = np.exp(params[:3])
-    gain = params[3]
-    model = ObservationModel(float(temperature), float(gain), float(min(eps, 1.0)), float(margin_scale))
+def arc_frames(drives: list[dict]) -> list[tuple]:
+    """Per frame: (grid, variances, true arc length): the truth projected on the route."""
+    out = []
+    for d in drives:
+        grid = RouteGrid.build(d["route"], cell_m=1.0, tail=0.5)
+        for v, (x, y, _) in zip(d["variances"], d["truth"]):
+            if not np.isfinite(x):
+                continue
+            c = int(np.argmin(np.hypot(grid.xy[:, 0] - x, grid.xy[:, 1] - y)))
+            out.append((grid, v, float(grid.centres[c])))
+    return out
+
+
+def _model(params: np.ndarray) -> ObservationModel:
+    temperature, eps, margin_scale, spread = np.exp(params)
+    return ObservationModel(float(temperature), 0.0, float(min(eps, 1.0)), float(margin_scale), float(spread))
+
+
+def mean_log_density(params: np.ndarray, frames) -> float:
+    """Mean log of the single-frame density over arc length at the true arc (1/m)."""
+    model = _model(params)
+    if not (0.05 < model.temperature < 20 and 0.02 < model.spread < 3):
+        return -1e9
     total = 0.0
-    for z, m, t in zip(zs, margins, truths):
-        ll = np.log(model.floor(m) + np.exp(gain - np.nan_to_num(z, nan=np.inf) / temperature))
-        ll -= ll.max()
-        total += ll[t] - math.log(np.exp(ll).sum())
-    return total / len(zs)
+    for grid, v, s in frames:
+        ll = model.loglik(v, grid)
+        top = ll.max()
+        dens = np.exp(ll - top)
+        norm = np.trapezoid(dens, grid.samples)
+        total += float(np.interp(s, grid.samples, ll)) - top - math.log(norm)
+    return total / len(frames)
 
 
-def fit(zs, margins, truths) -> dict:
-    x0 = np.array([math.log(1.0), math.log(0.05), math.log(0.5), 3.0])
-    res = minimize(lambda p: -mean_log_prob(p, zs, margins, truths), x0, method="Nelder-Mead",
-                   options={"maxiter": 600, "xatol": 1e-3, "fatol": 1e-5})
-    t, eps, ms = np.exp(res.x[:3])
-    no_margin = minimize(lambda p: -mean_log_prob(np.r_[p[:2], -30.0, p[2]], zs, margins, truths),
-                         np.r_[x0[:2], x0[3]], method="Nelder-Mead", options={"maxiter": 400})
-    return {"temperature": float(t), "eps": float(min(eps, 1.0)), "margin_scale": float(ms), "gain": float(res.x[3]),
-            "mean_log_prob": float(-res.fun), "mean_log_prob_without_margin": float(-no_margin.fun),
-            "uniform_log_prob": float(np.mean([-math.log(z.size) for z in zs]))}
+def fit(frames) -> dict:
+    x0 = np.log([1.0, 0.01, 0.3, 0.4])
+    res = minimize(lambda p: -mean_log_density(p, frames), x0, method="Nelder-Mead",
+                   options={"maxiter": 500, "xatol": 1e-3, "fatol": 1e-5})
+    m = _model(res.x)
+    length = float(np.mean([g.arc[-1] for g, _, _ in frames]))
+    return {"temperature": m.temperature, "gain": 0.0, "eps": m.eps, "margin_scale": m.margin_scale,
+            "spread": m.spread, "mean_log_density": float(-res.fun),
+            "uniform_log_density": float(-math.log(length))}
 
 
 def histograms(zs, truths) -> list[dict]:
@@ -125,15 +144,21 @@ def histograms(zs, truths) -> list[dict]:
             for a, b, nt, no, p1, p2 in zip(edges[:-1], edges[1:], ht, ho, pt, po)]
 
 
-def reliability(params: dict, zs, margins, truths) -> list[dict]:
-    model = ObservationModel(params["temperature"], params["gain"], params["eps"], params["margin_scale"])
+def reliability(params: dict, frames) -> list[dict]:
+    """Single-frame probability of the route point with the most density against how often it is right."""
+    model = ObservationModel(params["temperature"], params["gain"], params["eps"], params["margin_scale"],
+                             params["spread"])
     probs, right = [], []
-    for z, m, t in zip(zs, margins, truths):
-        ll = np.log(model.floor(m) + np.exp(params["gain"] - np.nan_to_num(z, nan=np.inf) / params["temperature"]))
+    cache: dict[int, RouteGrid] = {}
+    for grid, v, s in frames:
+        fine = cache.setdefault(id(grid), RouteGrid.build(grid.route, cell_m=2.0))
+        ll = fine.cell_loglik(model.loglik(v, fine))
         p = np.exp(ll - ll.max())
-        p /= p.sum()
-        probs.append(p.max())
-        right.append(int(np.argmax(p)) == t)
+        mass = fine.point_mass(p / p.sum())
+        k = int(np.argmax(mass))
+        truth = int(fine.region[int(np.clip(s / fine.cell_m, 0, fine.cells - 1))])
+        probs.append(mass[k])
+        right.append(k == truth)
     probs, right = np.array(probs), np.array(right)
     out = []
     for a, b in ((0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 0.8), (0.8, 1.01)):
@@ -156,11 +181,12 @@ def main() -> None:
         if args.cache:
             args.cache.write_bytes(pickle.dumps(drives))
     zs, margins, truths = frame_scores(drives)
-    params = fit(zs, margins, truths)
+    frames = arc_frames(drives)
+    params = fit(frames)
     top1 = float(np.mean([int(np.nanargmin(z)) == t for z, t in zip(zs, truths)]))
     out = {"drives": [{"name": d["name"], "seed": d["seed"], "frames": int(len(d["true_point"]))} for d in drives],
            "tuning_seeds": list(TUNING_SEEDS), "drive": TUNING_DRIVE, "frames": len(zs), "ranking_top1": top1,
-           "fit": params, "histogram": histograms(zs, truths), "reliability": reliability(params, zs, margins, truths)}
+           "fit": params, "histogram": histograms(zs, truths), "reliability": reliability(params, frames)}
     print(json.dumps(out, indent=1))
     print()
     print(f"{len(zs)} tuning frames, ranking top-1 {top1:.3f}")

@@ -331,9 +331,11 @@ class TrackingSpec(_Spec):
     with a ``time``) or ``max_skip_points`` mean route spacings (frames without one), a stop with
     probability ``p_stop``, a reversal of up to ``reverse_m`` with probability ``p_reverse``; a
     jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
-    ranking's variances as a likelihood, ``log(eps + exp(gain - z / temperature))`` with ``z`` the
-    variance above the best in robust spreads, ``eps`` scaled up when the ranking's margin is low
-    (``margin_scale``); ``temperature``, ``gain``, ``eps`` and ``margin_scale`` were fitted on
+    ranking's variances as a likelihood, ``log(eps_f + exp(gain - z / temperature))`` with ``z`` the
+    variance above the best in robust spreads, the floor ``eps_f = eps + margin_scale / margin``
+    higher when the ranking's margin is low, each route point's term spread along the route by a
+    Gaussian of ``spread`` mean route spacings (the ranking's own along-route error);
+    ``temperature``, ``gain``, ``eps``, ``margin_scale`` and ``spread`` were fitted on
     tuning drives (bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
@@ -350,10 +352,11 @@ class TrackingSpec(_Spec):
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
-    temperature: float = Field(default=1.0, gt=0)
-    gain: float = Field(default=3.0)
-    eps: float = Field(default=0.05, gt=0, le=1)
+    temperature: float = Field(default=0.61, gt=0)
+    gain: float = 0.0
+    eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0)
+    spread: float = Field(default=0.40, ge=0)
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)
     exit: float = Field(default=0.25, ge=0, le=1)
