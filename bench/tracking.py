@@ -1,8 +1,11 @@
 """Tracking benchmark: tracked against single-frame localization, side by side in one run.
 
-Drives: the evaluation set's (``--evalset``, scenario files; never used to choose parameters),
-or, without it, tuning drives (bench/tracking_calibrate.py's seeds; then the numbers are
-tuning numbers, labelled so). Each drive's frames are ranked by the real associative memory
+Drives: the cases of the evaluation set (bench/evalset: sweeps with a frame at every route
+point, drives with stops and gaps of several route points, drives with a kidnapping; camera
+frames from another renderer than the viewframes', at other sizes, with larger pose errors),
+split ``heldout`` (the default: for reporting, never used to choose a parameter) or ``tuning``;
+or ``--split sim``: simulated drives of the bundled terrains with bench/tracking_calibrate.py's
+tuning seeds. Each drive's frames are ranked by the real associative memory
 (bench/tracking_data.py), then
 
 * single-frame: the ranking's best route point per frame (the blind decision);
@@ -15,7 +18,7 @@ on which the tracked route point is right again), the tracker's cost per frame o
 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
 tracker on one drive (``mapinterp run`` and ``--no-track``).
 
-    python bench/tracking.py [--evalset bench/evalset] [--runs] [--json-only]
+    python bench/tracking.py [--split heldout|tuning|sim] [--runs] [--json-only]
 
 Prints JSON, then a table.
 """
@@ -28,10 +31,15 @@ from pathlib import Path
 sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import os  # noqa: E402
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # BLAS on one thread: idle BLAS threads spinning skew the tracker's timing
+
 import argparse  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
-import os  # noqa: E402
+import pickle  # noqa: E402
 import platform  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -45,7 +53,7 @@ ROOT = Path(__file__).resolve().parent.parent
 WARM_UP = 3
 
 
-def kidnap_frames(true_point: np.ndarray, *, max_skip: float) -> list[int]:
+def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list[int]:
     """Frames whose true route point jumped from the previous frame's by more than the motion
     model allows (backwards by more than one point, or forwards by more than ``max_skip + 1``)."""
     out = []
@@ -88,7 +96,7 @@ def score(d: dict, tracked: dict, spec: TrackingSpec) -> dict:
                      "lost": [e.state == "lost" for e in ests]}
     out["single"] = {"right": (single == tp).tolist(),
                      "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)]}
-    kid = kidnap_frames(tp, max_skip=spec.max_skip_points)
+    kid = d["kidnaps"] if d.get("kidnaps") is not None else kidnap_frames_from_truth(tp, max_skip=spec.max_skip_points)
     rec = []
     for k in kid:
         right = out["tracked"]["right"][k:]
@@ -161,56 +169,83 @@ def whole_runs(path: Path) -> dict:
     return out
 
 
-def drives_from(evalset: Path | None, tmp: Path) -> tuple[list[Path], str]:
-    if evalset is not None:
-        files = sorted(p for p in evalset.rglob("*.yaml"))
-        return files, f"evaluation set {evalset}"
+def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, Path]], str]:
+    """Ranked drives of a split: ``(drive, tracking spec, scenario path)`` each, and a label."""
     sys.path.insert(0, str(ROOT / "bench"))
-    from tracking_calibrate import TUNING_DRIVE, TUNING_SEEDS
-    from tracking_data import with_drive
+    from tracking_data import ranked_drive
 
-    files = []
-    for name in ("hills", "jacksboro", "contours"):
-        for seed in TUNING_SEEDS:
-            sc = with_drive(load_scenario(ROOT / "scenarios" / f"{name}.yaml"), TUNING_DRIVE, seed=seed,
-                            path=tmp / f"{name}-{seed}.yaml")
-            files.append(sc.path)
-    return files, f"TUNING drives (seeds {list(TUNING_SEEDS)}), not held out"
+    out = []
+    if split == "sim":
+        from tracking_calibrate import TUNING_DRIVE, TUNING_SEEDS
+        from tracking_data import with_drive
+
+        for name in ("hills", "jacksboro", "contours"):
+            for seed in TUNING_SEEDS:
+                sc = with_drive(load_scenario(ROOT / "scenarios" / f"{name}.yaml"), TUNING_DRIVE, seed=seed,
+                                path=tmp / f"{name}-{seed}.yaml")
+                d = ranked_drive(sc)
+                d["kind"] = "sim-drive"
+                out.append((d, sc.tracking, sc.path))
+                print(f"{d['name']}: {len(d['true_point'])} frames", file=sys.stderr)
+        return out, f"simulated TUNING drives (seeds {list(TUNING_SEEDS)}), not held out"
+    from bench.evalset import cases
+
+    for case in cases(split):
+        sc = load_scenario(case.scenario_path)
+        d = ranked_drive(sc)
+        d["name"] = case.name
+        d["kind"] = case.kind
+        d["times"] = np.array([f.time_s for f in case.frames], float)
+        d["kidnaps"] = [f.index for f in case.frames if f.event == "kidnap"]
+        out.append((d, sc.tracking, case.scenario_path))
+        print(f"{case.name}: {len(d['true_point'])} frames", file=sys.stderr)
+    return out, f"evaluation set, split {split}" + (" (held out: never used to choose a parameter)"
+                                                    if split == "heldout" else " (parameters may be chosen here)")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--evalset", type=Path, help="folder of evaluation scenarios (drives)")
+    ap.add_argument("--split", choices=["heldout", "tuning", "sim"], default="heldout",
+                    help="evaluation-set split, or simulated tuning drives (default heldout)")
+    ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
     ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
+    ap.add_argument("--cache", type=Path, help="keep the ranked drives here (pickle) and reuse them")
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args()
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    sys.path.insert(0, str(ROOT / "bench"))
-    from tracking_data import ranked_drive
-
     spec = TrackingSpec()
     started = time.time()
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
-        files, what = drives_from(args.evalset, Path(tmp))
+        if args.cache is not None and args.cache.is_file():
+            ranked, what = pickle.loads(args.cache.read_bytes())
+        else:
+            ranked, what = ranked_cases(args.split, Path(tmp))
+            if args.cache is not None:
+                args.cache.write_bytes(pickle.dumps((ranked, what)))
         results = []
-        for path in files:
-            sc = load_scenario(path)
-            d = ranked_drive(sc)
-            results.append(score(d, track_drive(d, sc.tracking), sc.tracking))
-            print(f"{d['name']}: {len(d['true_point'])} frames", file=sys.stderr)
-        runs = whole_runs(files[0]) if args.runs else None
-    out = {"data": what, "machine": platform.platform(), "load_avg_start": load, "started": started,
+        for d, tracking, _ in ranked:
+            if args.no_times:
+                d["times"] = np.full(len(d["true_point"]), np.nan)
+            r = score(d, track_drive(d, tracking), tracking)
+            r["kind"] = d["kind"]
+            results.append(r)
+        runs = whole_runs(ranked[0][2]) if args.runs else None
+    out = {"data": what, "machine": platform.platform(), "load_avg_start": load, "load_avg_end": os.getloadavg()[0],
+           "started": started, "times_used": not args.no_times,
            "warm_up": WARM_UP, "pooled": pooled(results), "cost_10000_cells": cost_10000(spec),
            "whole_runs": runs,
            "drives": [{"name": r["name"], "frames": r["frames"], "kidnaps": r["kidnaps"],
                        "recover_frames": r["recover_frames"],
                        **{m: pooled([r])[m] for m in ("single", "tracked", "smoothed")}} for r in results]}
+    out["pooled_by_kind"] = {k: pooled([r for r in results if r["kind"] == k])
+                             for k in sorted({r["kind"] for r in results})}
     print(json.dumps(out, indent=1))
     if args.json_only:
         return
     print()
-    print(f"data: {what}; {sum(r['frames'] for r in results)} frames in {len(results)} drives")
+    print(f"data: {what}; {sum(r['frames'] for r in results)} frames in {len(results)} drives; "
+          f"load {load:.1f} -> {out['load_avg_end']:.1f}")
 
     def pct(x):
         return "" if x is None else f"{100 * x:.1f}%"
@@ -219,9 +254,14 @@ def main() -> None:
         return "" if x is None else f"{x:.1f}"
 
     print(f"{'drive':<22} {'mode':<9} {'top1>3':>7} {'top1<3':>7} {'med m':>6} {'mean m':>7} {'recover':>8}")
-    for r in [*out["drives"], {"name": "ALL", **out["pooled"], "recover_frames": out["pooled"]["recover_frames"]}]:
+    by_kind = out["pooled_by_kind"]
+    rows = [*out["drives"], *({"name": f"ALL {k}", **v} for k, v in by_kind.items()),
+            {"name": "ALL", **out["pooled"]}]
+    for r in rows:
         for mode in ("single", "tracked", "smoothed"):
             p = r[mode]
+            if p["top1_after_warmup"] is None and p["top1_within_warmup"] is None:
+                continue
             rec = ",".join("-" if x is None else str(x) for x in r["recover_frames"]) if mode == "tracked" else ""
             print(f"{r['name'][:22]:<22} {mode:<9} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
                   f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}")

@@ -173,13 +173,23 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="bundled terrains, one seed")
     ap.add_argument("--cache", type=Path, help="harvested drives are kept here (pickle) and reused")
+    ap.add_argument("--evalset-tuning", type=Path, metavar="PICKLE",
+                    help="also the evaluation set's TUNING split, ranked by bench/tracking.py --split tuning --cache")
+    ap.add_argument("--no-sim", action="store_true", help="without the simulated drives (with --evalset-tuning)")
     args = ap.parse_args()
-    if args.cache and args.cache.is_file():
+    if args.no_sim:
+        drives = []
+    elif args.cache and args.cache.is_file():
         drives = pickle.loads(args.cache.read_bytes())
     else:
         drives = harvest(args.quick)
         if args.cache:
             args.cache.write_bytes(pickle.dumps(drives))
+    if args.evalset_tuning is not None:
+        ranked, _ = pickle.loads(args.evalset_tuning.read_bytes())
+        for d, _, _ in ranked:
+            d.setdefault("seed", "evalset-tuning")
+            drives.append(d)
     zs, margins, truths = frame_scores(drives)
     frames = arc_frames(drives)
     params = fit(frames)

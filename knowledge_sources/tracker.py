@@ -145,7 +145,7 @@ class Tracker(KnowledgeSource):
         body = {
             "frame": frame,
             **est.to_dict(),
-            "belief": f.grid.point_mass(f.belief).astype(np.float32),
+            "belief": est.belief.astype(np.float32),
             "prior_next": prior_next,
             "loglik": None if ll is None else ll.astype(np.float32),
             "dt": dt,

@@ -327,8 +327,9 @@ class TrackingSpec(_Spec):
     Example: ``tracking: {enabled: true, smoothing: false, cell_m: 2.0}``.
 
     Grid: ``cell_m`` metres of route per cell; the grid runs on past the last route point by
-    ``tail`` of the last leg. Motion per frame: forward by up to ``max_speed_mps`` * dt (frames
-    with a ``time``) or ``max_skip_points`` mean route spacings (frames without one), a stop with
+    ``tail`` of the last leg. Motion per frame: forward by up to ``cruise_points`` mean route
+    spacings (or ``max_speed_mps`` * dt when frames carry a ``time`` and that is more), with
+    probability ``p_skip`` by up to ``max_skip_points`` spacings (dropped frames), a stop with
     probability ``p_stop``, a reversal of up to ``reverse_m`` with probability ``p_reverse``; a
     jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
     ranking's variances as a likelihood, ``log(eps_f + exp(gain - z / temperature))`` with ``z`` the
@@ -347,16 +348,18 @@ class TrackingSpec(_Spec):
     cell_m: float = Field(default=2.0, gt=0)
     tail: float = Field(default=0.5, ge=0)
     max_speed_mps: float = Field(default=30.0, gt=0)
-    max_skip_points: float = Field(default=4.0, gt=0)
+    cruise_points: float = Field(default=2.0, gt=0)
+    max_skip_points: float = Field(default=6.0, gt=0)
+    p_skip: float = Field(default=0.15, ge=0, le=1)
     p_stop: float = Field(default=0.1, ge=0, lt=1)
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
-    temperature: float = Field(default=0.61, gt=0)
+    temperature: float = Field(default=1.11, gt=0)
     gain: float = 0.0
     eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0)
-    spread: float = Field(default=0.40, ge=0)
+    spread: float = Field(default=0.45, ge=0)
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)
     exit: float = Field(default=0.25, ge=0, le=1)

@@ -6,9 +6,11 @@ cells of ``cell_m`` metres; the belief is a probability per cell. Each frame:
 
 Prediction (motion model)
     A convolution of the belief with a transition kernel over the displacement ``d`` (cells):
-    forward motion of unknown speed, uniform on ``(0, D]`` (``D = max_speed_mps * dt`` when the
-    frames carry times, else ``max_skip_points`` mean route spacings, so frames that skip route
-    points are expected), a stop (``d = 0``) with probability ``p_stop``, a small reversal,
+    forward motion of unknown speed, uniform on ``(0, D]`` (cruising: ``D`` is ``cruise_points``
+    mean route spacings, or ``max_speed_mps * dt`` when the frames carry times and that is
+    more) and, with
+    probability ``p_skip``, uniform on ``(0, max_skip_points]`` spacings (frames dropped, route
+    points skipped, whatever the times say), a stop (``d = 0``) with probability ``p_stop``, a small reversal,
     uniform on ``[-reverse_m, 0)``, with probability ``p_reverse``. Mass pushed past either end
     of the grid stays on the end cell. Then a "kidnapped" mixture: with probability
     ``p_kidnap`` the vehicle may be anywhere (uniform), which is what lets the filter relocalize
@@ -65,6 +67,7 @@ World coordinates are metres, ``(x, y)`` in the map plane.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -310,7 +313,9 @@ class MotionModel:
     cell_m: float
     mean_leg: float
     max_speed_mps: float
+    cruise_points: float
     max_skip_points: float
+    p_skip: float
     p_stop: float
     p_reverse: float
     reverse_m: float
@@ -319,73 +324,95 @@ class MotionModel:
 
     @classmethod
     def from_spec(cls, spec: TrackingSpec, grid: RouteGrid) -> MotionModel:
-        return cls(grid.cell_m, grid.mean_leg, spec.max_speed_mps, spec.max_skip_points, spec.p_stop,
-                   spec.p_reverse, spec.reverse_m, spec.p_kidnap)
+        return cls(grid.cell_m, grid.mean_leg, spec.max_speed_mps, spec.cruise_points, spec.max_skip_points,
+                   spec.p_skip, spec.p_stop, spec.p_reverse, spec.reverse_m, spec.p_kidnap)
+
+    def cruise_m(self, dt: float | None) -> float:
+        """The largest forward displacement of a normal step: ``cruise_points`` mean route
+        spacings, or ``max_speed_mps * dt`` when the frames carry times and that is more (a
+        speed bound never narrows the step below the route's own scale: the set of frames a
+        vehicle's camera delivers is not known to follow its clock)."""
+        base = max(self.cruise_points * self.mean_leg, self.cell_m)
+        if dt is None:
+            return base
+        return max(self.max_speed_mps * max(float(dt), 0.0), base)
 
     def reach_m(self, dt: float | None) -> float:
-        """The largest forward displacement in one step."""
-        if dt is None:
-            return self.max_skip_points * self.mean_leg
-        return max(self.max_speed_mps * max(float(dt), 0.0), self.cell_m)
+        """The largest forward displacement in one step (a skip: frames dropped, whatever their times)."""
+        return max(self.max_skip_points * self.mean_leg, self.cruise_m(dt))
 
     def kernel(self, dt: float | None) -> tuple[np.ndarray, int]:
         """``(K, back)``: probabilities of displacements ``-back .. len(K) - back - 1`` cells (sums to 1)."""
         key = None if dt is None else round(float(dt), 3)
         got = self._cache.get(key)
         if got is not None:
-            return got
-        fwd = max(1, int(round(self.reach_m(dt) / self.cell_m)))
+            return got[0], got[1]
+        cruise = max(1, int(round(self.cruise_m(dt) / self.cell_m)))
+        fwd = max(cruise, int(round(self.reach_m(dt) / self.cell_m)))
         back = int(round(self.reverse_m / self.cell_m)) if self.p_reverse > 0 else 0
         k = np.zeros(back + 1 + fwd)
         k[back] = self.p_stop
-        k[back + 1:] = (1.0 - self.p_stop - (self.p_reverse if back else 0.0)) / fwd
+        move = 1.0 - self.p_stop - (self.p_reverse if back else 0.0)
+        skip = self.p_skip if fwd > cruise else 0.0
+        k[back + 1:back + 1 + cruise] += move * (1.0 - skip) / cruise
+        k[back + 1:] += move * skip / fwd
         if back:
             k[:back] = self.p_reverse / back
         k /= k.sum()
-        self._cache[key] = (k, back)
+        self._cache[key] = (k, back, cruise)
         return k, back
 
     def predict(self, belief: np.ndarray, dt: float | None) -> np.ndarray:
         """One prediction step of ``belief`` ``(C,)`` (sums to 1).
 
-        The kernel is piecewise constant (stop, forward box, reverse box), so the convolution is
-        computed exactly from cumulative sums in O(cells), whatever the kernel's length;
-        :meth:`adjoint` computes the transpose by direct/FFT correlation with the kernel itself,
-        and the tests check one against the other.
+        The kernel is piecewise constant (stop, two forward boxes: cruise and skip, a reverse
+        box), so the convolution is computed exactly from cumulative sums in O(cells), whatever
+        the kernel's length; :meth:`adjoint` computes the transpose by direct/FFT correlation
+        with the kernel itself, and the tests check one against the other.
         """
         k, back = self.kernel(dt)
+        cruise = self._cache[None if dt is None else round(float(dt), 3)][2]
         n = belief.size
         fwd = k.size - back - 1
-        plan = self._plan(n, k, back)
         c = np.empty(n + 1)
         c[0] = 0.0
         np.cumsum(belief, out=c[1:])
         out = k[back] * belief
-        # forward: cells m - fwd .. m - 1 move to m; mass pushed past the end stays on the last cell
-        out += k[-1] * (c[:n] - c[plan["fwd_lo"]])
         # (element-wise products summed, not np.dot: a multithreaded BLAS dot of 10,000 numbers
         # took 30 ms on a loaded machine)
-        tail = plan["over"]
-        out[-1] += k[-1] * float((tail * belief[n - tail.size:]).sum())
+        a_skip = k[-1]
+        a_cruise = k[back + 1] - (a_skip if fwd > cruise else 0.0)
+        for width, weight in ((fwd, a_skip if fwd > cruise else 0.0), (cruise, a_cruise)):
+            if weight <= 0:
+                continue
+            plan = self._plan(n, width, "f")
+            # cells m - width .. m - 1 move to m; mass pushed past the end stays on the last cell
+            out += weight * (c[:n] - c[plan["lo"]])
+            tail = plan["pile"]
+            out[-1] += weight * float((tail * belief[n - tail.size:]).sum())
         if back:
-            out += k[0] * (c[plan["back_hi"]] - c[1:])
-            head = plan["under"]
+            plan = self._plan(n, back, "b")
+            out += k[0] * (c[plan["lo"]] - c[1:])
+            head = plan["pile"]
             out[0] += k[0] * float((head * belief[:head.size]).sum())
         out *= (1.0 - self.p_kidnap) / max(out.sum(), 1e-300)
         out += self.p_kidnap / n
         return out
 
-    def _plan(self, n: int, k: np.ndarray, back: int) -> dict[str, np.ndarray]:
-        """Index and weight arrays of :meth:`predict` for ``n`` cells and kernel ``k`` (cached)."""
-        key = ("plan", n, k.size, back)
+    def _plan(self, n: int, width: int, way: str) -> dict[str, np.ndarray]:
+        """Index and pile-up weights of one box of :meth:`predict` (cached): forward (``"f"``,
+        displacements 1..width) or backward (``"b"``, -width..-1)."""
+        key = ("plan", n, width, way)
         got = self._cache.get(key)
         if got is None:
-            fwd = k.size - back - 1
             idx = np.arange(n)
-            over = np.maximum(idx + fwd - (n - 1), 0).astype(np.float64)
-            under = np.maximum(back - idx, 0).astype(np.float64)
-            got = {"fwd_lo": np.maximum(idx - fwd, 0), "back_hi": np.minimum(idx + back + 1, n),
-                   "over": over[n - min(n, fwd):], "under": under[:min(n, back)]}
+            w = min(n, width)
+            if way == "f":
+                pile = np.maximum(idx + width - (n - 1), 0).astype(np.float64)[n - w:]
+                got = {"lo": np.maximum(idx - width, 0), "pile": pile}
+            else:
+                pile = np.maximum(width - idx, 0).astype(np.float64)[:w]
+                got = {"lo": np.minimum(idx + width + 1, n), "pile": pile}
             self._cache[key] = got
         return got
 
@@ -405,7 +432,8 @@ class TrackEstimate:
 
     ``route_point`` (most probable route point), ``arc_m`` (continuous arc length), ``x``, ``y``
     (metres), ``heading_deg``, ``confidence`` (posterior mass on ``route_point``), ``state``
-    (``"tracking"`` or ``"lost"``), ``evidence`` (whether the frame had any).
+    (``"tracking"`` or ``"lost"``), ``evidence`` (whether the frame had any), ``belief`` (the
+    posterior mass of every route point, ``(N,)``; not in :meth:`to_dict`).
     """
 
     route_point: int
@@ -416,6 +444,7 @@ class TrackEstimate:
     confidence: float
     state: str
     evidence: bool = True
+    belief: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
         return {"route_point": self.route_point, "arc_m": self.arc_m, "position": [self.x, self.y],
@@ -435,7 +464,7 @@ def _estimate(grid: RouteGrid, belief: np.ndarray, state: str, evidence: bool) -
     # interpolate (x, y) at s along the grid's own polyline of cell centres
     x = float(np.interp(s, grid.centres, grid.xy[:, 0]))
     y = float(np.interp(s, grid.centres, grid.xy[:, 1]))
-    return TrackEstimate(k, s, x, y, float(grid.heading_deg[j]), float(mass[k]), state, evidence)
+    return TrackEstimate(k, s, x, y, float(grid.heading_deg[j]), float(mass[k]), state, evidence, mass)
 
 
 class RouteFilter:
@@ -488,8 +517,7 @@ class RouteFilter:
         self.frames += 1
         est = _estimate(self.grid, self.belief, self.state, route_loglik is not None)
         self.state = _next_state(self.state, est.confidence, self.spec)
-        return TrackEstimate(est.route_point, est.arc_m, est.x, est.y, est.heading_deg, est.confidence,
-                             self.state, est.evidence)
+        return dataclasses.replace(est, state=self.state)
 
 
 def _update(grid: RouteGrid, pred: np.ndarray, route_loglik: np.ndarray | None) -> np.ndarray:
@@ -551,6 +579,5 @@ def smooth(
     for t, post in enumerate(posts):
         est = _estimate(grid, post, state, logliks[t] is not None)
         state = _next_state(state, est.confidence, spec)
-        out[t] = TrackEstimate(est.route_point, est.arc_m, est.x, est.y, est.heading_deg, est.confidence, state,
-                               est.evidence)
+        out[t] = dataclasses.replace(est, state=state)
     return out

@@ -1,6 +1,7 @@
 """``mapinterp report RESULTS [RESULTS ...] --out DIR``: plots of one or more results files.
 
-Writes ``positions.png`` (map, true and estimated positions), ``rankings.png``,
+Writes ``positions.png`` (map, true and estimated positions), ``track.png`` (the track over
+the map) and ``belief.png`` (the tracker's belief over the route against time), ``rankings.png``,
 ``queries.png`` (one series per results file, e.g. associative and prior on the same frames),
 ``frames/frame_NNN.png`` (camera frame beside the chosen viewframe and their edge images) for the
 first results file, and ``report.md`` linking them with the summary. The scenario is read from
@@ -27,7 +28,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def main(args: argparse.Namespace) -> int:
     import matplotlib.pyplot as plt
 
-    from knowledge_sources.report import plot_frame, plot_positions, plot_queries, plot_rankings
+    from knowledge_sources.report import (
+        plot_belief,
+        plot_frame,
+        plot_positions,
+        plot_queries,
+        plot_rankings,
+        plot_track,
+    )
     from knowledge_sources.results import load_results
     from models.errors import InputError
     from models.index import ViewframeIndex
@@ -56,6 +64,9 @@ def main(args: argparse.Namespace) -> int:
     written = [
         save(plot_positions(main_run, terrain=env.terrain, landmarks=env.landmarks, route=scenario.route,
                             poses=[v.pose for v in viewframes]), "positions.png"),
+        save(plot_track(main_run, terrain=env.terrain, landmarks=env.landmarks, route=scenario.route,
+                        poses=[v.pose for v in viewframes]), "track.png"),
+        save(plot_belief(main_run), "belief.png"),
         save(plot_rankings(main_run), "rankings.png"),
         save(plot_queries(runs), "queries.png"),
     ]

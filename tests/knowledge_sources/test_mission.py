@@ -32,8 +32,9 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
             assert isinstance(f[key], types), (key, f[key])
         assert len(f["ranking"]) == 5
         assert f["truth_viewframe"] is not None  # simulated frames know their truth
-        if f["viewframe"] is not None:
-            assert f["position"] == pytest.approx(SMALL["route"][f["viewframe"]], abs=1e-6)
+        only = f["frame_only"]  # the single-frame decision: a viewframe's position
+        if only["viewframe"] is not None:
+            assert only["position"] == pytest.approx(SMALL["route"][only["viewframe"]], abs=1e-6)
     s = results["summary"]
     assert {"frames", "top1", "mean_queries", "mean_error_m", "latency_ms_p50"} <= set(s)
     assert s["frames"] == len(SMALL["route"]) and 0.0 <= s["top1"] <= 1.0

@@ -26,3 +26,87 @@ def test_answers_of_a_position_leave_undecided_out():
     steps = [{"landmark": "H1", "present": True}, {"landmark": "T1", "present": None},
              {"landmark": "H2", "present": False}]
     assert answers_of({"steps": steps}) == [("H1", True), ("H2", False)]
+
+
+# -- through the blackboard --------------------------------------------------------------------
+
+import json  # noqa: E402
+
+import pytest  # noqa: E402
+import yaml  # noqa: E402
+
+from blackboard.trace import read_trace  # noqa: E402
+from knowledge_sources.cli import main as cli_main  # noqa: E402
+from knowledge_sources.mission import agent_plan, run_mission  # noqa: E402
+from models.scenario import load_scenario  # noqa: E402
+
+DECISION = ("frame", "viewframe", "queries", "backtracks", "correct", "confidence")
+
+
+def _drive(tmp_path, small_data, **tracking) -> "Path":
+    data = small_data
+    data["sensor"] = {"simulate": {"drive": {"interval_s": 2.0, "speed_mps": [12, 22], "p_stop": 0.1, "frames": 14,
+                                             "lateral_m": 1.0, "heading_deg": 2.0}, "seed": 11}}
+    if tracking:
+        data["tracking"] = tracking
+    path = tmp_path / "drive.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("processes", [False, True], ids=["inprocess", "processes"])
+def test_track_through_the_blackboard(tmp_path, small_data, processes):
+    path = _drive(tmp_path, small_data)
+    results = run_mission(path, processes=processes, trace_path=tmp_path / "run.trace")
+    frames = results["frames"]
+    assert results["tracking"] is True and len(frames) == 14
+    route = small_data["route"]
+    for f in frames:
+        # the results contract: the final answer on top, the single-frame decision beside it
+        assert f["state"] in ("tracking", "lost")
+        assert set(f["frame_only"]) >= {"viewframe", "position", "heading_deg", "confidence"}
+        assert 0 <= f["viewframe"] < len(route) and len(f["position"]) == 2
+        assert len(f["belief"]) == len(route) and abs(sum(f["belief"]) - 1.0) < 1e-3
+        assert f["confidence"] == pytest.approx(f["belief"][f["viewframe"]], abs=1e-4)
+    assert frames[0]["track_prior"] is False  # nothing came before frame 0
+    assert any(f["track_prior"] for f in frames[1:])  # later frames were conditioned on the track
+    s = results["summary"]
+    assert {"top1", "top1_frame_only", "median_error_m", "tracking", "lost"} <= set(s)
+    assert s["tracking"] + s["lost"] == 14 and s["tracking"] >= 10
+    # the track follows the drive: times increase, positions advance along the route
+    assert s["top1"] >= 0.7 and s["median_error_m"] < 25.0
+    # every track links the evidence it used: the frame's rankings and its position
+    records = read_trace(tmp_path / "run.trace")
+    tracks = [r for r in records if r["kind"] == "post" and r.get("level") == "track"]
+    assert len(tracks) == 14
+    assert {name for _, name, _ in agent_plan(load_scenario(path))} >= {"tracker"}
+
+
+@pytest.mark.slow
+def test_no_track_is_the_single_frame_run(tmp_path, small_data):
+    path = _drive(tmp_path, small_data)
+    off = run_mission(path, track=False)
+    assert "tracker" not in {name for _, name, _ in agent_plan(load_scenario(path), track=False)}
+    assert off["tracking"] is False
+    for f in off["frames"]:
+        assert f["state"] is None and not f["track_prior"]
+        assert {k: f[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")} == \
+            {k: f["frame_only"][k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")}
+    # the scenario's own switch gives the same decisions (and the single-frame decisions are deterministic)
+    disabled = run_mission(_drive(tmp_path, small_data, enabled=False))
+    assert [{k: f[k] for k in DECISION} for f in off["frames"]] == \
+        [{k: f[k] for k in DECISION} for f in disabled["frames"]]
+    assert off["summary"]["top1"] == off["summary"]["top1_frame_only"]
+
+
+@pytest.mark.slow
+def test_cli_no_track_and_smoothing(tmp_path, small_data):
+    path = _drive(tmp_path, small_data, smoothing=True)
+    out_off, out_on = tmp_path / "off.json", tmp_path / "on.json"
+    assert cli_main(["run", str(path), "--no-track", "--no-progress", "--out", str(out_off)]) == 0
+    assert cli_main(["run", str(path), "--no-progress", "--out", str(out_on)]) == 0
+    off, on = json.loads(out_off.read_text()), json.loads(out_on.read_text())
+    assert off["tracking"] is False and on["tracking"] is True and on["smoothing"] is True
+    assert all(f["state"] in ("tracking", "lost") for f in on["frames"])
+    assert on["summary"]["top1"] >= on["summary"]["top1_frame_only"] - 0.15
