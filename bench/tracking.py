@@ -142,12 +142,12 @@ def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
     f = RouteFilter(route, spec=spec)
     rng = np.random.default_rng(0)
     variances = [rng.random(points) for _ in range(8)]
-    labels = np.arange(points)
-    f.step(f.route_loglik(labels, variances[0]))
+    viewframes = np.arange(points)
+    f.step(f.route_loglik(viewframes, variances[0]))
     per = {"step_ms": [], "predict_ms": []}
     for i in range(repeats):
         t0 = time.perf_counter()
-        f.step(f.route_loglik(labels, variances[i % 8]), dt=None)
+        f.step(f.route_loglik(viewframes, variances[i % 8]), dt=None)
         per["step_ms"].append((time.perf_counter() - t0) * 1e3)
         t0 = time.perf_counter()
         f.motion.predict(f.belief, None)

@@ -3,7 +3,7 @@ calibration (bench/tracking_calibrate.py) and benchmark (bench/tracking.py) read
 
 :func:`ranked_drive` renders a scenario's viewframes, stores them in the scenario's memory,
 simulates (or reads) its camera frames and ranks each one, exactly as the agents do
-(models.associative.memory_from_spec, models.preprocess.preprocess_with). It returns plain
+(models.world.World, models.index.ViewframeIndex). It returns plain
 arrays: per frame the variances indexed by route point, the true position, the time, and the
 true route point (nearest to the truth, the results' criterion).
 """
@@ -19,14 +19,10 @@ import numpy as np
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
-from models.associative import memory_from_spec  # noqa: E402
-from models.camera import CameraEmulator  # noqa: E402
-from models.environment import build_environment  # noqa: E402
-from models.preprocess import preprocess_with  # noqa: E402
+from models.index import ViewframeIndex  # noqa: E402
 from models.scenario import Scenario, load_scenario  # noqa: E402
-from models.sensor import frames_from_files, simulate_frames  # noqa: E402
 from models.tracking import ranking_vector  # noqa: E402
-from models.viewframes import build_viewframes  # noqa: E402
+from models.world import World  # noqa: E402
 
 __all__ = ["ranked_drive", "with_drive"]
 
@@ -54,23 +50,18 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
     from knowledge_sources.results import nearest_viewframe
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
-    mem_spec = sc.memory.model_dump()
-    env = build_environment(sc)
-    with CameraEmulator(env, sc.camera) as cam:
-        vfs = build_viewframes(sc, emulator=cam)
-        if sc.sensor.frames:
-            frames = frames_from_files(sc)
-        else:
-            frames = simulate_frames(sc, cam, [v.pose for v in vfs])
-    memory = memory_from_spec(mem_spec, seed=0)
-    memory.write_many([preprocess_with(v.image, memory=mem_spec) for v in vfs], list(range(len(vfs))))
+    with World(sc) as world:
+        vfs = world.viewframes
+        frames = world.sensor_frames
+    index = ViewframeIndex(sc.memory, seed=0)
+    index.add([v.image for v in vfs], list(range(len(vfs))))
     n = len(vfs)
     variances, rank_ms = [], []
     for f in frames:
         t0 = time.perf_counter()
-        r = memory.rank(preprocess_with(f.image, memory=mem_spec))
+        r = index.rank(f.image)
         rank_ms.append((time.perf_counter() - t0) * 1e3)
-        variances.append(ranking_vector(r.labels, r.variances, n))
+        variances.append(ranking_vector(r.viewframes, r.variances, n))
     route = np.asarray(sc.route, dtype=np.float64)
     truth = np.array([f.truth if f.truth is not None else (np.nan, np.nan, np.nan) for f in frames], float)
     true_point = np.array([nearest_viewframe(t[0], t[1], route) if np.isfinite(t[0]) else -1 for t in truth])

@@ -34,28 +34,29 @@ log = logging.getLogger(__name__)
 @dataclass
 class _Pending:
     rankings: dict[int, tuple[list[int], list[float]]] = field(default_factory=dict)
-    banks: int = 1
+    shards: int = 1
     time: float | None = None
     position: dict[str, Any] | None = None
     links: list[str] = field(default_factory=list)
 
     @property
     def ready(self) -> bool:
-        return len(self.rankings) >= self.banks and self.position is not None
+        return len(self.rankings) >= self.shards and self.position is not None
 
 
 class FrameOrder:
     """Buffers per-frame evidence and releases frames in order, each once it is complete
-    (every bank's ranking and the scene analysis's position)."""
+    (every shard's ranking and the scene analysis's position)."""
 
     def __init__(self) -> None:
         self.pending: dict[int, _Pending] = {}
         self.next = 0
 
-    def ranking(self, frame: int, bank: int, banks: int, labels, variances, time: float | None, hid: str) -> None:
+    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None,
+                hid: str) -> None:
         p = self.pending.setdefault(frame, _Pending())
-        p.banks = banks
-        p.rankings[bank] = (list(labels), list(variances))
+        p.shards = shards
+        p.rankings[shard] = (list(viewframes), list(variances))
         p.time = time if time is not None else p.time
         p.links.append(hid)
 
@@ -110,7 +111,7 @@ class Tracker(KnowledgeSource):
             self._set_map(b)
             return
         if h.level == levels.RANKING:
-            self._order.ranking(int(b["frame"]), int(b["bank"]), int(b["banks"]), b["labels"], b["variances"],
+            self._order.ranking(int(b["frame"]), int(b["shard"]), int(b["shards"]), b["viewframes"], b["variances"],
                                 b.get("time"), h.id)
         elif h.level == levels.POSITION:
             self._order.position(int(b["frame"]), b, h.id)
@@ -133,9 +134,9 @@ class Tracker(KnowledgeSource):
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         f = self._filter
-        labels = [k for b in sorted(p.rankings) for k in p.rankings[b][0]]
+        viewframes = [k for b in sorted(p.rankings) for k in p.rankings[b][0]]
         variances = [v for b in sorted(p.rankings) for v in p.rankings[b][1]]
-        ll = f.route_loglik(labels, variances, answers=answers_of(p.position), visible=self._visible)
+        ll = f.route_loglik(viewframes, variances, answers=answers_of(p.position), visible=self._visible)
         dt = None
         if p.time is not None and self._last_time is not None:
             dt = float(p.time) - self._last_time

@@ -200,10 +200,10 @@ class RouteGrid:
         return np.bincount(self.region, weights=belief, minlength=self.points)
 
 
-def ranking_vector(labels: Sequence[int], variances: Sequence[float], points: int) -> np.ndarray:
+def ranking_vector(viewframes: Sequence[int], variances: Sequence[float], points: int) -> np.ndarray:
     """Variances ``(points,)`` indexed by route point; NaN where the ranking has none."""
     out = np.full(points, np.nan)
-    lab = np.asarray(labels, dtype=np.int64)
+    lab = np.asarray(viewframes, dtype=np.int64)
     ok = (lab >= 0) & (lab < points)
     out[lab[ok]] = np.asarray(variances, dtype=np.float64)[ok]
     return out
@@ -491,13 +491,13 @@ class RouteFilter:
         self.state = "lost"
         self.frames = 0
 
-    def route_loglik(self, labels: Sequence[int] | None = None, variances: Sequence[float] | None = None, *,
+    def route_loglik(self, viewframes: Sequence[int] | None = None, variances: Sequence[float] | None = None, *,
                      answers: Sequence[tuple[str, bool]] = (),
                      visible: Mapping[int, frozenset[str] | set[str]] | None = None) -> np.ndarray | None:
         """Log-likelihood of one frame's evidence at the grid's samples ``(S,)``, or None when it has none."""
         ll = None
-        if labels is not None and len(labels):
-            ll = self.observation.loglik(ranking_vector(labels, variances, self.grid.points), self.grid)
+        if viewframes is not None and len(viewframes):
+            ll = self.observation.loglik(ranking_vector(viewframes, variances, self.grid.points), self.grid)
         if answers and visible is not None:
             la = self.grid.from_points(landmark_loglik(answers, visible, self.grid.points,
                                                        reliability=self.spec.reliability))

@@ -13,7 +13,7 @@ def test_frames_are_released_in_order_once_complete():
     assert order.ready() == []  # frame 1 is complete, but frame 0 is not here yet
     order.ranking(0, 0, 2, [0, 2], [0.1, 0.2], 0.0, "rk-0-0")
     order.position(0, {"frame": 0, "steps": []}, "pos-0")
-    assert order.ready() == []  # frame 0 still lacks bank 1
+    assert order.ready() == []  # frame 0 still lacks shard 1
     order.ranking(0, 1, 2, [1, 3], [0.3, 0.4], 0.0, "rk-0-1")
     ready = order.ready()
     assert [f for f, _ in ready] == [0, 1]
