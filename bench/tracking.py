@@ -92,10 +92,11 @@ def score(d: dict, tracked: dict, spec: TrackingSpec) -> dict:
         pts = np.array([e.route_point for e in ests])
         err = np.array([math.hypot(e.x - x, e.y - y) for e, (x, y, _) in zip(ests, truth)])
         right = pts == tp
-        out[mode] = {"right": right.tolist(), "error_m": err.tolist(),
-                     "lost": [e.state == "lost" for e in ests]}
-    out["single"] = {"right": (single == tp).tolist(),
-                     "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)]}
+        out[mode] = {"right": right.tolist(), "error_m": err.tolist(), "lost": [e.state == "lost" for e in ests]}
+    out["single"] = {
+        "right": (single == tp).tolist(),
+        "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)],
+    }
     kid = d["kidnaps"] if d.get("kidnaps") is not None else kidnap_frames_from_truth(tp, max_skip=spec.max_skip_points)
     rec = []
     for k in kid:
@@ -124,10 +125,13 @@ def pooled(results: list[dict]) -> dict:
     out = {}
     for mode in ("single", "tracked", "smoothed"):
         errs = [e for res in results for t, e in enumerate(res[mode]["error_m"]) if t >= WARM_UP]
-        out[mode] = {"top1_after_warmup": frac(mode, after), "top1_within_warmup": frac(mode, within),
-                     "top1_after_warmup_outside_kidnaps": frac(mode, after_no_kidnap),
-                     "error_m_median": float(np.median(errs)) if errs else None,
-                     "error_m_mean": float(np.mean(errs)) if errs else None}
+        out[mode] = {
+            "top1_after_warmup": frac(mode, after),
+            "top1_within_warmup": frac(mode, within),
+            "top1_after_warmup_outside_kidnaps": frac(mode, after_no_kidnap),
+            "error_m_median": float(np.median(errs)) if errs else None,
+            "error_m_mean": float(np.mean(errs)) if errs else None,
+        }
     rec = [r for res in results for r in res["recover_frames"]]
     out["recover_frames"] = rec
     out["recover_frames_max"] = None if not rec or None in rec else int(max(rec))
@@ -152,8 +156,7 @@ def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
         t0 = time.perf_counter()
         f.motion.predict(f.belief, None)
         per["predict_ms"].append((time.perf_counter() - t0) * 1e3)
-    return {"cells": f.grid.cells, "route_points": points,
-            **{k + "_p50": float(np.median(v)) for k, v in per.items()}}
+    return {"cells": f.grid.cells, "route_points": points, **{k + "_p50": float(np.median(v)) for k, v in per.items()}}
 
 
 def whole_runs(path: Path) -> dict:
@@ -164,8 +167,12 @@ def whole_runs(path: Path) -> dict:
     for label, track in (("tracking", True), ("no_track", False)):
         res = run_mission(path, track=track)
         s = res["summary"]
-        out[label] = {"frames_per_s": s.get("frames_per_s"), "top1": s.get("top1"),
-                      "top1_frame_only": s.get("top1_frame_only"), "mean_queries": s.get("mean_queries")}
+        out[label] = {
+            "frames_per_s": s.get("frames_per_s"),
+            "top1": s.get("top1"),
+            "top1_frame_only": s.get("top1_frame_only"),
+            "mean_queries": s.get("mean_queries"),
+        }
     return out
 
 
@@ -181,8 +188,12 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
 
         for name in ("hills", "jacksboro", "contours"):
             for seed in TUNING_SEEDS:
-                sc = with_drive(load_scenario(ROOT / "scenarios" / f"{name}.yaml"), TUNING_DRIVE, seed=seed,
-                                path=tmp / f"{name}-{seed}.yaml")
+                sc = with_drive(
+                    load_scenario(ROOT / "scenarios" / f"{name}.yaml"),
+                    TUNING_DRIVE,
+                    seed=seed,
+                    path=tmp / f"{name}-{seed}.yaml",
+                )
                 d = ranked_drive(sc)
                 d["kind"] = "sim-drive"
                 out.append((d, sc.tracking, sc.path))
@@ -199,14 +210,19 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
         d["kidnaps"] = [f.index for f in case.frames if f.event == "kidnap"]
         out.append((d, sc.tracking, case.scenario_path))
         print(f"{case.name}: {len(d['true_point'])} frames", file=sys.stderr)
-    return out, f"evaluation set, split {split}" + (" (held out: never used to choose a parameter)"
-                                                    if split == "heldout" else " (parameters may be chosen here)")
+    return out, f"evaluation set, split {split}" + (
+        " (held out: never used to choose a parameter)" if split == "heldout" else " (parameters may be chosen here)"
+    )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", choices=["heldout", "tuning", "sim"], default="heldout",
-                    help="evaluation-set split, or simulated tuning drives (default heldout)")
+    ap.add_argument(
+        "--split",
+        choices=["heldout", "tuning", "sim"],
+        default="heldout",
+        help="evaluation-set split, or simulated tuning drives (default heldout)",
+    )
     ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
     ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
     ap.add_argument("--cache", type=Path, help="keep the ranked drives here (pickle) and reuse them")
@@ -231,21 +247,39 @@ def main() -> None:
             r["kind"] = d["kind"]
             results.append(r)
         runs = whole_runs(ranked[0][2]) if args.runs else None
-    out = {"data": what, "machine": platform.platform(), "load_avg_start": load, "load_avg_end": os.getloadavg()[0],
-           "started": started, "times_used": not args.no_times,
-           "warm_up": WARM_UP, "pooled": pooled(results), "cost_10000_cells": cost_10000(spec),
-           "whole_runs": runs,
-           "drives": [{"name": r["name"], "frames": r["frames"], "kidnaps": r["kidnaps"],
-                       "recover_frames": r["recover_frames"],
-                       **{m: pooled([r])[m] for m in ("single", "tracked", "smoothed")}} for r in results]}
-    out["pooled_by_kind"] = {k: pooled([r for r in results if r["kind"] == k])
-                             for k in sorted({r["kind"] for r in results})}
+    out = {
+        "data": what,
+        "machine": platform.platform(),
+        "load_avg_start": load,
+        "load_avg_end": os.getloadavg()[0],
+        "started": started,
+        "times_used": not args.no_times,
+        "warm_up": WARM_UP,
+        "pooled": pooled(results),
+        "cost_10000_cells": cost_10000(spec),
+        "whole_runs": runs,
+        "drives": [
+            {
+                "name": r["name"],
+                "frames": r["frames"],
+                "kidnaps": r["kidnaps"],
+                "recover_frames": r["recover_frames"],
+                **{m: pooled([r])[m] for m in ("single", "tracked", "smoothed")},
+            }
+            for r in results
+        ],
+    }
+    out["pooled_by_kind"] = {
+        k: pooled([r for r in results if r["kind"] == k]) for k in sorted({r["kind"] for r in results})
+    }
     print(json.dumps(out, indent=1))
     if args.json_only:
         return
     print()
-    print(f"data: {what}; {sum(r['frames'] for r in results)} frames in {len(results)} drives; "
-          f"load {load:.1f} -> {out['load_avg_end']:.1f}")
+    print(
+        f"data: {what}; {sum(r['frames'] for r in results)} frames in {len(results)} drives; "
+        f"load {load:.1f} -> {out['load_avg_end']:.1f}"
+    )
 
     def pct(x):
         return "" if x is None else f"{100 * x:.1f}%"
@@ -255,22 +289,27 @@ def main() -> None:
 
     print(f"{'drive':<22} {'mode':<9} {'top1>3':>7} {'top1<3':>7} {'med m':>6} {'mean m':>7} {'recover':>8}")
     by_kind = out["pooled_by_kind"]
-    rows = [*out["drives"], *({"name": f"ALL {k}", **v} for k, v in by_kind.items()),
-            {"name": "ALL", **out["pooled"]}]
+    rows = [*out["drives"], *({"name": f"ALL {k}", **v} for k, v in by_kind.items()), {"name": "ALL", **out["pooled"]}]
     for r in rows:
         for mode in ("single", "tracked", "smoothed"):
             p = r[mode]
             if p["top1_after_warmup"] is None and p["top1_within_warmup"] is None:
                 continue
             rec = ",".join("-" if x is None else str(x) for x in r["recover_frames"]) if mode == "tracked" else ""
-            print(f"{r['name'][:22]:<22} {mode:<9} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
-                  f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}")
+            print(
+                f"{r['name'][:22]:<22} {mode:<9} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
+                f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}"
+            )
     c = out["cost_10000_cells"]
-    print(f"tracker cost, {c['cells']} cells: step p50 {c['step_ms_p50']:.3f} ms, prediction p50 {c['predict_ms_p50']:.3f} ms")
+    print(
+        f"tracker cost, {c['cells']} cells: step p50 {c['step_ms_p50']:.3f} ms, prediction p50 {c['predict_ms_p50']:.3f} ms"
+    )
     if runs:
         for k, v in runs.items():
-            print(f"whole run ({k}): {v['frames_per_s']:.1f} frames/s, top-1 {pct(v['top1'])}, "
-                  f"frame-only {pct(v['top1_frame_only'])}")
+            print(
+                f"whole run ({k}): {v['frames_per_s']:.1f} frames/s, top-1 {pct(v['top1'])}, "
+                f"frame-only {pct(v['top1_frame_only'])}"
+            )
 
 
 if __name__ == "__main__":

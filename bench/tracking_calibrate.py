@@ -40,8 +40,14 @@ from models.tracking import ObservationModel, RouteGrid, ranking_scores  # noqa:
 ROOT = Path(__file__).resolve().parent.parent
 #: seeds of the tuning drives: the evaluation set's seeds must be different (BENCHMARKS.md)
 TUNING_SEEDS = (101, 202)
-TUNING_DRIVE = {"interval_s": 3.0, "speed_mps": [5.0, 18.0], "p_stop": 0.08, "lateral_m": 3.0,
-                "heading_deg": 4.0, "kidnap_at": 12}
+TUNING_DRIVE = {
+    "interval_s": 3.0,
+    "speed_mps": [5.0, 18.0],
+    "p_stop": 0.08,
+    "lateral_m": 3.0,
+    "heading_deg": 4.0,
+    "kidnap_at": 12,
+}
 
 
 def generated_route(folder: Path, *, n: int, seed: int) -> Path:
@@ -123,31 +129,50 @@ def mean_log_density(params: np.ndarray, frames) -> float:
 
 def fit(frames) -> dict:
     x0 = np.log([1.0, 0.01, 0.3, 0.4])
-    res = minimize(lambda p: -mean_log_density(p, frames), x0, method="Nelder-Mead",
-                   options={"maxiter": 500, "xatol": 1e-3, "fatol": 1e-5})
+    res = minimize(
+        lambda p: -mean_log_density(p, frames),
+        x0,
+        method="Nelder-Mead",
+        options={"maxiter": 500, "xatol": 1e-3, "fatol": 1e-5},
+    )
     m = _model(res.x)
     length = float(np.mean([g.arc[-1] for g, _, _ in frames]))
-    return {"temperature": m.temperature, "gain": 0.0, "eps": m.eps, "margin_scale": m.margin_scale,
-            "spread": m.spread, "mean_log_density": float(-res.fun),
-            "uniform_log_density": float(-math.log(length))}
+    return {
+        "temperature": m.temperature,
+        "gain": 0.0,
+        "eps": m.eps,
+        "margin_scale": m.margin_scale,
+        "spread": m.spread,
+        "mean_log_density": float(-res.fun),
+        "uniform_log_density": float(-math.log(length)),
+    }
 
 
 def histograms(zs, truths) -> list[dict]:
     edges = np.array([0, 0.25, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 12, np.inf])
     true_z = np.array([z[t] for z, t in zip(zs, truths)])
-    other = np.concatenate([np.delete(z, [k for k in (t - 1, t, t + 1) if 0 <= k < z.size]) for z, t in zip(zs, truths)])
+    other = np.concatenate(
+        [np.delete(z, [k for k in (t - 1, t, t + 1) if 0 <= k < z.size]) for z, t in zip(zs, truths)]
+    )
     ht, _ = np.histogram(true_z, edges)
     ho, _ = np.histogram(other[np.isfinite(other)], edges)
     pt, po = ht / max(ht.sum(), 1), ho / max(ho.sum(), 1)
-    return [{"z": f"{a:g}-{b:g}", "true": int(nt), "other": int(no),
-             "log_ratio": float(np.log(max(p1, 1e-9) / max(p2, 1e-9))) if nt else None}
-            for a, b, nt, no, p1, p2 in zip(edges[:-1], edges[1:], ht, ho, pt, po)]
+    return [
+        {
+            "z": f"{a:g}-{b:g}",
+            "true": int(nt),
+            "other": int(no),
+            "log_ratio": float(np.log(max(p1, 1e-9) / max(p2, 1e-9))) if nt else None,
+        }
+        for a, b, nt, no, p1, p2 in zip(edges[:-1], edges[1:], ht, ho, pt, po)
+    ]
 
 
 def reliability(params: dict, frames) -> list[dict]:
     """Single-frame probability of the route point with the most density against how often it is right."""
-    model = ObservationModel(params["temperature"], params["gain"], params["eps"], params["margin_scale"],
-                             params["spread"])
+    model = ObservationModel(
+        params["temperature"], params["gain"], params["eps"], params["margin_scale"], params["spread"]
+    )
     probs, right = [], []
     cache: dict[int, RouteGrid] = {}
     for grid, v, s in frames:
@@ -163,9 +188,14 @@ def reliability(params: dict, frames) -> list[dict]:
     out = []
     for a, b in ((0, 0.2), (0.2, 0.4), (0.4, 0.6), (0.6, 0.8), (0.8, 1.01)):
         sel = (probs >= a) & (probs < b)
-        out.append({"p": f"{a:.1f}-{min(b, 1):.1f}", "frames": int(sel.sum()),
-                    "mean_p": float(probs[sel].mean()) if sel.any() else None,
-                    "right": float(right[sel].mean()) if sel.any() else None})
+        out.append(
+            {
+                "p": f"{a:.1f}-{min(b, 1):.1f}",
+                "frames": int(sel.sum()),
+                "mean_p": float(probs[sel].mean()) if sel.any() else None,
+                "right": float(right[sel].mean()) if sel.any() else None,
+            }
+        )
     return out
 
 
@@ -173,8 +203,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="bundled terrains, one seed")
     ap.add_argument("--cache", type=Path, help="harvested drives are kept here (pickle) and reused")
-    ap.add_argument("--evalset-tuning", type=Path, metavar="PICKLE",
-                    help="also the evaluation set's TUNING split, ranked by bench/tracking.py --split tuning --cache")
+    ap.add_argument(
+        "--evalset-tuning",
+        type=Path,
+        metavar="PICKLE",
+        help="also the evaluation set's TUNING split, ranked by bench/tracking.py --split tuning --cache",
+    )
     ap.add_argument("--no-sim", action="store_true", help="without the simulated drives (with --evalset-tuning)")
     args = ap.parse_args()
     if args.no_sim:
@@ -194,9 +228,16 @@ def main() -> None:
     frames = arc_frames(drives)
     params = fit(frames)
     top1 = float(np.mean([int(np.nanargmin(z)) == t for z, t in zip(zs, truths)]))
-    out = {"drives": [{"name": d["name"], "seed": d["seed"], "frames": int(len(d["true_point"]))} for d in drives],
-           "tuning_seeds": list(TUNING_SEEDS), "drive": TUNING_DRIVE, "frames": len(zs), "ranking_top1": top1,
-           "fit": params, "histogram": histograms(zs, truths), "reliability": reliability(params, frames)}
+    out = {
+        "drives": [{"name": d["name"], "seed": d["seed"], "frames": int(len(d["true_point"]))} for d in drives],
+        "tuning_seeds": list(TUNING_SEEDS),
+        "drive": TUNING_DRIVE,
+        "frames": len(zs),
+        "ranking_top1": top1,
+        "fit": params,
+        "histogram": histograms(zs, truths),
+        "reliability": reliability(params, frames),
+    }
     print(json.dumps(out, indent=1))
     print()
     print(f"{len(zs)} tuning frames, ranking top-1 {top1:.3f}")

@@ -52,8 +52,7 @@ class FrameOrder:
         self.pending: dict[int, _Pending] = {}
         self.next = 0
 
-    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None,
-                hid: str) -> None:
+    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str) -> None:
         p = self.pending.setdefault(frame, _Pending())
         p.shards = shards
         p.rankings[shard] = (list(viewframes), list(variances))
@@ -87,8 +86,7 @@ class Tracker(KnowledgeSource):
     produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
     exclusive: ClassVar[tuple[str, ...]] = (levels.TRACK,)
 
-    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int = 60,
-                 **options: Any) -> None:
+    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int = 60, **options: Any) -> None:
         super().__init__(name, **options)
         from models.scenario import TrackingSpec
 
@@ -111,8 +109,9 @@ class Tracker(KnowledgeSource):
             self._set_map(b)
             return
         if h.level == levels.RANKING:
-            self._order.ranking(int(b["frame"]), int(b["shard"]), int(b["shards"]), b["viewframes"], b["variances"],
-                                b.get("time"), h.id)
+            self._order.ranking(
+                int(b["frame"]), int(b["shard"]), int(b["shards"]), b["viewframes"], b["variances"], b.get("time"), h.id
+            )
         elif h.level == levels.POSITION:
             self._order.position(int(b["frame"]), b, h.id)
         if self._filter is None:
@@ -129,8 +128,9 @@ class Tracker(KnowledgeSource):
         if self._filter is not None:
             return
         self._filter = RouteFilter(body["route"], spec=self.spec)
-        self._visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
-                         for k, v in body["visible"].items()}
+        self._visible = {
+            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in body["visible"].items()
+        }
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         f = self._filter
@@ -151,5 +151,10 @@ class Tracker(KnowledgeSource):
             "loglik": None if ll is None else ll.astype(np.float32),
             "dt": dt,
         }
-        board.post(levels.TRACK, body, id=levels.track_id(frame), links=tuple(dict.fromkeys(p.links)),
-                   credibility=float(min(1.0, max(0.0, est.confidence))))
+        board.post(
+            levels.TRACK,
+            body,
+            id=levels.track_id(frame),
+            links=tuple(dict.fromkeys(p.links)),
+            credibility=float(min(1.0, max(0.0, est.confidence))),
+        )

@@ -240,9 +240,10 @@ class SensorSpec(_Spec):
         if (self.frames is None) == (self.simulate is None):
             raise ValueError("needs exactly one of frames, simulate")
         if self.frames:
-            times = [f.time for f in self.frames]
-            if any(t is not None for t in times):
-                if any(t is None for t in times):
+            given = [f.time for f in self.frames]
+            if any(t is not None for t in given):
+                times = [t for t in given if t is not None]
+                if len(times) != len(given):
                     raise ValueError("frames: give a time for every frame or for none")
                 for i, (a, b) in enumerate(zip(times, times[1:]), start=1):
                     if b <= a:

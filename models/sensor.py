@@ -257,10 +257,10 @@ def simulate_frames(
     rng = np.random.default_rng(rng)
     if spec.drive is not None:
         route = [(p.x, p.y) for p in poses]
-        frames = [_render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
-                  for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))]
-        log.info("simulated a drive of %d camera frames for scenario %s", len(frames), scenario.name)
-        return frames
+        drive = [_render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
+                 for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))]
+        log.info("simulated a drive of %d camera frames for scenario %s", len(drive), scenario.name)
+        return drive
     frames: list[SensorFrame] = []
     n = len(poses)
     for i, pose in enumerate(poses):

@@ -287,8 +287,11 @@ class ObservationModel:
 
 
 def landmark_loglik(
-    answers: Sequence[tuple[str, bool]], visible: Mapping[int, frozenset[str] | set[str]], points: int,
-    *, reliability: float,
+    answers: Sequence[tuple[str, bool]],
+    visible: Mapping[int, frozenset[str] | set[str]],
+    points: int,
+    *,
+    reliability: float,
 ) -> np.ndarray:
     """Log-likelihood per route point ``(points,)`` of landmark answers ``(landmark, present)``.
 
@@ -324,8 +327,18 @@ class MotionModel:
 
     @classmethod
     def from_spec(cls, spec: TrackingSpec, grid: RouteGrid) -> MotionModel:
-        return cls(grid.cell_m, grid.mean_leg, spec.max_speed_mps, spec.cruise_points, spec.max_skip_points,
-                   spec.p_skip, spec.p_stop, spec.p_reverse, spec.reverse_m, spec.p_kidnap)
+        return cls(
+            grid.cell_m,
+            grid.mean_leg,
+            spec.max_speed_mps,
+            spec.cruise_points,
+            spec.max_skip_points,
+            spec.p_skip,
+            spec.p_stop,
+            spec.p_reverse,
+            spec.reverse_m,
+            spec.p_kidnap,
+        )
 
     def cruise_m(self, dt: float | None) -> float:
         """The largest forward displacement of a normal step: ``cruise_points`` mean route
@@ -354,8 +367,8 @@ class MotionModel:
         k[back] = self.p_stop
         move = 1.0 - self.p_stop - (self.p_reverse if back else 0.0)
         skip = self.p_skip if fwd > cruise else 0.0
-        k[back + 1:back + 1 + cruise] += move * (1.0 - skip) / cruise
-        k[back + 1:] += move * skip / fwd
+        k[back + 1 : back + 1 + cruise] += move * (1.0 - skip) / cruise
+        k[back + 1 :] += move * skip / fwd
         if back:
             k[:back] = self.p_reverse / back
         k /= k.sum()
@@ -389,12 +402,12 @@ class MotionModel:
             # cells m - width .. m - 1 move to m; mass pushed past the end stays on the last cell
             out += weight * (c[:n] - c[plan["lo"]])
             tail = plan["pile"]
-            out[-1] += weight * float((tail * belief[n - tail.size:]).sum())
+            out[-1] += weight * float((tail * belief[n - tail.size :]).sum())
         if back:
             plan = self._plan(n, back, "b")
             out += k[0] * (c[plan["lo"]] - c[1:])
             head = plan["pile"]
-            out[0] += k[0] * float((head * belief[:head.size]).sum())
+            out[0] += k[0] * float((head * belief[: head.size]).sum())
         out *= (1.0 - self.p_kidnap) / max(out.sum(), 1e-300)
         out += self.p_kidnap / n
         return out
@@ -408,7 +421,7 @@ class MotionModel:
             idx = np.arange(n)
             w = min(n, width)
             if way == "f":
-                pile = np.maximum(idx + width - (n - 1), 0).astype(np.float64)[n - w:]
+                pile = np.maximum(idx + width - (n - 1), 0).astype(np.float64)[n - w :]
                 got = {"lo": np.maximum(idx - width, 0), "pile": pile}
             else:
                 pile = np.maximum(width - idx, 0).astype(np.float64)[:w]
@@ -419,10 +432,8 @@ class MotionModel:
     def adjoint(self, message: np.ndarray, dt: float | None) -> np.ndarray:
         """The transpose of :meth:`predict` applied to a backward message ``(C,)`` (not normalised)."""
         k, back = self.kernel(dt)
-        n = message.size
         ext = np.concatenate([np.full(back, message[0]), message, np.full(k.size - back - 1, message[-1])])
-        out = (fftconvolve(ext, k[::-1], mode="valid") if k.size > _FFT_KERNEL
-               else np.correlate(ext, k, mode="valid"))
+        out = fftconvolve(ext, k[::-1], mode="valid") if k.size > _FFT_KERNEL else np.correlate(ext, k, mode="valid")
         return (1.0 - self.p_kidnap) * out + self.p_kidnap * message.mean()
 
 
@@ -447,9 +458,15 @@ class TrackEstimate:
     belief: np.ndarray | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict:
-        return {"route_point": self.route_point, "arc_m": self.arc_m, "position": [self.x, self.y],
-                "heading_deg": self.heading_deg, "confidence": self.confidence, "state": self.state,
-                "evidence": self.evidence}
+        return {
+            "route_point": self.route_point,
+            "arc_m": self.arc_m,
+            "position": [self.x, self.y],
+            "heading_deg": self.heading_deg,
+            "confidence": self.confidence,
+            "state": self.state,
+            "evidence": self.evidence,
+        }
 
 
 def _estimate(grid: RouteGrid, belief: np.ndarray, state: str, evidence: bool) -> TrackEstimate:
@@ -491,16 +508,22 @@ class RouteFilter:
         self.state = "lost"
         self.frames = 0
 
-    def route_loglik(self, viewframes: Sequence[int] | None = None, variances: Sequence[float] | None = None, *,
-                     answers: Sequence[tuple[str, bool]] = (),
-                     visible: Mapping[int, frozenset[str] | set[str]] | None = None) -> np.ndarray | None:
+    def route_loglik(
+        self,
+        viewframes: Sequence[int] | None = None,
+        variances: Sequence[float] | None = None,
+        *,
+        answers: Sequence[tuple[str, bool]] = (),
+        visible: Mapping[int, frozenset[str] | set[str]] | None = None,
+    ) -> np.ndarray | None:
         """Log-likelihood of one frame's evidence at the grid's samples ``(S,)``, or None when it has none."""
         ll = None
-        if viewframes is not None and len(viewframes):
+        if viewframes is not None and variances is not None and len(viewframes):
             ll = self.observation.loglik(ranking_vector(viewframes, variances, self.grid.points), self.grid)
         if answers and visible is not None:
-            la = self.grid.from_points(landmark_loglik(answers, visible, self.grid.points,
-                                                       reliability=self.spec.reliability))
+            la = self.grid.from_points(
+                landmark_loglik(answers, visible, self.grid.points, reliability=self.spec.reliability)
+            )
             ll = la if ll is None else ll + la
         return ll
 
@@ -559,8 +582,11 @@ def smooth(
     belief = np.full(grid.cells, 1.0 / grid.cells)
     for t, ll in enumerate(logliks):
         pred = belief if t == 0 else motion.predict(belief, dts[t])
-        like = np.ones(grid.cells) if ll is None else \
-            np.exp(np.maximum((c := grid.cell_loglik(ll)) - c.max(), -_LOG_RATIO_CAP))
+        like = (
+            np.ones(grid.cells)
+            if ll is None
+            else np.exp(np.maximum((c := grid.cell_loglik(ll)) - c.max(), -_LOG_RATIO_CAP))
+        )
         belief = np.maximum(pred * like, _TINY)
         belief /= max(belief.sum(), 1e-300)
         alphas.append(belief)

@@ -23,14 +23,18 @@ def test_frames_are_released_in_order_once_complete():
 
 
 def test_answers_of_a_position_leave_undecided_out():
-    steps = [{"landmark": "H1", "present": True}, {"landmark": "T1", "present": None},
-             {"landmark": "H2", "present": False}]
+    steps = [
+        {"landmark": "H1", "present": True},
+        {"landmark": "T1", "present": None},
+        {"landmark": "H2", "present": False},
+    ]
     assert answers_of({"steps": steps}) == [("H1", True), ("H2", False)]
 
 
 # -- through the blackboard --------------------------------------------------------------------
 
 import json  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 import yaml  # noqa: E402
@@ -43,10 +47,21 @@ from models.scenario import load_scenario  # noqa: E402
 DECISION = ("frame", "viewframe", "queries", "backtracks", "correct")
 
 
-def _drive(tmp_path, small_data, **tracking) -> "Path":
+def _drive(tmp_path, small_data, **tracking) -> Path:
     data = small_data
-    data["sensor"] = {"simulate": {"drive": {"interval_s": 2.0, "speed_mps": [12, 22], "p_stop": 0.1, "frames": 14,
-                                             "lateral_m": 1.0, "heading_deg": 2.0}, "seed": 11}}
+    data["sensor"] = {
+        "simulate": {
+            "drive": {
+                "interval_s": 2.0,
+                "speed_mps": [12, 22],
+                "p_stop": 0.1,
+                "frames": 14,
+                "lateral_m": 1.0,
+                "heading_deg": 2.0,
+            },
+            "seed": 11,
+        }
+    }
     if tracking:
         data["tracking"] = tracking
     path = tmp_path / "drive.yaml"
@@ -91,14 +106,17 @@ def test_no_track_is_the_single_frame_run(tmp_path, small_data):
     assert off["tracking"] is False
     for f in off["frames"]:
         assert f["state"] is None and not f["track_prior"]
-        assert {k: f[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")} == \
-            {k: f["frame_only"][k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")}
+        assert {k: f[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")} == {
+            k: f["frame_only"][k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct")
+        }
     # the scenario's own switch gives the same decisions (and the single-frame decisions are deterministic)
     disabled = run_mission(_drive(tmp_path, small_data, enabled=False))
-    assert [{k: f[k] for k in DECISION} for f in off["frames"]] == \
-        [{k: f[k] for k in DECISION} for f in disabled["frames"]]
-    assert [f["confidence"] for f in off["frames"]] == \
-        pytest.approx([f["confidence"] for f in disabled["frames"]], rel=1e-4)  # rendering rounds in the last bits
+    assert [{k: f[k] for k in DECISION} for f in off["frames"]] == [
+        {k: f[k] for k in DECISION} for f in disabled["frames"]
+    ]
+    assert [f["confidence"] for f in off["frames"]] == pytest.approx(
+        [f["confidence"] for f in disabled["frames"]], rel=1e-4
+    )  # rendering rounds in the last bits
     assert off["summary"]["top1"] == off["summary"]["top1_frame_only"]
 
 

@@ -25,7 +25,7 @@ def _variances(true_s: float, grid: RouteGrid, rng: np.random.Generator, *, wron
     """Variances of a ranking for a camera at arc ``true_s``: low near it, noisy elsewhere; with
     ``wrong``, a confident wrong best at that route point (the true one still low-ish)."""
     d = np.abs(grid.arc - true_s) / SPACING
-    v = 1.0 + 0.3 * rng.standard_normal(grid.points) * 0.3 - 0.8 * np.exp(-d ** 2)
+    v = 1.0 + 0.3 * rng.standard_normal(grid.points) * 0.3 - 0.8 * np.exp(-(d**2))
     if wrong is not None:
         v[wrong] = v.min() - 0.3
     return v
@@ -57,7 +57,7 @@ def test_known_path_is_recovered():
     f = RouteFilter(_route(), spec=TrackingSpec())
     true_s = 5.0
     errors, points = [], []
-    for t in range(25):
+    for _ in range(25):
         true_s += rng.uniform(10.0, 45.0)
         est = f.step(_loglik(f, _variances(true_s, f.grid, rng)))
         errors.append(abs(est.arc_m - true_s))
