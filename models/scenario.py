@@ -375,10 +375,13 @@ class TrackingSpec(_Spec):
 
 
 class ExpectSpec(_Spec):
-    """Expected outcome of running the scenario (checked by the pytest plugin)."""
+    """Expected outcome of running the scenario (checked by the pytest plugin). ``top1_min`` and
+    ``mean_error_m_max`` judge the final answer (the track when tracking is on);
+    ``top1_frame_only_min`` the single-frame decisions beside it."""
 
     strategy: Literal["associative", "prior"] | None = None
     top1_min: float | None = Field(default=None, ge=0, le=1)
+    top1_frame_only_min: float | None = Field(default=None, ge=0, le=1)
     mean_queries_max: float | None = Field(default=None, gt=0)
     mean_error_m_max: float | None = Field(default=None, gt=0)
     fewer_queries_than_prior: bool = False

@@ -130,3 +130,13 @@ def test_cli_no_track_and_smoothing(tmp_path, small_data):
     assert off["tracking"] is False and on["tracking"] is True and on["smoothing"] is True
     assert all(f["state"] in ("tracking", "lost") for f in on["frames"])
     assert on["summary"]["top1"] >= on["summary"]["top1_frame_only"] - 0.15
+
+
+def test_expectations_judge_the_track_and_the_single_frames_apart():
+    from knowledge_sources.pytest_plugin import check_expectations
+    from models.scenario import ExpectSpec
+
+    results = {"summary": {"top1": 0.95, "top1_frame_only": 0.7, "mean_queries": 1.0, "mean_error_m": 5.0}}
+    assert check_expectations(ExpectSpec(top1_min=0.9, top1_frame_only_min=0.6), results) == []
+    misses = check_expectations(ExpectSpec(top1_min=0.9, top1_frame_only_min=0.8), results)
+    assert [m[0] for m in misses] == ["top1_frame_only_min"] and misses[0][3] == "0.100 short"
