@@ -53,8 +53,8 @@ Update (observation model)
 Estimate
     The chosen route point is the one whose cells (those nearest to it in the plane, the
     results' own criterion) hold the most posterior mass; that mass is the ``confidence``. The
-    continuous position is the posterior mean over the cells within half a mean route spacing
-    of the most probable cell; the heading is the route's direction there (degrees
+    continuous position is the posterior mean over that route point's cells within half a mean
+    route spacing of its most probable cell (so position and route point agree); the heading is the route's direction there (degrees
     counterclockwise from +x). State ``tracking`` once the confidence reaches ``enter``, ``lost``
     again below ``exit`` (hysteresis); the filter starts ``lost``.
 
@@ -472,10 +472,12 @@ class TrackEstimate:
 def _estimate(grid: RouteGrid, belief: np.ndarray, state: str, evidence: bool) -> TrackEstimate:
     mass = grid.point_mass(belief)
     k = int(np.argmax(mass))
-    c = int(np.argmax(belief))
+    # the most probable cell among those nearest to the chosen route point: the position and the
+    # route point agree (the point with the most mass need not hold the single most probable cell)
+    c = int(np.argmax(np.where(grid.region == k, belief, -1.0)))
     half = max(1, int(round(0.5 * grid.mean_leg / grid.cell_m)))
     lo, hi = max(0, c - half), min(grid.cells, c + half + 1)
-    w = belief[lo:hi]
+    w = belief[lo:hi] * (grid.region[lo:hi] == k)
     s = float((w * grid.centres[lo:hi]).sum() / max(w.sum(), 1e-300))
     j = int(np.clip(round(s / grid.cell_m - 0.5), 0, grid.cells - 1))
     # interpolate (x, y) at s along the grid's own polyline of cell centres

@@ -186,10 +186,10 @@ def test_cost_per_frame_for_10000_cells():
     rng = np.random.default_rng(7)
     lls = [f.route_loglik(np.arange(points), rng.random(points)) for _ in range(5)]
     f.step(lls[0])
-    t0 = time.perf_counter()
+    t0 = time.thread_time()  # CPU time of this thread: waiting for a core on a loaded machine not counted
     for i in range(50):
         f.step(lls[i % 5], dt=None)
-    per_frame_ms = (time.perf_counter() - t0) / 50 * 1e3
-    # the goal is 1 ms on a quiet machine (bench/tracking.py measures it); here a loose bound
+    per_frame_ms = (time.thread_time() - t0) / 50 * 1e3
+    # the goal is 1 ms (bench/tracking.py measures it); here a loose bound
     assert per_frame_ms < 10.0, per_frame_ms
     assert math.isfinite(f.belief.sum())
