@@ -140,3 +140,15 @@ def test_expectations_judge_the_track_and_the_single_frames_apart():
     assert check_expectations(ExpectSpec(top1_min=0.9, top1_frame_only_min=0.6), results) == []
     misses = check_expectations(ExpectSpec(top1_min=0.9, top1_frame_only_min=0.8), results)
     assert [m[0] for m in misses] == ["top1_frame_only_min"] and misses[0][3] == "0.100 short"
+
+
+@pytest.mark.slow
+def test_no_track_equals_the_reference_results_of_the_code_before_tracking():
+    """table_a (camera frames on file) with --no-track decides as the code before the tracker did
+    (bench/reference/results_before.json, produced from 11d7ded by bench/compare_results.py)."""
+    root = Path(__file__).resolve().parents[2]
+    reference = json.loads((root / "bench" / "reference" / "results_before.json").read_text())
+    results = run_mission(root / "scenarios" / "table_a.yaml", track=False)
+    got = [{"frame": f["frame"], "viewframe": f["viewframe"], "queries": f["queries"], "backtracks": f["backtracks"],
+            "ranking": [int(k) for k, _ in f["ranking"]]} for f in results["frames"]]
+    assert got == reference["scenarios"]["table_a"]["frames"]
