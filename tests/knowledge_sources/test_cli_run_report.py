@@ -26,7 +26,8 @@ def test_run_then_report(small, tmp_path, capsys):
     assert main(["run", str(small), "--strategy", "prior", "--out", str(prior), "--no-progress"]) == 0
     report = tmp_path / "report"
     assert main(["report", str(out), str(prior), "--out", str(report), "--max-frames", "3"]) == 0
-    for name in ("positions.png", "rankings.png", "queries.png", "frames/frame_000.png", "frames/frame_002.png"):
+    for name in ("positions.png", "track.png", "belief.png", "rankings.png", "queries.png", "frames/frame_000.png",
+                 "frames/frame_002.png"):
         img = cv2.imread(str(report / name))
         assert img is not None and img.shape[0] > 200 and img.std() > 5, name  # a real, non-blank figure
     assert not (report / "frames" / "frame_003.png").exists()  # --max-frames honoured

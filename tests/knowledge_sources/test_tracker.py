@@ -152,3 +152,23 @@ def test_no_track_equals_the_reference_results_of_the_code_before_tracking():
     got = [{"frame": f["frame"], "viewframe": f["viewframe"], "queries": f["queries"], "backtracks": f["backtracks"],
             "ranking": [int(k) for k, _ in f["ranking"]]} for f in results["frames"]]
     assert got == reference["scenarios"]["table_a"]["frames"]
+
+
+def test_belief_plot_shows_the_belief_and_says_when_there_is_none():
+    import numpy as np
+
+    from knowledge_sources.report import plot_belief
+
+    frames = []
+    for t in range(6):
+        belief = np.full(8, 0.01)
+        belief[min(t, 7)] = 1.0 - 0.07
+        frames.append({"frame": t, "belief": belief.tolist(), "truth_viewframe": t, "viewframe": t,
+                       "state": "lost" if t == 0 else "tracking"})
+    fig = plot_belief({"frames": frames})
+    ax = fig.axes[0]
+    image = ax.images[0].get_array()
+    assert image.shape == (6, 8) and image[3, 3] > 0.9  # rows: frames in time order, columns: route points
+    assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"true route point", "track", "lost"}
+    empty = plot_belief({"frames": [{"frame": 0, "truth_viewframe": None, "viewframe": 1}]})
+    assert "no track" in empty.axes[0].texts[0].get_text()
