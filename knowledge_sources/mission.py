@@ -10,6 +10,8 @@ benchmark call. It starts the knowledge sources
 * ``detector-<kind>``, one :class:`~knowledge_sources.detector.LandmarkDetectorAgent` per
   landmark kind of the scenario,
 * ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`),
+* ``tracker`` (:class:`~knowledge_sources.tracker.Tracker`), unless tracking is off (the
+  scenario's ``tracking.enabled``, ``mapinterp run --no-track``),
 
 posts the scenario, runs until the blackboard is quiescent and turns the ``position``
 hypotheses into the results of :mod:`knowledge_sources.results`.
@@ -34,7 +36,7 @@ from blackboard.errors import AgentError
 from blackboard.knowledge_source import Event
 from blackboard.runtime import Runtime
 from knowledge_sources import levels
-from knowledge_sources.results import frame_record, summarize
+from knowledge_sources.results import frame_record, summarize, with_track
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.scenario import Scenario, load_scenario
@@ -45,10 +47,13 @@ log = logging.getLogger(__name__)
 
 
 def agent_plan(
-    scenario: Scenario, *, strategy: str | None = None, frame_rate: float | None = None
+    scenario: Scenario, *, strategy: str | None = None, frame_rate: float | None = None, track: bool | None = None
 ) -> list[tuple[str, str, dict[str, Any]]]:
-    """The agents of a mission: ``(factory, name, options)`` triples, options being plain data."""
+    """The agents of a mission: ``(factory, name, options)`` triples, options being plain data.
+
+    ``track``: include the tracker (default: the scenario's ``tracking.enabled``)."""
     sched = scenario.scheduler
+    tracked = scenario.tracking.enabled if track is None else bool(track)
     shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
@@ -70,8 +75,12 @@ def agent_plan(
             "beta": sched.beta,
             "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
+            "tracked": tracked,
         },
     ))
+    if tracked:
+        plan.append(("knowledge_sources.tracker:Tracker", "tracker",
+                     {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels}))
     return plan
 
 
@@ -90,6 +99,7 @@ def run_mission(
     run_id: str | None = None,
     wait_remote_s: float = 60.0,
     on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
+    track: bool | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -123,6 +133,10 @@ def run_mission(
     on_wait_remote : callable(commands), optional
         Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
         logged at WARNING.
+    track : bool, optional
+        Run the tracker (default: the scenario's ``tracking.enabled``); off, the results are the
+        single-frame decisions. With ``tracking.smoothing``, the tracks are smoothed over the
+        whole drive (forward-backward) before they become the results.
 
     Raises
     ------
@@ -136,8 +150,13 @@ def run_mission(
     if scenario.sensor is None:
         raise ScenarioError(scenario.path, "sensor", "a mission needs camera frames: give sensor.frames or sensor.simulate")
     strategy = strategy or scenario.scheduler.strategy
+    track = scenario.tracking.enabled if track is None else bool(track)
     if scenario.sensor.frames:
         n_frames = len(scenario.sensor.frames)
+    elif scenario.sensor.simulate is not None and scenario.sensor.simulate.drive is not None:
+        from models.sensor import drive_poses
+
+        n_frames = len(drive_poses(scenario.route, scenario.sensor.simulate.drive, rng=0))
     else:
         sim = scenario.sensor.simulate
         n_frames = len(range(0, len(scenario.route), sim.stride)) * sim.per_point
@@ -159,7 +178,7 @@ def run_mission(
         if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
             runtime.kill(kill_after[0])
 
-    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate)
+    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate, track=track)
     remote = sorted(set(remote))
     unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
     if unknown:
@@ -187,6 +206,8 @@ def run_mission(
                                           if h.level == levels.POSITION)}
         truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
                                        if h.level == levels.TRUTH)}
+        tracks = {t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses
+                                       if h.level == levels.TRACK)}
         frames_seen = sorted(levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
                              if h.level == levels.SENSOR_FRAME)
         first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
@@ -196,8 +217,15 @@ def run_mission(
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
     why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
-    records = [frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why)
-               for f in frames_seen]
+    estimates = _track_estimates(tracks, frames_seen, scenario) if track else {}
+    records = []
+    for f in frames_seen:
+        rec = frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why)
+        p = positions.get(f)
+        rec["track_prior"] = bool(p is not None and p.track_prior)
+        if track and f not in estimates:
+            rec["reason"] += "; no track was posted (the single-frame decision stands)"
+        records.append(with_track(rec, estimates.get(f)))
     summary = summarize(records)
     summary["wall_s"] = elapsed
     # throughput of localization proper: first camera frame posted to last position posted
@@ -208,11 +236,32 @@ def run_mission(
         "scenario": scenario.name,
         "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
+        "tracking": track,
+        "smoothing": bool(track and scenario.tracking.smoothing),
         "mode": "processes" if processes else "inprocess",
         "agents": agents,
         "frames": records,
         "summary": summary,
     }
+
+
+def _track_estimates(tracks: dict[int, levels.Track], frames: Sequence[int],
+                     scenario: Scenario) -> dict[int, dict[str, Any]]:
+    """Each frame's track as the results need it (:func:`~knowledge_sources.results.with_track`):
+    the tracker's online estimates, or with ``tracking.smoothing`` the estimates of a
+    forward-backward pass over every frame's evidence (offline)."""
+    order = [f for f in frames if f in tracks]
+    if not scenario.tracking.smoothing:
+        return {f: {"route_point": t.route_point, "position": t.position, "heading_deg": t.heading_deg,
+                    "confidence": t.confidence, "state": t.state, "arc_m": t.arc_m, "belief": t.belief}
+                for f, t in tracks.items()}
+    import numpy as np
+
+    from models.tracking import smooth
+
+    logliks = [None if tracks[f].loglik is None else np.asarray(tracks[f].loglik, np.float64) for f in order]
+    estimates = smooth(scenario.route, logliks, spec=scenario.tracking, dts=[tracks[f].dt for f in order])
+    return {f: {**e.to_dict(), "belief": e.belief} for f, e in zip(order, estimates)}
 
 
 def _announce_remote(

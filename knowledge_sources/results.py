@@ -11,6 +11,16 @@
      "summary": {"frames": n, "top1": a | null, "mean_queries": q, "mean_error_m": e | null,
                  "latency_ms_p50": t}}
 
+Tracking (on by default, ``mapinterp run --no-track`` turns it off): each frame's top-level
+``viewframe``, ``position``, ``heading_deg`` and ``confidence`` are the system's final answer,
+the tracker's when it ran; the single-frame decision of the scene analysis is kept beside them
+as ``frame_only: {viewframe, position, heading_deg, confidence, correct, error_m}``, and
+``state`` says whether the tracker was ``"tracking"`` or ``"lost"`` (null: no track), with
+``arc_m`` (the track's arc length along the route) and ``belief`` (posterior probability of
+each route point). The summary adds ``top1_frame_only``, ``median_error_m`` and
+``mean_error_m_frame_only``. Without tracking, the top level is the single-frame decision and
+``frame_only`` repeats it.
+
 A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
 ``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
@@ -31,7 +41,7 @@ from models.errors import InputError
 if TYPE_CHECKING:
     from knowledge_sources.levels import Position, Truth
 
-__all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "write_results"]
+__all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "with_track", "write_results"]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -85,11 +95,37 @@ def frame_record(
     return record
 
 
+def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str, Any]:
+    """``record`` (a single-frame :func:`frame_record`) with its decision moved to ``frame_only``
+    and, when ``track`` (the tracker's estimate: ``route_point``, ``position``, ``heading_deg``,
+    ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer."""
+    out = dict(record)
+    out["frame_only"] = {k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct",
+                                                 "error_m")}
+    out["state"] = None
+    if track is None:
+        return out
+    truth = record["truth"]
+    vf = int(track["route_point"])
+    pos = [float(track["position"][0]), float(track["position"][1])]
+    out.update({
+        "viewframe": vf, "position": pos, "heading_deg": float(track["heading_deg"]),
+        "confidence": float(track["confidence"]), "state": str(track["state"]), "arc_m": float(track["arc_m"]),
+        "belief": [round(float(p), 5) for p in track.get("belief", [])],
+        "correct": None if record["truth_viewframe"] is None else vf == record["truth_viewframe"],
+        "error_m": None if truth is None else math.hypot(pos[0] - truth[0], pos[1] - truth[1]),
+    })
+    return out
+
+
 def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The ``summary`` block of a results file."""
     judged = [f for f in frames if f["correct"] is not None]
     errors = [f["error_m"] for f in frames if f.get("error_m") is not None]
     lat = [f["latency_ms"] for f in frames if f["latency_ms"] is not None]
+    only = [f["frame_only"] for f in frames if f.get("frame_only") is not None]
+    only_judged = [f for f in only if f["correct"] is not None]
+    only_errors = [f["error_m"] for f in only if f.get("error_m") is not None]
     return {
         "frames": len(frames),
         "localized": sum(f["viewframe"] is not None for f in frames),
@@ -99,6 +135,11 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "mean_error_m": float(np.mean(errors)) if errors else None,
         "latency_ms_p50": float(np.percentile(lat, 50)) if lat else 0.0,
         "latency_ms_p99": float(np.percentile(lat, 99)) if lat else 0.0,
+        "median_error_m": float(np.median(errors)) if errors else None,
+        "top1_frame_only": (sum(bool(f["correct"]) for f in only_judged) / len(only_judged)) if only_judged else None,
+        "mean_error_m_frame_only": float(np.mean(only_errors)) if only_errors else None,
+        "tracking": sum(f.get("state") == "tracking" for f in frames),
+        "lost": sum(f.get("state") == "lost" for f in frames),
     }
 
 

@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+
+if TYPE_CHECKING:
+    from models.tracking import RouteFilter
 
 __all__ = ["Tracker", "FrameOrder"]
 
@@ -36,7 +39,7 @@ class _Pending:
     rankings: dict[int, tuple[list[int], list[float]]] = field(default_factory=dict)
     shards: int = 1
     time: float | None = None
-    position: dict[str, Any] | None = None
+    position: levels.Position | None = None
     links: list[str] = field(default_factory=list)
 
     @property
@@ -52,16 +55,18 @@ class FrameOrder:
         self.pending: dict[int, _Pending] = {}
         self.next = 0
 
-    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str) -> None:
+    def ranking(
+        self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str
+    ) -> None:
         p = self.pending.setdefault(frame, _Pending())
         p.shards = shards
         p.rankings[shard] = (list(viewframes), list(variances))
         p.time = time if time is not None else p.time
         p.links.append(hid)
 
-    def position(self, frame: int, body: dict[str, Any], hid: str) -> None:
+    def position(self, frame: int, position: levels.Position, hid: str) -> None:
         p = self.pending.setdefault(frame, _Pending())
-        p.position = body
+        p.position = position
         p.links.append(hid)
 
     def ready(self) -> list[tuple[int, _Pending]]:
@@ -73,9 +78,9 @@ class FrameOrder:
         return out
 
 
-def answers_of(position: dict[str, Any]) -> list[tuple[str, bool]]:
+def answers_of(steps: list[dict[str, Any]]) -> list[tuple[str, bool]]:
     """The landmark answers (landmark, present) of a position's steps; undecided ones left out."""
-    return [(s["landmark"], bool(s["present"])) for s in position.get("steps", []) if s.get("present") is not None]
+    return [(s["landmark"], bool(s["present"])) for s in steps if s.get("present") is not None]
 
 
 class Tracker(KnowledgeSource):
@@ -86,13 +91,14 @@ class Tracker(KnowledgeSource):
     produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
     exclusive: ClassVar[tuple[str, ...]] = (levels.TRACK,)
 
-    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int = 60, **options: Any) -> None:
+    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int | None = None,
+                 **options: Any) -> None:
         super().__init__(name, **options)
-        from models.scenario import TrackingSpec
+        from models.scenario import SchedulerSpec, TrackingSpec
 
         self.spec = TrackingSpec(**(spec or {}))
-        self.min_pixels = int(min_pixels)
-        self._filter = None
+        self.min_pixels = int(SchedulerSpec().min_pixels if min_pixels is None else min_pixels)
+        self._filter: RouteFilter | None = None
         self._visible: dict[int, frozenset[str]] = {}
         self._order = FrameOrder()
         self._last_time: float | None = None
@@ -104,57 +110,62 @@ class Tracker(KnowledgeSource):
 
     def act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
-        b = h.body
         if h.level == levels.MAP:
-            self._set_map(b)
+            self._set_map(levels.Map.from_hypothesis(h))
             return
         if h.level == levels.RANKING:
-            self._order.ranking(
-                int(b["frame"]), int(b["shard"]), int(b["shards"]), b["viewframes"], b["variances"], b.get("time"), h.id
-            )
+            rk = levels.Ranking.from_hypothesis(h)
+            self._order.ranking(rk.frame, rk.shard, rk.shards, rk.viewframes, rk.variances, rk.time, h.id)
         elif h.level == levels.POSITION:
-            self._order.position(int(b["frame"]), b, h.id)
+            pos = levels.Position.from_hypothesis(h)
+            self._order.position(pos.frame, pos, h.id)
         if self._filter is None:
-            got = board.get("map")
+            got = board.get(levels.map_id())
             if got is None:
                 return  # the map event is on its way; frames wait in the buffer
-            self._set_map(got.body)
+            self._set_map(levels.Map.from_hypothesis(got))
         for frame, pending in self._order.ready():
             self._step(frame, pending, board)
 
-    def _set_map(self, body: dict[str, Any]) -> None:
+    def _set_map(self, mp: levels.Map) -> None:
         from models.tracking import RouteFilter
 
         if self._filter is not None:
             return
-        self._filter = RouteFilter(body["route"], spec=self.spec)
+        self._filter = RouteFilter(mp.route, spec=self.spec)
         self._visible = {
-            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in body["visible"].items()
+            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in mp.visible.items()
         }
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         f = self._filter
+        assert f is not None and p.position is not None
         viewframes = [k for b in sorted(p.rankings) for k in p.rankings[b][0]]
         variances = [v for b in sorted(p.rankings) for v in p.rankings[b][1]]
-        ll = f.route_loglik(viewframes, variances, answers=answers_of(p.position), visible=self._visible)
+        ll = f.route_loglik(viewframes, variances, answers=answers_of(p.position.steps), visible=self._visible)
         dt = None
         if p.time is not None and self._last_time is not None:
             dt = float(p.time) - self._last_time
         self._last_time = None if p.time is None else float(p.time)
         est = f.step(ll, dt=dt)
-        prior_next = f.grid.point_mass(f.prior(None if dt is None else dt)).astype(np.float32)
-        body = {
-            "frame": frame,
-            **est.to_dict(),
-            "belief": est.belief.astype(np.float32),
-            "prior_next": prior_next,
-            "loglik": None if ll is None else ll.astype(np.float32),
-            "dt": dt,
-        }
-        board.post(
-            levels.TRACK,
-            body,
-            id=levels.track_id(frame),
+        assert est.belief is not None
+        prior_next = f.grid.point_mass(f.prior(dt)).astype(np.float32)
+        levels.post(
+            board,
+            levels.Track(
+                frame=frame,
+                route_point=est.route_point,
+                arc_m=est.arc_m,
+                position=[est.x, est.y],
+                heading_deg=est.heading_deg,
+                confidence=est.confidence,
+                state=est.state,
+                evidence=est.evidence,
+                belief=est.belief.astype(np.float32),
+                prior_next=prior_next,
+                loglik=None if ll is None else ll.astype(np.float32),
+                dt=dt,
+            ),
             links=tuple(dict.fromkeys(p.links)),
             credibility=float(min(1.0, max(0.0, est.confidence))),
         )

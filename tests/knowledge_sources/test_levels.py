@@ -40,6 +40,9 @@ SAMPLES: list[levels.Message] = [
     levels.Position(frame=4, viewframe=2, position=[1.0, 2.0], heading_deg=90.0, confidence=0.9, queries=1,
                     backtracks=0, latency_ms=12.0, ranking=[[2, 1e-5]], reason="accepted", degraded=[], steps=[],
                     strategy="associative"),
+    levels.Track(frame=4, route_point=2, arc_m=81.5, position=[80.0, 3.0], heading_deg=0.0, confidence=0.7,
+                 state="tracking", evidence=True, belief=np.array([0.1, 0.2, 0.7], np.float32),
+                 prior_next=np.array([0.05, 0.15, 0.8], np.float32), loglik=np.zeros(9, np.float32), dt=None),
 ]
 
 

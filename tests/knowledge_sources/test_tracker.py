@@ -28,7 +28,7 @@ def test_answers_of_a_position_leave_undecided_out():
         {"landmark": "T1", "present": None},
         {"landmark": "H2", "present": False},
     ]
-    assert answers_of({"steps": steps}) == [("H1", True), ("H2", False)]
+    assert answers_of(steps) == [("H1", True), ("H2", False)]
 
 
 # -- through the blackboard --------------------------------------------------------------------
