@@ -1,0 +1,593 @@
+"""The cases of the evaluation set: their table, their generation and their cache.
+
+See the package docstring (:mod:`bench.evalset`) for the API and the fields of a case.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from bench.evalset import raycast, terrains
+
+__all__ = ["CAMERA", "SPLITS", "TerrainEntry", "EvalFrame", "Case", "TERRAINS", "cases", "case_names", "seeds",
+           "ERROR_BOUNDS", "GENERATOR_VERSION", "default_out_dir"]
+
+log = logging.getLogger(__name__)
+
+#: bump when the generator changes what it writes (cached cases are then rebuilt)
+GENERATOR_VERSION = "1"
+
+#: the two splits: choose parameters on "tuning" only; "heldout" is for reporting
+SPLITS: tuple[str, ...] = ("tuning", "heldout")
+
+#: pose errors of the camera frames against the route (uniform within these bounds):
+#: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
+#: pitch and roll in degrees, eye height in metres (around the scenario camera's)
+ERROR_BOUNDS: dict[str, float] = {"along_frac": 0.3, "lateral_m": 4.0, "heading_deg": 5.0,
+                                  "pitch_deg": 2.0, "roll_deg": 2.0, "eye_height_m": 0.2}
+
+#: the scenario camera of every case (the viewframes' renderer); camera frames come at other sizes
+CAMERA = {"width": 160, "height": 120, "fov_y_deg": 45.0, "eye_height": 2.0, "pitch_deg": 0.0,
+          "near": 1.0, "far": 5000.0}
+
+_KINDS = {  # width, depth, height (m); wall and roof colours in the camera frames
+    "house": ((18.0, 12.0, 8.0), (0.86, 0.80, 0.70), (0.55, 0.22, 0.18)),
+    "tower": ((4.0, 4.0, 32.0), (0.72, 0.72, 0.74), (0.60, 0.60, 0.62)),
+    "silo": ((7.0, 7.0, 16.0), (0.92, 0.92, 0.86), (0.72, 0.72, 0.70)),
+    "barn": ((30.0, 16.0, 10.0), (0.62, 0.22, 0.16), (0.38, 0.38, 0.38)),
+}
+
+
+@dataclass(frozen=True)
+class TerrainEntry:
+    """One terrain of the set with its route, camera and the drives on it.
+
+    ``source``: ``{"family": fbm|ridged|mesas|valleys, "size": cells, "relief": m, ...params}``
+    or ``{"dem": jacksboro|topobathy, "rows": (a, b), "cols": (a, b), "upsample": k,
+    "height_scale": s, "sea_level": m}``; ``contours`` > 0 gives the map as contour lines every
+    that many metres (the camera frames still see the true DEM). ``drives``: kinds of case on
+    this terrain besides the ``sweep``: ``"drive"`` and/or ``"kidnap"``.
+    """
+
+    name: str
+    split: str
+    seed: int
+    cell: float
+    source: dict[str, Any]
+    spacing: float
+    points: int
+    frame_size: tuple[int, int]  # (width, height) of the camera frames
+    look: dict[str, Any] = field(default_factory=dict)
+    sensor: dict[str, Any] = field(default_factory=dict)
+    contours: float = 0.0
+    drives: tuple[str, ...] = ()
+    landmark_every: int = 5
+
+
+#: THE TABLE. Tuning seeds are 1xxx, held-out seeds 2xxx; no terrain appears in both splits
+#: (the two Jacksboro crops are disjoint windows of the DEM, and neither overlaps the bundled
+#: jacksboro scenario's route at source rows 181-194, cols 212-225). Held-out seeds must never
+#: be used to choose a parameter: tune on cases("tuning"), report on cases("heldout").
+TERRAINS: tuple[TerrainEntry, ...] = (
+    # ---------------------------------------------------------------- tuning
+    TerrainEntry("t-ridged", "tuning", 1101, 10.0, {"family": "ridged", "size": 256, "relief": 150.0},
+                 30.0, 32, (320, 240), {"sun_azimuth_deg": 200.0, "sun_elevation_deg": 30.0},
+                 drives=("drive",)),
+    TerrainEntry("t-fbm-smooth", "tuning", 1202, 25.0, {"family": "fbm", "size": 200, "relief": 260.0, "hurst": 0.8},
+                 40.0, 32, (640, 480), {"palette": "dry", "sun_azimuth_deg": 60.0, "fog_m": 6000.0},
+                 {"jpeg_quality": 70}, drives=("kidnap",)),
+    TerrainEntry("t-jacksboro-nw", "tuning", 1303, 30.0,
+                 {"dem": "jacksboro", "rows": (190, 344), "cols": (0, 200), "upsample": 2, "height_scale": 0.5},
+                 40.0, 32, (200, 150), {"palette": "green", "sun_elevation_deg": 55.0, "fog_m": 3000.0},
+                 {"jpeg_quality": None, "noise": 5.0}),
+    TerrainEntry("t-contours-fbm", "tuning", 1404, 15.0, {"family": "fbm", "size": 192, "relief": 120.0, "hurst": 0.6},
+                 30.0, 32, (320, 240), {"palette": "alpine", "sun_azimuth_deg": 300.0}, contours=10.0),
+    # ---------------------------------------------------------------- held-out
+    TerrainEntry("h-mesas", "heldout", 2101, 12.0, {"family": "mesas", "size": 256, "relief": 90.0},
+                 30.0, 32, (320, 240), {"palette": "dry", "sun_azimuth_deg": 250.0, "sun_elevation_deg": 25.0},
+                 drives=("kidnap",)),
+    TerrainEntry("h-valleys", "heldout", 2202, 8.0, {"family": "valleys", "size": 256, "relief": 70.0},
+                 25.0, 32, (640, 480), {"palette": "green", "sun_azimuth_deg": 20.0, "fog_m": 2500.0},
+                 {"jpeg_quality": 60, "motion_px": 1.0}, drives=("drive",)),
+    TerrainEntry("h-fbm-rough", "heldout", 2303, 20.0, {"family": "fbm", "size": 200, "relief": 200.0, "hurst": 0.4},
+                 35.0, 32, (200, 150), {"palette": "alpine", "sun_azimuth_deg": 110.0, "sun_elevation_deg": 60.0},
+                 {"jpeg_quality": None, "noise": 5.0}),
+    TerrainEntry("h-topobathy", "heldout", 2404, 20.0,
+                 {"dem": "topobathy", "rows": (0, 40), "cols": (69, 117), "upsample": 6, "height_scale": 0.06,
+                  "sea_level": 0.0},
+                 35.0, 32, (320, 240), {"palette": "green", "sun_azimuth_deg": 160.0, "fog_m": 5000.0},
+                 drives=("kidnap",)),
+    TerrainEntry("h-jacksboro-se", "heldout", 2505, 15.0,
+                 {"dem": "jacksboro", "rows": (0, 150), "cols": (200, 403), "upsample": 2, "height_scale": 0.375},
+                 30.0, 32, (640, 480), {"palette": "dry", "sun_azimuth_deg": 330.0, "sun_elevation_deg": 35.0},
+                 {"jpeg_quality": 85}, drives=("drive",)),
+    TerrainEntry("h-contours-ridged", "heldout", 2606, 15.0, {"family": "ridged", "size": 200, "relief": 120.0},
+                 30.0, 32, (200, 150), {"palette": "green", "sun_azimuth_deg": 75.0}, contours=10.0),
+)
+
+
+@dataclass(frozen=True)
+class EvalFrame:
+    """One camera frame of a case, with its truth.
+
+    ``image``: the file (JPEG or PNG, ``size`` = (width, height) pixels); ``time_s``: seconds
+    since the case's first frame (frames are in time order); camera position (x, y, z) world
+    metres; ``heading_deg`` (ccw from +x), ``pitch_deg`` (up), ``roll_deg`` (clockwise as seen
+    from behind); ``eye_height_m`` above the ground. ``route_index``: the route point nearest
+    (x, y) (the results' criterion of a correct frame); ``arc_m``: arc length of the vehicle's
+    place along the route polyline; ``lateral_m``: its offset across the route (left +);
+    ``heading_error_deg``: heading minus the route's direction there; ``along_frac`` (sweeps
+    only, else None): offset along the route from its route point, in route spacings;
+    ``event``: "" or "stop" (did not move), "gap" (skipped route points), "kidnap" (jumped);
+    ``landmarks_px``: visible pixels of each landmark in this image.
+    """
+
+    index: int
+    image: Path
+    size: tuple[int, int]
+    time_s: float
+    x: float
+    y: float
+    z: float
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
+    eye_height_m: float
+    route_index: int
+    arc_m: float
+    lateral_m: float
+    heading_error_deg: float
+    along_frac: float | None
+    event: str
+    landmarks_px: dict[str, int]
+
+    @property
+    def truth(self) -> tuple[float, float, float]:
+        """(x, y, heading_deg), as the scenario file's ``truth``."""
+        return (self.x, self.y, self.heading_deg)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One case: a scenario file (map, landmarks, route, camera, ``sensor.frames``) and its frames.
+
+    ``name`` e.g. ``"h-mesas/sweep"``; ``terrain`` its terrain's name; ``kind`` "sweep" (one
+    frame per route point, in route order), "drive" (time order, varying speed, stops, gaps of
+    several route points) or "kidnap" (a drive with one jump to another part of the route);
+    ``folder`` holds ``scenario.yaml``, ``case.json``, ``frames/``, ``labels.npz`` (horizon
+    row per column per frame: ``horizons`` (n, width), height where a column shows no ground).
+    """
+
+    name: str
+    split: str
+    terrain: str
+    kind: str
+    seed: int
+    folder: Path
+    scenario_path: Path
+    route: tuple[tuple[float, float], ...]
+    spacing_m: float
+    frames: tuple[EvalFrame, ...]
+    description: str
+
+    def scenario_dict(self) -> dict[str, Any]:
+        """The scenario file parsed (a fresh dict each call)."""
+        return yaml.safe_load(self.scenario_path.read_text())
+
+    def write_scenario(self, path: str | Path | None = None, **blocks: Any) -> Path:
+        """A copy of the scenario with top-level blocks replaced (e.g. ``memory={...}``,
+        ``scheduler={...}``), written next to the original (or at ``path``); returns its path.
+        Relative paths in it still resolve (the copy stays in the case folder by default)."""
+        data = self.scenario_dict()
+        data.update(blocks)
+        tag = hashlib.sha1(json.dumps(blocks, sort_keys=True, default=str).encode()).hexdigest()[:10]
+        out = Path(path) if path is not None else self.folder / f"scenario-{tag}.yaml"
+        if out.parent.resolve() != self.folder.resolve():
+            data = _absolute_paths(data, self.folder)
+        out.write_text(yaml.safe_dump(data, sort_keys=False))
+        return out
+
+    def horizons(self) -> np.ndarray:
+        """(n_frames, width) float: first ground row per column of each camera image."""
+        with np.load(self.folder / "labels.npz") as z:
+            return z["horizons"].copy()
+
+
+def _absolute_paths(data: dict[str, Any], base: Path) -> dict[str, Any]:
+    terr = dict(data["terrain"])
+    for k in ("dem", "contours"):
+        if k in terr:
+            terr[k] = str((base / terr[k]).resolve())
+    data["terrain"] = terr
+    sensor = data.get("sensor") or {}
+    if "frames" in sensor:
+        data["sensor"] = {"frames": [{**f, "image": str((base / f["image"]).resolve())} for f in sensor["frames"]]}
+    return data
+
+
+def default_out_dir() -> Path:
+    """``$MAPINTERP_EVALSET_DIR``, else ``mapinterp-evalset`` in the system's temporary folder
+    (shared by every checkout on the machine: a case is generated once, keyed by its spec)."""
+    env = os.environ.get("MAPINTERP_EVALSET_DIR")
+    return Path(env) if env else Path(tempfile.gettempdir()) / "mapinterp-evalset"
+
+
+def case_names(split: str) -> list[str]:
+    """Names of the cases of a split, in generation order."""
+    _check_split(split)
+    return [f"{t.name}/{k}" for t in TERRAINS if t.split == split for k in ("sweep", *t.drives)]
+
+
+def seeds(split: str) -> set[int]:
+    """Every seed a split's generation draws from (terrain seeds and case seeds)."""
+    _check_split(split)
+    out = set()
+    for t in TERRAINS:
+        if t.split == split:
+            out.add(t.seed)
+            out.update(_case_seed(t, k) for k in ("sweep", *t.drives))
+    return out
+
+
+def _check_split(split: str) -> None:
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+
+
+def _case_seed(t: TerrainEntry, kind: str) -> int:
+    return t.seed * 10 + ("sweep", "drive", "kidnap").index(kind)
+
+
+# ---------------------------------------------------------------------------------------------
+# terrain, route, landmarks
+
+
+def _heights(t: TerrainEntry) -> np.ndarray:
+    src = dict(t.source)
+    rng = np.random.default_rng([t.seed, 1])
+    if "family" in src:
+        fn = terrains.FAMILIES[src.pop("family")]
+        size = int(src.pop("size"))
+        return fn(size, rng=rng, **src)
+    return terrains.dem_crop(src["dem"], rows=tuple(src["rows"]), cols=tuple(src["cols"]),
+                             upsample=int(src.get("upsample", 1)), height_scale=float(src["height_scale"]),
+                             sea_level=src.get("sea_level"))
+
+
+def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
+    """A smooth drive of ``t.points`` points ``t.spacing`` apart in the middle of the map that,
+    as a road would, prefers gentle ground: each step takes the best of seven headings by the
+    climb to the next point plus a penalty for turning."""
+    rng = np.random.default_rng([t.seed, 2])
+    rows, cols = heights.shape
+    ex, ey = (cols - 1) * t.cell, (rows - 1) * t.cell
+    world = raycast.World(heights, t.cell)
+    for _attempt in range(200):
+        h = rng.uniform(0, 2 * math.pi)
+        pts = [np.array([rng.uniform(0.3, 0.7) * ex, rng.uniform(0.3, 0.7) * ey])]
+        turn = 0.0
+        for _ in range(1, t.points):
+            options = turn + np.radians(rng.normal(0.0, 4.0) + np.array([-18, -12, -6, 0, 6, 12, 18]))
+            nxt = pts[-1] + t.spacing * np.stack([np.cos(h + options), np.sin(h + options)], 1)
+            climb = np.abs(world.height_at(nxt[:, 0], nxt[:, 1]) - world.height_at(*pts[-1])) / t.spacing
+            inside = (nxt[:, 0] >= 0.15 * ex) & (nxt[:, 0] <= 0.85 * ex) & (nxt[:, 1] >= 0.15 * ey) & (nxt[:, 1] <= 0.85 * ey)
+            score = climb + 0.4 * np.abs(options) + np.where(inside, 0.0, 1e6)
+            k = int(np.argmin(score))
+            if not inside[k]:
+                break
+            turn = 0.5 * float(options[k])
+            h += float(options[k])
+            pts.append(nxt[k])
+        if len(pts) == t.points:
+            return [(round(float(x), 2), round(float(y), 2)) for x, y in pts]
+    raise RuntimeError(f"{t.name}: no route fits in the middle of the map")
+
+
+def _polyline(route: Sequence[Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
+    pts = np.asarray(route, np.float64)
+    seg = np.hypot(*np.diff(pts, axis=0).T)
+    return pts, np.concatenate([[0.0], np.cumsum(seg)])
+
+
+def _at_arc(pts: np.ndarray, arc: np.ndarray, s: float) -> tuple[np.ndarray, float]:
+    """Point and heading (degrees) of the route polyline at arc length ``s`` (extrapolated)."""
+    i = int(np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(pts) - 2))
+    d = pts[i + 1] - pts[i]
+    u = (s - arc[i]) / max(arc[i + 1] - arc[i], 1e-9)
+    return pts[i] + u * d, math.degrees(math.atan2(d[1], d[0]))
+
+
+def _route_headings(pts: np.ndarray) -> list[float]:
+    d = np.diff(pts, axis=0)
+    heads = [math.degrees(math.atan2(dy, dx)) for dx, dy in d]
+    return heads + heads[-1:]
+
+
+def _landmarks(t: TerrainEntry, route: list[tuple[float, float]], heights: np.ndarray) -> list[dict[str, Any]]:
+    """Boxes beside the route every ``landmark_every`` points, 30-90 m ahead, 15-45 m aside."""
+    rng = np.random.default_rng([t.seed, 3])
+    pts = np.asarray(route)
+    heads = _route_headings(pts)
+    rows, cols = heights.shape
+    ex, ey = (cols - 1) * t.cell, (rows - 1) * t.cell
+    kinds = list(_KINDS)
+    out: list[dict[str, Any]] = []
+    counts: dict[str, int] = {}
+    for j, i in enumerate(range(2, len(route) - 1, t.landmark_every)):
+        kind = kinds[(j + int(rng.integers(0, 4))) % 4]
+        (w, d, hgt), _, _ = _KINDS[kind]
+        for _attempt in range(20):
+            th = math.radians(heads[i])
+            ahead, side = rng.uniform(30, 90), rng.choice([-1.0, 1.0]) * rng.uniform(15, 45)
+            p = pts[i] + ahead * np.array([math.cos(th), math.sin(th)]) + side * np.array([-math.sin(th), math.cos(th)])
+            clear = np.min(np.hypot(*(pts - p).T)) > 0.5 * math.hypot(w, d) + 6.0
+            inside = 50 <= p[0] <= ex - 50 and 50 <= p[1] <= ey - 50
+            if clear and inside:
+                break
+        else:
+            continue
+        counts[kind] = counts.get(kind, 0) + 1
+        out.append({"id": f"{kind[0].upper()}{counts[kind]}", "kind": kind, "x": round(float(p[0]), 2),
+                    "y": round(float(p[1]), 2), "width": w, "depth": d, "height": hgt,
+                    "yaw_deg": round(float(rng.uniform(0, 180)), 1)})
+    return out
+
+
+def _world_boxes(lms: list[dict[str, Any]], world: raycast.World) -> list[raycast.Box]:
+    boxes = []
+    for lm in lms:
+        a = math.radians(lm["yaw_deg"])
+        u = np.array([math.cos(a), math.sin(a)]) * lm["width"] / 2
+        v = np.array([-math.sin(a), math.cos(a)]) * lm["depth"] / 2
+        c = np.array([lm["x"], lm["y"]])
+        pts = np.array([c, c + u + v, c + u - v, c - u + v, c - u - v])
+        z0 = float(np.min(world.height_at(pts[:, 0], pts[:, 1])))
+        _, wall, roof = _KINDS[lm["kind"]]
+        boxes.append(raycast.Box(lm["x"], lm["y"], lm["width"], lm["depth"], lm["yaw_deg"], z0 - 3.0,
+                                 z0 + lm["height"], wall, roof, lm["id"]))
+    return boxes
+
+
+# ---------------------------------------------------------------------------------------------
+# poses
+
+
+def _sweep_poses(route, spacing: float, rng: np.random.Generator) -> list[dict[str, Any]]:
+    """One pose per route point, in route order, within ERROR_BOUNDS."""
+    pts, arc = _polyline(route)
+    b = ERROR_BOUNDS
+    out = []
+    for i in range(len(pts)):
+        frac = rng.uniform(-b["along_frac"], b["along_frac"])
+        if frac >= 0:  # towards the next point (past the last one: along the last leg)
+            leg = pts[i + 1] - pts[i] if i + 1 < len(pts) else pts[i] - pts[i - 1]
+        else:  # back towards the previous point (before the first one: along the first leg)
+            leg = pts[i] - pts[i - 1] if i > 0 else pts[1] - pts[0]
+        length = float(np.hypot(*leg))
+        d = leg / length
+        th = math.degrees(math.atan2(d[1], d[0]))
+        lateral = rng.uniform(-b["lateral_m"], b["lateral_m"])
+        p = pts[i] + frac * length * d + lateral * np.array([-d[1], d[0]])
+        herr = rng.uniform(-b["heading_deg"], b["heading_deg"])
+        out.append({"xy": p, "heading": th + herr, "heading_error": herr, "lateral": lateral, "along_frac": frac,
+                    "arc": float(arc[i] + frac * length), "pitch": rng.uniform(-b["pitch_deg"], b["pitch_deg"]),
+                    "roll": rng.uniform(-b["roll_deg"], b["roll_deg"]),
+                    "eye": rng.uniform(-b["eye_height_m"], b["eye_height_m"]), "time": float(i), "event": ""})
+    return out
+
+
+def _drive_poses(route, spacing: float, rng: np.random.Generator, *, frames: int, kidnap: bool) -> list[dict[str, Any]]:
+    """A drive in time order (1 s apart): cruising at 0.4-1.2 route spacings a frame, stops of
+    1-3 frames, gaps of 2.5-5 spacings, smooth lateral, heading, pitch and roll errors within
+    ERROR_BOUNDS; with ``kidnap`` one jump by 35-65 % of the route length, a third of the way in."""
+    pts, arc = _polyline(route)
+    total = float(arc[-1])
+    b = ERROR_BOUNDS
+    s = rng.uniform(0.0, 0.15) * total
+    lat = rng.uniform(-0.5, 0.5) * b["lateral_m"]
+    herr = pitch = roll = 0.0
+    out: list[dict[str, Any]] = []
+    jump_at = frames // 3 if kidnap else -1
+    event = ""
+    for j in range(frames):
+        if j > 0:
+            u = rng.uniform()
+            if j == jump_at:
+                s = (s + rng.uniform(0.35, 0.65) * total) % total
+                event = "kidnap"
+            elif u < 0.12:
+                event = "stop"
+            elif u < 0.27:
+                s += rng.uniform(2.5, 5.0) * spacing
+                event = "gap"
+            else:
+                s += rng.uniform(0.4, 1.2) * spacing
+                event = ""
+            if s > total:  # turn the drive around at the end of the route (keep every frame on it)
+                s = total - rng.uniform(0.0, 0.3) * spacing
+        lat = float(np.clip(0.8 * lat + rng.normal(0, 1.2), -b["lateral_m"], b["lateral_m"]))
+        herr = float(np.clip(0.6 * herr + rng.normal(0, 2.5), -b["heading_deg"], b["heading_deg"]))
+        pitch = float(np.clip(0.6 * pitch + rng.normal(0, 1.0), -b["pitch_deg"], b["pitch_deg"]))
+        roll = float(np.clip(0.6 * roll + rng.normal(0, 1.0), -b["roll_deg"], b["roll_deg"]))
+        p, th = _at_arc(pts, arc, s)
+        n = np.array([-math.sin(math.radians(th)), math.cos(math.radians(th))])
+        out.append({"xy": p + lat * n, "heading": th + herr, "heading_error": herr, "lateral": lat, "along_frac": None,
+                    "arc": float(s), "pitch": pitch, "roll": roll,
+                    "eye": float(rng.uniform(-b["eye_height_m"], b["eye_height_m"])), "time": float(j), "event": event})
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# generation
+
+
+def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None) -> str:
+    blob = json.dumps([GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_BOUNDS], sort_keys=True,
+                      default=str)
+    return hashlib.sha1(blob.encode()).hexdigest()[:16]
+
+
+def _build_terrain(t: TerrainEntry, folder: Path) -> tuple[np.ndarray, list, list, dict[str, Any]]:
+    """World heights, route, landmark specs and the scenario's terrain block (files written)."""
+    heights = _heights(t)
+    route = _route(t, heights)
+    lms = _landmarks(t, route, heights)
+    folder.mkdir(parents=True, exist_ok=True)
+    if t.contours > 0:
+        from models.contours import dem_to_contours, save_contours
+        from models.terrain import Terrain
+
+        lines = dem_to_contours(Terrain(heights=heights, cell_size=t.cell), interval=t.contours)
+        save_contours(lines, folder / "contours.geojson")
+        block = {"cell_size": t.cell, "contours": "contours.geojson"}
+    else:
+        np.save(folder / "terrain.npy", heights.astype(np.float32))
+        block = {"cell_size": t.cell, "dem": "terrain.npy"}
+    return heights, route, lms, block
+
+
+def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) -> None:
+    heights, route, lms, terrain_block = _build_terrain(t, folder)
+    world = raycast.World(heights, t.cell)
+    world.boxes = _world_boxes(lms, world)
+    seed = _case_seed(t, kind)
+    rng_pose = np.random.default_rng([seed, 4])
+    if kind == "sweep":
+        poses = _sweep_poses(route, t.spacing, rng_pose)
+    else:
+        poses = _drive_poses(route, t.spacing, rng_pose, frames=max(12, (t.points * 3) // 4), kidnap=kind == "kidnap")
+    if max_frames is not None:
+        poses = poses[:max_frames]
+    look = raycast.Look(**t.look)
+    sensor = raycast.Sensor(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in t.sensor.items()})
+    caster = raycast.RayCaster(world, look, rng=np.random.default_rng([t.seed, 5]))
+    rng_img = np.random.default_rng([seed, 6])
+    width, height = t.frame_size
+    ext = ".jpg" if sensor.jpeg_quality is not None else ".png"
+    (folder / "frames").mkdir(exist_ok=True)
+    pts = np.asarray(route)
+    frames, horizons = [], []
+    for j, p in enumerate(poses):
+        x, y = float(p["xy"][0]), float(p["xy"][1])
+        eye = CAMERA["eye_height"] + p["eye"]
+        z = float(world.height_at(x, y)) + eye
+        img, horizon, visible = caster.render(x, y, z, heading_deg=p["heading"], pitch_deg=p["pitch"],
+                                              roll_deg=p["roll"], width=width, height=height,
+                                              fov_y_deg=CAMERA["fov_y_deg"], far=CAMERA["far"])
+        out = raycast.sensor_effects(img, sensor=sensor, rng=rng_img)
+        name = f"frames/f{j:03d}{ext}"
+        params = [cv2.IMWRITE_JPEG_QUALITY, int(sensor.jpeg_quality)] if ext == ".jpg" else []
+        if not cv2.imwrite(str(folder / name), cv2.cvtColor(out, cv2.COLOR_RGB2BGR), params):
+            raise OSError(f"cannot write {folder / name}")
+        ri = int(np.argmin(np.hypot(pts[:, 0] - x, pts[:, 1] - y)))
+        frames.append({
+            "index": j, "image": name, "size": [width, height], "time_s": p["time"], "x": x, "y": y, "z": z,
+            "heading_deg": float(p["heading"]), "pitch_deg": float(p["pitch"]), "roll_deg": float(p["roll"]),
+            "eye_height_m": eye, "route_index": ri, "arc_m": p["arc"], "lateral_m": float(p["lateral"]),
+            "heading_error_deg": float(p["heading_error"]),
+            "along_frac": None if p["along_frac"] is None else float(p["along_frac"]), "event": p["event"],
+            "landmarks_px": {k: v for k, v in sorted(visible.items()) if v > 0},
+        })
+        horizons.append(horizon)
+    scenario = {
+        "name": f"{t.name}-{kind}",
+        "seed": seed,
+        "terrain": terrain_block,
+        "landmarks": lms,
+        "route": [list(p) for p in route],
+        "camera": dict(CAMERA),
+        "sensor": {"frames": [{"image": f["image"], "truth": {"x": round(f["x"], 3), "y": round(f["y"], 3),
+                                                            "heading_deg": round(f["heading_deg"], 3)}}
+                              for f in frames]},
+    }
+    header = (f"# evaluation case {t.name}/{kind} ({t.split} split, seed {seed}): generated by bench/evalset,"
+              " do not edit\n")
+    (folder / "scenario.yaml").write_text(header + yaml.safe_dump(scenario, sort_keys=False))
+    np.savez_compressed(folder / "labels.npz", horizons=np.asarray(horizons, np.float32))
+    src = t.source.get("family") or f"{t.source['dem']} DEM crop"
+    desc = (f"{src}, {t.cell:g} m cells{', map as contours every %g m' % t.contours if t.contours else ''}; "
+            f"{len(route)} route points {t.spacing:g} m apart; {len(lms)} landmarks; {kind} of {len(frames)} frames "
+            f"at {width}x{height}")
+    meta = {"version": GENERATOR_VERSION, "hash": _spec_hash(t, kind, max_frames), "name": f"{t.name}/{kind}",
+            "split": t.split, "terrain": t.name, "kind": kind, "seed": seed, "route": route,
+            "spacing_m": t.spacing, "description": desc, "frames": frames}
+    (folder / "case.json").write_text(json.dumps(meta, indent=1))
+
+
+def _load(folder: Path) -> Case:
+    meta = json.loads((folder / "case.json").read_text())
+    frames = tuple(
+        EvalFrame(**{**f, "image": folder / f["image"], "size": tuple(f["size"]),
+                     "landmarks_px": dict(f["landmarks_px"])})
+        for f in meta["frames"]
+    )
+    return Case(name=meta["name"], split=meta["split"], terrain=meta["terrain"], kind=meta["kind"],
+                seed=int(meta["seed"]), folder=folder, scenario_path=folder / "scenario.yaml",
+                route=tuple(tuple(p) for p in meta["route"]), spacing_m=float(meta["spacing_m"]),
+                frames=frames, description=meta["description"])
+
+
+def cases(
+    split: str,
+    *,
+    out_dir: str | Path | None = None,
+    names: Sequence[str] | None = None,
+    kinds: Sequence[str] | None = None,
+    max_frames: int | None = None,
+    refresh: bool = False,
+) -> Iterator[Case]:
+    """Yield the cases of ``split`` ("tuning" or "heldout"), generating those not cached.
+
+    ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
+    ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is
+    listed; ``kinds`` only those kinds ("sweep", "drive", "kidnap"); ``max_frames`` cuts each
+    case to its first frames (a separate cache entry, for quick tests); ``refresh`` regenerates.
+    Generation is deterministic: the same table and seeds give the same files.
+    """
+    _check_split(split)
+    base = Path(out_dir) if out_dir is not None else default_out_dir()
+    wanted = set(names or ())
+    for t in TERRAINS:
+        if t.split != split:
+            continue
+        for kind in ("sweep", *t.drives):
+            name = f"{t.name}/{kind}"
+            if wanted and name not in wanted and t.name not in wanted:
+                continue
+            if kinds is not None and kind not in kinds:
+                continue
+            folder = base / split / t.name / (kind if max_frames is None else f"{kind}-n{max_frames}")
+            meta_path = folder / "case.json"
+            fresh = False
+            if meta_path.is_file() and not refresh:
+                try:
+                    fresh = json.loads(meta_path.read_text()).get("hash") == _spec_hash(t, kind, max_frames)
+                except (OSError, ValueError):
+                    fresh = False
+            if not fresh:
+                log.info("generating evaluation case %s (%s) in %s", name, split, folder)
+                # into a private folder first, then renamed: concurrent users never see half a case
+                tmp = folder.with_name(f".{folder.name}.{os.getpid()}.tmp")
+                shutil.rmtree(tmp, ignore_errors=True)
+                _generate(t, kind, tmp, max_frames)
+                if folder.exists():
+                    shutil.rmtree(folder, ignore_errors=True)
+                try:
+                    os.replace(tmp, folder)
+                except OSError:  # another process renamed its copy first: same spec, same files
+                    shutil.rmtree(tmp, ignore_errors=True)
+            yield _load(folder)

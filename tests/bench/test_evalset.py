@@ -1,0 +1,189 @@
+"""The evaluation set's generator: deterministic by seed, splits apart, truth within its bounds,
+the independent renderer at the requested sizes and in agreement with the viewframes' geometry."""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from bench.evalset import ERROR_BOUNDS, SPLITS, TERRAINS, case_names, cases, seeds
+from bench.evalset.cases import _drive_poses, _polyline
+from bench.evalset.raycast import Box, Look, RayCaster, Sensor, World, sensor_effects
+from bench.evalset.terrains import FAMILIES
+from models.scenario import load_scenario
+
+SMALL = "h-fbm-rough"  # 200x150 camera frames: the quickest to render
+
+
+def _files(case):
+    return {f.image.name: f.image.read_bytes() for f in case.frames}
+
+
+def test_same_seed_same_files(tmp_path):
+    a = next(cases("heldout", out_dir=tmp_path / "a", names=[SMALL], max_frames=2))
+    b = next(cases("heldout", out_dir=tmp_path / "b", names=[SMALL], max_frames=2))
+    assert _files(a) == _files(b)
+    assert (a.folder / "terrain.npy").read_bytes() == (b.folder / "terrain.npy").read_bytes()
+    assert [f.truth for f in a.frames] == [f.truth for f in b.frames]
+    assert a.scenario_dict()["landmarks"] == b.scenario_dict()["landmarks"]
+    # cached: a second call reads the same folder back without rewriting it
+    stamp = a.frames[0].image.stat().st_mtime_ns
+    again = next(cases("heldout", out_dir=tmp_path / "a", names=[SMALL], max_frames=2))
+    assert again.frames[0].image.stat().st_mtime_ns == stamp and again.frames == a.frames
+
+
+def test_other_seed_other_terrain():
+    rng_a, rng_b = np.random.default_rng(1), np.random.default_rng(2)
+    for name, fn in FAMILIES.items():
+        za, zb = fn(64, relief=50.0, rng=rng_a), fn(64, relief=50.0, rng=rng_b)
+        assert za.shape == (64, 64) and abs(np.ptp(za) - 50.0) < 1e-6, name
+        assert not np.allclose(za, zb), name
+
+
+def test_splits_are_disjoint():
+    tuning, heldout = seeds("tuning"), seeds("heldout")
+    assert tuning and heldout and not tuning & heldout
+    names = {s: {t.name for t in TERRAINS if t.split == s} for s in SPLITS}
+    assert names["tuning"] and names["heldout"] and not names["tuning"] & names["heldout"]
+    assert {n.split("/")[0] for n in case_names("heldout")} == names["heldout"]
+    # crops of the same real DEM must not overlap between the splits
+    crops = [(t.split, t.source) for t in TERRAINS if "dem" in t.source]
+    for sa, a in crops:
+        for sb, b in crops:
+            if sa != sb and a["dem"] == b["dem"]:
+                rows = min(a["rows"][1], b["rows"][1]) > max(a["rows"][0], b["rows"][0])
+                cols = min(a["cols"][1], b["cols"][1]) > max(a["cols"][0], b["cols"][0])
+                assert not (rows and cols), (a, b)
+    # the held-out set has what the issues ask for: real DEM crops, a contour map, drives, a kidnap
+    held = [t for t in TERRAINS if t.split == "heldout"]
+    assert any("dem" in t.source for t in held) and any(t.contours > 0 for t in held)
+    assert {"drive", "kidnap"} <= {k for t in held for k in t.drives}
+    assert {t.frame_size for t in held} >= {(200, 150), (320, 240), (640, 480)}
+    with pytest.raises(ValueError, match="split"):
+        case_names("test")
+
+
+def _check_frame_bounds(case):
+    pts, arc = _polyline(case.route)
+    b = ERROR_BOUNDS
+    tol = 1e-6
+    for f in case.frames:
+        assert abs(f.lateral_m) <= b["lateral_m"] + tol
+        assert abs(f.heading_error_deg) <= b["heading_deg"] + tol
+        assert abs(f.pitch_deg) <= b["pitch_deg"] + tol and abs(f.roll_deg) <= b["roll_deg"] + tol
+        assert abs(f.eye_height_m - 2.0) <= b["eye_height_m"] + tol
+        if f.along_frac is not None:
+            assert abs(f.along_frac) <= b["along_frac"] + tol
+        # the truth position really is that far from the route polyline (segments, extended at the ends)
+        d = min(_segment_distance(np.array([f.x, f.y]), pts[i], pts[i + 1]) for i in range(len(pts) - 1))
+        assert d <= b["lateral_m"] + 1e-3
+        near = int(np.argmin(np.hypot(pts[:, 0] - f.x, pts[:, 1] - f.y)))
+        assert f.route_index == near
+        img = cv2.imread(str(f.image), cv2.IMREAD_UNCHANGED)
+        assert img.shape == (f.size[1], f.size[0], 3)
+    times = [f.time_s for f in case.frames]
+    assert times == sorted(times) and len(set(times)) == len(times)
+
+
+def _segment_distance(p, a, b):
+    d = b - a
+    u = float(np.dot(p - a, d) / np.dot(d, d))  # no clamping: frames may lie beyond the end points
+    return float(np.hypot(*(p - (a + u * d)))) if -0.5 <= u <= 1.5 else math.inf
+
+
+def test_frames_truth_within_bounds_and_scenario_loads(tmp_path):
+    for case in cases("heldout", out_dir=tmp_path, names=[SMALL], max_frames=4):
+        _check_frame_bounds(case)
+        sc = load_scenario(case.scenario_path)
+        assert len(sc.sensor.frames) == len(case.frames)
+        for spec, f in zip(sc.sensor.frames, case.frames):
+            assert spec.image == f.image.resolve()
+            assert (spec.truth.x, spec.truth.y) == pytest.approx((f.x, f.y), abs=1e-3)
+        copy = load_scenario(case.write_scenario(memory={"bank_size": 1}))
+        assert copy.memory.bank_size == 1 and copy.route == sc.route
+        assert case.horizons().shape == (len(case.frames), case.frames[0].size[0])
+
+
+def test_drive_poses_bounds_gaps_stops_and_kidnap():
+    route = [(100.0 + 30 * i, 200.0 + 5 * math.sin(i / 3)) for i in range(32)]
+    pts, arc = _polyline(route)
+    poses = _drive_poses(route, 30.0, np.random.default_rng(7), frames=60, kidnap=True)
+    steps = np.diff([p["arc"] for p in poses])
+    events = [p["event"] for p in poses]
+    assert "stop" in events and "gap" in events and events.count("kidnap") == 1
+    jump = events.index("kidnap")
+    assert abs(poses[jump]["arc"] - poses[jump - 1]["arc"]) >= 0.2 * arc[-1]
+    for p, step, ev in zip(poses[1:], steps, events[1:]):
+        if ev == "stop":
+            assert step == 0.0
+        elif ev == "gap":
+            assert step >= 2.5 * 30.0 - 1e-9 or p["arc"] < arc[-1]  # turned round at the route's end
+    for p in poses:
+        assert abs(p["lateral"]) <= ERROR_BOUNDS["lateral_m"] and abs(p["pitch"]) <= ERROR_BOUNDS["pitch_deg"]
+        assert 0.0 <= p["arc"] <= arc[-1]
+    plain = _drive_poses(route, 30.0, np.random.default_rng(7), frames=60, kidnap=False)
+    assert "kidnap" not in [p["event"] for p in plain]
+
+
+def _tiny_world():
+    rng = np.random.default_rng(3)
+    h = FAMILIES["fbm"](96, hurst=0.8, relief=60.0, rng=rng)
+    w = World(h, 10.0)
+    z0 = float(w.height_at(520.0, 480.0))
+    w.boxes = [Box(520.0, 480.0, 18.0, 12.0, 30.0, z0 - 3, z0 + 8, (0.9, 0.8, 0.7), (0.5, 0.2, 0.2), "H1")]
+    return w
+
+
+@pytest.mark.parametrize("size", [(200, 150), (320, 240), (64, 48), (100, 100)])
+def test_raycaster_renders_requested_size(size):
+    w = _tiny_world()
+    rc = RayCaster(w, Look(), rng=np.random.default_rng(0))
+    z = float(w.height_at(400.0, 400.0)) + 2.0
+    img, horizon, visible = rc.render(400.0, 400.0, z, heading_deg=45.0, pitch_deg=1.5, roll_deg=-1.0,
+                                      width=size[0], height=size[1], fov_y_deg=45.0)
+    assert img.shape == (size[1], size[0], 3) and horizon.shape == (size[0],)
+    assert 0.0 <= img.min() and img.max() <= 1.0 and img.std() > 0.01
+    out = sensor_effects(img, sensor=Sensor(), rng=np.random.default_rng(1))
+    assert out.shape == (size[1], size[0], 3) and out.dtype == np.uint8
+    assert visible.get("H1", 0) > 0  # the house 170 m ahead is in view
+
+
+def test_raycaster_pitch_moves_the_horizon_as_a_pinhole_would():
+    w = _tiny_world()
+    rc = RayCaster(w, Look(), rng=np.random.default_rng(0))
+    z = float(w.height_at(400.0, 400.0)) + 2.0
+    kw = dict(heading_deg=45.0, roll_deg=0.0, width=160, height=120, fov_y_deg=45.0)
+    _, level, _ = rc.render(400.0, 400.0, z, pitch_deg=0.0, **kw)
+    _, up, _ = rc.render(400.0, 400.0, z, pitch_deg=2.0, **kw)
+    f = 60.0 / math.tan(math.radians(22.5))
+    cols = (level < 119) & (up < 119) & (level > 0) & (up > 0)
+    assert cols.sum() > 80
+    # pitching the camera up by 2 degrees moves distant ground down by about f * tan(2 deg) rows
+    assert np.median(up[cols] - level[cols]) == pytest.approx(f * math.tan(math.radians(2.0)), abs=1.0)
+
+
+@pytest.mark.slow
+def test_raycaster_agrees_with_the_viewframe_renderer(tmp_path):
+    """Two independent renderers, one pinhole convention: the horizon rows agree."""
+    from models.camera import CameraEmulator, Pose
+    from models.environment import EnvironmentModel
+    from models.scenario import CameraSpec
+    from models.terrain import Terrain
+
+    w = _tiny_world()
+    w.boxes = []
+    env = EnvironmentModel(Terrain(heights=w.heights, cell_size=w.cell), [])
+    cam = CameraSpec(width=160, height=120, fov_y_deg=45.0, eye_height=2.0, near=1.0, far=5000.0)
+    rc = RayCaster(w, Look(), rng=np.random.default_rng(0))
+    with CameraEmulator(env, cam) as emu:
+        for x, y, heading in ((400.0, 400.0, 45.0), (300.0, 500.0, -30.0)):
+            z = float(w.height_at(x, y)) + 2.0
+            view = emu.render(Pose(x, y, z, heading, 0.0))
+            ground = view.depth > 0
+            ref = np.where(ground.any(0), np.argmax(ground, 0), 120)
+            _, ours, _ = rc.render(x, y, z, heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, width=160,
+                                   height=120, fov_y_deg=45.0)
+            assert np.median(np.abs(ours - ref)) <= 1.0
