@@ -4,8 +4,7 @@ For each case of an evaluation split (``tuning`` by default: choose there, repor
 ``heldout``), the viewframes are rendered once (as the map renderer does) and the camera frames
 read as the camera agent does (resized to the scenario camera); then, for every memory setting
 of the grid, the memory is built and every frame ranked exactly as the indexer does
-(:func:`models.associative.memory_from_spec`, :func:`models.preprocess.preprocess_with`, one
-shard). Reports the ranking's top-1 and truth-in-top-5 per terrain and overall, and the mean
+(:class:`models.index.ViewframeIndex` with the scenario's memory settings, one shard). Reports the ranking's top-1 and truth-in-top-5 per terrain and overall, and the mean
 ranking time per frame.
 
 A grid is a JSON list of memory-block overrides (each merged into the scenario's defaults), or
@@ -35,9 +34,8 @@ import numpy as np  # noqa: E402
 
 from bench.evalset import cases  # noqa: E402
 from knowledge_sources.results import nearest_viewframe  # noqa: E402
-from models.associative import memory_from_spec  # noqa: E402
-from models.preprocess import preprocess_with  # noqa: E402
-from models.scenario import load_scenario  # noqa: E402
+from models.index import ViewframeIndex  # noqa: E402
+from models.world import World  # noqa: E402
 
 #: built-in grids of memory overrides
 GRIDS: dict[str, list[dict[str, Any]]] = {
@@ -50,15 +48,10 @@ GRIDS: dict[str, list[dict[str, Any]]] = {
 
 def prepare(case) -> dict[str, Any]:
     """Viewframe images, camera images (camera size), truth route points of one case."""
-    from models.camera import CameraEmulator
-    from models.environment import build_environment
-    from models.sensor import frames_from_files
-    from models.viewframes import build_viewframes
-
-    sc = load_scenario(case.scenario_path)
-    with CameraEmulator(build_environment(sc), sc.camera) as cam:
-        vfs = [v.image for v in build_viewframes(sc, emulator=cam)]
-    frames = frames_from_files(sc)
+    with World.from_scenario(case.scenario_path) as world:
+        sc = world.scenario
+        vfs = [v.image for v in world.viewframes]
+        frames = world.sensor_frames
     truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]
     return {"name": case.name, "terrain": case.terrain, "memory": sc.memory.model_dump(), "viewframes": vfs,
             "frames": [f.image for f in frames], "truth": truth}
@@ -66,16 +59,15 @@ def prepare(case) -> dict[str, Any]:
 
 def rank_case(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """Ranks (position of the truth, 0 = first) of every frame of one prepared case."""
-    spec = {**data["memory"], **overrides}
-    memory = memory_from_spec(spec, seed=0)
-    memory.write_many([preprocess_with(v, memory=spec) for v in data["viewframes"]], range(len(data["viewframes"])))
+    index = ViewframeIndex({**data["memory"], **overrides}, seed=0)
+    index.add(data["viewframes"], range(len(data["viewframes"])))
     places, t = [], 0.0
     for img, truth in zip(data["frames"], data["truth"]):
-        q = preprocess_with(img, memory=spec)
+        q = index.pattern(img)
         t0 = time.perf_counter()
-        r = memory.rank(q)
+        r = index.rank_pattern(q)
         t += time.perf_counter() - t0
-        places.append(int(np.nonzero(r.labels == truth)[0][0]))
+        places.append(int(np.nonzero(r.viewframes == truth)[0][0]))
     return {"places": places, "rank_ms": 1000 * t / max(1, len(places))}
 
 
