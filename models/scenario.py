@@ -213,14 +213,14 @@ class MemorySpec(_Spec):
     *shard*), which holds them in as many banks as needed; ``max_shift`` is the (rows, cols)
     window in memory pixels over which the recall is matched against each prototype, absorbing
     pose errors (at N=128 with the 160x120 camera of 45 degrees vertical field of view, one
-    degree of pitch moves the horizon about 2.8 rows and one degree of heading about 2.2
+    degree of pitch moves the horizon about 2.7 rows and one degree of heading about 2.0
     columns); ``key`` the K-GEN method of :mod:`models.memory_keys`.
 
     The defaults were chosen on the tuning split of the evaluation set (``bench/evalset``,
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
-    up to 2 degrees plus eye-height and terrain differences; +-2 lost 9 points), columns +-16
-    (about 7 degrees of heading). Example::
+    up to 2 degrees plus eye-height and terrain differences; +-2 lost 8 points), columns +-16
+    (about 8 degrees of heading). Example::
 
         memory: {size: 128, blur_sigma: 1.0, bank_size: 1, shard_size: 512, max_shift: [8, 16]}
     """
