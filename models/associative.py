@@ -38,12 +38,14 @@ gives it, and the tests check the identity against the direct sums).
 recalls its viewframe shifted by a few pixels, which the zero-lag error variance punishes.
 With ``max_shift = (rows, cols)`` the recall is compared with each prototype at every circular
 shift up to that size and v_h is the smallest error variance (``max_shift = 0``: the plain
-formula). A shift is a phase ramp, so the L searched shifts make the query vector an (D, L)
-matrix: the ranking reads the prototype matrix once, with L times the arithmetic. The default
-is the scenario schema's (:class:`models.scenario.MemorySpec`). To keep the ranking bound by memory bandwidth, every prototype is scored at zero shift (one
-matrix-vector product) and only the :data:`SHIFT_SEARCH_TOP` (32) best are searched over the
-shifts; their variances can only fall, so the others' order is unaffected, but a prototype
-ranked below 32nd at zero shift is not rescued (and keeps its zero-shift variance).
+formula). The similarities at every circular lag are the inverse FFT of the prototype's row
+times the query key (see :func:`_search`), so the window costs one N x N inverse FFT per
+searched prototype, whatever its size; the default window is the scenario schema's
+(:class:`models.scenario.MemorySpec`). To keep the ranking bound by memory bandwidth, every
+prototype is scored at zero shift (one matrix-vector product) and only the
+:data:`SHIFT_SEARCH_TOP` (32) best are searched over the shifts; their variances can only fall,
+so the others' order is unaffected, but a prototype ranked below 32nd at zero shift is not
+rescued (and keeps its zero-shift variance).
 
 **Reliability** of a ranking: how many robust standard deviations the best stands below the
 others, ``(median(rest) - best) / (1.4826 * MAD(rest))`` with ``rest`` all variances but the
@@ -194,50 +196,58 @@ def _check_shift(max_shift: int | tuple[int, int]) -> tuple[int, int]:
     return int(pair[0]), int(pair[1])
 
 
-@lru_cache(maxsize=16)
-def _lag_ramps(n: int, max_shift: tuple[int, int]) -> NDArray[np.complex128]:
-    """Phase ramps of shape (L, N, N // 2 + 1) that shift an image by every (row, col) lag with
-    ``|row| <= max_shift[0]``, ``|col| <= max_shift[1]`` (lag (0, 0) first)."""
-    fy = np.fft.fftfreq(n)[:, None]
-    fx = np.fft.rfftfreq(n)[None, :]
-    lags = [(0, 0)] + [
-        (r, c)
-        for r in range(-max_shift[0], max_shift[0] + 1)
-        for c in range(-max_shift[1], max_shift[1] + 1)
-        if (r, c) != (0, 0)
-    ]
-    ramps = np.stack([np.exp(-2j * np.pi * (fy * r + fx * c)) for r, c in lags])
-    ramps.setflags(write=False)
-    return ramps
-
-
 def _interleave(spec: NDArray[np.complexfloating]) -> NDArray[np.float32]:
     """A complex array as float32 interleaved (real, imag): (..., N, M) -> (..., 2 N M)."""
     spec = np.ascontiguousarray(spec, dtype=np.complex64)
     return spec.view(np.float32).reshape(*spec.shape[:-2], -1)
 
 
-def _query_matrix(key: NDArray[np.complexfloating], max_shift: tuple[int, int]) -> NDArray[np.float32]:
-    """(L, D) float32: conj(key) times every lag ramp, interleaved."""
-    n = key.shape[0]
-    return _interleave(np.conj(key)[None] * _lag_ramps(n, max_shift))
+def _zero_lag_query(key: NDArray[np.complexfloating]) -> NDArray[np.float32]:
+    """(D,) float32: conj(key) interleaved, the query vector of the zero-lag similarities."""
+    return _interleave(np.conj(key))
 
 
-def _search(matrix: NDArray[np.float32], queries: NDArray[np.float32], scale: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``scale * max over lags of matrix @ queries.T``, shape (H,).
+def _search(
+    matrix: NDArray[np.float32],
+    key: NDArray[np.complexfloating],
+    max_shift: tuple[int, int],
+    scale: NDArray[np.float64],
+) -> NDArray[np.float64]:
+    """``scale * max over lags of <shift_lag(R), P_h>`` for every row h of ``matrix``, shape (H,).
 
-    Zero lag (row 0 of ``queries``) for every row: one matrix-vector product, bound by memory
-    bandwidth; the other lags only for the :data:`SHIFT_SEARCH_TOP` best rows (the search only
-    raises a similarity, so no other row can overtake them; computing all lags for all rows
-    would make the ranking compute-bound, L times the arithmetic).
+    Zero lag for every row: one matrix-vector product, bound by memory bandwidth. The other lags
+    only for the :data:`SHIFT_SEARCH_TOP` best rows (the search only raises a similarity, so no
+    other row can overtake them): for each, the similarities at *every* circular lag are one
+    inverse FFT of its row times the key (row h is ``w FP_h conj(FM)``; the interleaved dot
+    product with a query vector q is ``Re sum row conj(q)``, with q = conj(FK) e^(-2 pi i k.d/N)
+    for lag d, so ``<shift_d(R), P_h> = Re sum_half w FP_h conj(FM) FK e^(2 pi i k.d/N)``, which
+    is ``irfft2(FP_h conj(FM) FK)`` at d: the weights w are irfft2's own), and the maximum is
+    taken over the ``max_shift`` window. The cost hardly depends on the window.
     """
-    c = (matrix @ queries[0]).astype(np.float64) * scale
-    if len(queries) > 1 and c.size:
+    c = (matrix @ _zero_lag_query(key)).astype(np.float64) * scale
+    if max_shift != (0, 0) and c.size:
+        n = key.shape[0]
         k = min(SHIFT_SEARCH_TOP, c.size)
         top = np.argpartition(-c, k - 1)[:k] if k < c.size else np.arange(c.size)
-        c[top] = (matrix[top] @ queries.T).max(axis=1).astype(np.float64) * scale[top]
+        rows = np.ascontiguousarray(matrix[top]).view(np.complex64).reshape(len(top), n, n // 2 + 1)
+        prod = rows * (key / _half_weights(n)).astype(np.complex64)[None]
+        lag = np.fft.irfft2(prod, s=(n, n), axes=(-2, -1))  # lag[r % n, c % n] is lag (r, c)
+        rr = np.arange(-max_shift[0], max_shift[0] + 1) % n
+        cc = np.arange(-max_shift[1], max_shift[1] + 1) % n
+        best = lag[:, rr][:, :, cc].reshape(len(top), -1).max(axis=1)
+        c[top] = np.maximum(best.astype(np.float64) * scale[top], c[top])
     return c
 
+
+@lru_cache(maxsize=8)
+def _half_weights(n: int) -> NDArray[np.float64]:
+    """Parseval weights of the half spectrum (N, N // 2 + 1), as :class:`HolographicMemory` keeps."""
+    w = np.full((n, n // 2 + 1), 2.0 / (n * n))
+    w[:, 0] /= 2.0
+    if n % 2 == 0:
+        w[:, n // 2] /= 2.0
+    w.setflags(write=False)
+    return w
 
 
 def _config_state(mem: HolographicMemory | BankedMemory) -> dict[str, Any]:
@@ -416,7 +426,7 @@ class HolographicMemory:
         energy = self.recall_energy(fk)
         if self._count == 0 or energy <= 1e-12:
             return np.zeros(self._count, dtype=np.float64)
-        c = _search(self.ranking_matrix, _query_matrix(fk, self.max_shift), np.ones(self._count))
+        c = _search(self.ranking_matrix, fk, self.max_shift, np.ones(self._count))
         return c / energy
 
     def error_variances(
@@ -571,7 +581,7 @@ class BankedMemory:
         power = (np.abs(key) ** 2).ravel().astype(np.float32)
         energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
         scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
-        c = _search(matrix, _query_matrix(key, self.max_shift), scale[self._row_bank])
+        c = _search(matrix, key, self.max_shift, scale[self._row_bank])
         viewframes = np.concatenate([b.viewframes for b in self.banks])
         return _ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
 

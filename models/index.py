@@ -8,7 +8,7 @@ hypothesis carries them). So the viewframes and the camera images of a mission a
 preprocessed alike, and the memory always has the scenario's size, bank size, key method and
 shift search::
 
-    image (H, W[, 3]) --preprocess(size, edge, blur_sigma)--> pattern (N, N)
+    image (H, W[, 3]) --preprocess(size, edge, blur_sigma, whiten)--> pattern (N, N)
     pattern --K-GEN(key)--> key;  M_b := M_b + K * P   (banks of bank_size viewframes)
     camera image --same preprocessing--> ranking of every stored viewframe by error variance
 
@@ -91,7 +91,7 @@ class ViewframeIndex:
         """The memory pattern of an image (viewframe or camera frame): (N, N) float32, zero mean,
         unit energy (:func:`models.preprocess.preprocess` with this index's settings)."""
         s = self.settings
-        return preprocess(image, size=s.size, edge=s.edge, blur_sigma=s.blur_sigma)
+        return preprocess(image, size=s.size, edge=s.edge, blur_sigma=s.blur_sigma, whiten=s.whiten)
 
     def add(self, images: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Preprocess and store viewframe images under their viewframe indices."""

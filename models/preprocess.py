@@ -115,7 +115,7 @@ def preprocess(
     size: int = _DEFAULTS.size,
     edge: str = _DEFAULTS.edge,
     blur_sigma: float = _DEFAULTS.blur_sigma,
-    whiten: bool = True,
+    whiten: bool = _DEFAULTS.whiten,
 ) -> NDArray[np.float32]:
     """Turn an image into a memory pattern.
 

@@ -255,24 +255,33 @@ class SensorSpec(_Spec):
 class MemorySpec(_Spec):
     """Associative memory and preprocessing settings.
 
-    ``size`` is the side N of the memory patterns; ``edge`` and ``blur_sigma`` (memory pixels) the
-    edge operator and gaussian blur of :func:`models.preprocess.preprocess`; ``bank_size``
-    viewframes share one holographic memory (a *bank*: consecutive route views are alike, so their
-    crosstalk is structured and a bank holds few of them); ``shard_size`` viewframes go to one
-    associative indexer agent (a *shard*), which holds them in as many banks as needed;
-    ``max_shift`` is the (rows, cols) search in memory pixels that absorbs pose jitter (16 columns
-    at N=128 is about 7 degrees of heading at a 60 degree horizontal field of view); ``key`` the
-    K-GEN method of :mod:`models.memory_keys`. Example::
+    ``size`` is the side N of the memory patterns; ``edge``, ``blur_sigma`` (memory pixels) and
+    ``whiten`` the edge operator, gaussian blur and spectral whitening of
+    :func:`models.preprocess.preprocess`; ``bank_size`` viewframes share one holographic memory
+    (a *bank*: consecutive route views are alike, so their crosstalk is structured and a bank
+    holds few of them); ``shard_size`` viewframes go to one associative indexer agent (a
+    *shard*), which holds them in as many banks as needed; ``max_shift`` is the (rows, cols)
+    window in memory pixels over which the recall is matched against each prototype, absorbing
+    pose errors (at N=128 with the 160x120 camera of 45 degrees vertical field of view, one
+    degree of pitch moves the horizon about 2.7 rows and one degree of heading about 2.0
+    columns); ``key`` the K-GEN method of :mod:`models.memory_keys`.
 
-        memory: {size: 128, blur_sigma: 1.0, bank_size: 2, shard_size: 512, max_shift: [2, 16]}
+    The defaults were chosen on the tuning split of the evaluation set (``bench/evalset``,
+    ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
+    per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
+    up to 2 degrees plus eye-height and terrain differences; +-2 lost 8 points), columns +-16
+    (about 8 degrees of heading). Example::
+
+        memory: {size: 128, blur_sigma: 1.0, bank_size: 1, shard_size: 512, max_shift: [8, 16]}
     """
 
     size: int = 128
-    edge: Literal["canny", "sobel"] = "sobel"
+    edge: Literal["sobel", "scharr", "laplacian", "canny", "none"] = "sobel"
     blur_sigma: float = Field(default=1.0, gt=0)
-    bank_size: int = Field(default=2, ge=1)
+    whiten: bool = True
+    bank_size: int = Field(default=1, ge=1)
     shard_size: int = Field(default=512, ge=1)
-    max_shift: tuple[int, int] = (2, 16)
+    max_shift: tuple[int, int] = (8, 16)
     key: Literal["phase", "quantized"] = "phase"
 
     @field_validator("max_shift")

@@ -168,7 +168,7 @@ def test_raycaster_pitch_moves_the_horizon_as_a_pinhole_would():
 @pytest.mark.slow
 def test_raycaster_agrees_with_the_viewframe_renderer(tmp_path):
     """Two independent renderers, one pinhole convention: the horizon rows agree."""
-    from models.camera import CameraEmulator, Pose
+    from models.camera_emulator import CameraEmulator, Pose
     from models.environment import EnvironmentModel
     from models.scenario import CameraSpec
     from models.terrain import Terrain

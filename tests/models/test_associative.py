@@ -95,7 +95,7 @@ def test_every_stored_pattern_is_recalled_from_its_own_key(key_method: str) -> N
         assert r.reliability > 3.0
 
 
-@pytest.mark.parametrize("max_shift", [(0, 0), (1, 2)])
+@pytest.mark.parametrize("max_shift", [(0, 0), (1, 2), (4, 6)])
 def test_error_variance_is_the_variance_of_the_error_matrix(max_shift: tuple[int, int]) -> None:
     # v_h = min over searched shifts d of var(roll(R / ||R||, d) - P_h), computed directly
     pats = _random_patterns(16, 5, seed=4)
@@ -263,3 +263,19 @@ def test_shift_search_on_the_best_candidates_matches_the_full_search(monkeypatch
         # the search only lowers variances: the refined ones agree, the others are upper bounds
         fv = dict(zip(f.viewframes.tolist(), f.variances)); gv = dict(zip(g.viewframes.tolist(), g.variances))  # noqa: E702
         assert all(fv[k] >= gv[k] * (1 - 1e-5) for k in fv)
+
+
+def test_wide_vertical_search_recovers_a_pitched_query() -> None:
+    # a camera pitched by 2 degrees sees the scene about 6 memory rows off: a +-2 row search
+    # leaves it far from a match, a +-8 row one (the default window) matches it exactly
+    rng = np.random.default_rng(12)
+    pats = [preprocess(scene(rng), size=64, blur_sigma=1.0) for _ in range(12)]
+    narrow, wide = BankedMemory(64, bank_size=1, max_shift=(2, 4)), BankedMemory(64, bank_size=1, max_shift=(8, 4))
+    for m in (narrow, wide):
+        m.write_many(pats, range(12))
+    for i in (1, 5, 9):
+        q = np.roll(pats[i], 6, axis=0)
+        w = wide.rank(q)
+        assert w.best == i and w.variances[0] == pytest.approx(0.0, abs=1e-6)
+        n = narrow.rank(q)
+        assert dict(zip(n.viewframes.tolist(), n.variances))[i] > 10 * w.variances[0] + 1e-5

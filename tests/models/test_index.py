@@ -12,7 +12,8 @@ from models.preprocess import preprocess
 from models.scenario import MemorySpec
 from models.synthetic import scene
 
-SETTINGS = [{}, {"size": 64, "edge": "canny", "blur_sigma": 3.0, "bank_size": 3, "max_shift": (1, 4), "key": "quantized"}]
+SETTINGS = [{}, {"size": 64, "edge": "canny", "blur_sigma": 3.0, "whiten": False, "bank_size": 3, "max_shift": (1, 4),
+             "key": "quantized"}]
 
 
 @pytest.mark.parametrize("settings", SETTINGS)
@@ -30,7 +31,7 @@ def test_the_index_reads_every_memory_setting(settings) -> None:
 def test_patterns_are_preprocess_with_the_settings(settings) -> None:
     spec = MemorySpec(**settings)
     image = np.random.default_rng(3).integers(0, 256, (120, 160, 3), dtype=np.uint8)
-    expected = preprocess(image, size=spec.size, edge=spec.edge, blur_sigma=spec.blur_sigma)
+    expected = preprocess(image, size=spec.size, edge=spec.edge, blur_sigma=spec.blur_sigma, whiten=spec.whiten)
     got = ViewframeIndex(spec).pattern(image)
     # two identical preprocess calls may differ in the last bits (~1e-9): compare to 1e-6, far
     # below what a different size, edge method or blur changes (unit-energy patterns)
@@ -70,3 +71,10 @@ def test_malformed_settings_name_the_field(settings, field) -> None:
 def test_missing_settings_take_the_schema_defaults() -> None:
     assert memory_settings({"size": 64}) == MemorySpec(size=64)
     assert memory_settings(None) == MemorySpec()
+
+
+def test_whiten_is_a_setting_that_changes_the_pattern() -> None:
+    image = np.random.default_rng(4).integers(0, 256, (120, 160, 3), dtype=np.uint8)
+    on, off = ViewframeIndex(MemorySpec()).pattern(image), ViewframeIndex(MemorySpec(whiten=False)).pattern(image)
+    np.testing.assert_allclose(on, preprocess(image), rtol=0, atol=1e-6)  # preprocess' defaults are the schema's
+    assert np.abs(on - off).max() > 1e-3

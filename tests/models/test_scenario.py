@@ -83,7 +83,7 @@ MALFORMED = [
     ("sensor.simulate.advance", 1.0, "sensor.simulate.advance: must be < 1"),
     ("sensor.simulate.noise", -1, "sensor.simulate.noise: must be >= 0"),
     ("memory", {"size": 100}, "memory.size: must be a power of two in 16..1024"),
-    ("memory", {"edge": "laplace"}, "memory.edge: must be one of 'canny' or 'sobel'"),
+    ("memory", {"edge": "laplace"}, "memory.edge: must be one of 'sobel', 'scharr', 'laplacian', 'canny' or 'none'"),
     ("scheduler", {"accept": 1.5}, "scheduler.accept: must be <= 1"),
     ("scheduler", {"strategy": "random"}, "scheduler.strategy: must be one of 'associative' or 'prior'"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
