@@ -46,6 +46,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from knowledge_sources.mission import run_mission  # noqa: E402  (before bench/ is on the path: bench/blackboard.py)
 from models.scenario import TrackingSpec, load_scenario  # noqa: E402
 from models.tracking import RouteFilter, smooth  # noqa: E402
 
@@ -163,8 +164,6 @@ def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
 
 def whole_runs(path: Path) -> dict:
     """frames/s of one drive through the blackboard with and without the tracker (same run of this script)."""
-    from knowledge_sources.mission import run_mission
-
     out = {}
     for label, track in (("tracking", True), ("no_track", False)):
         res = run_mission(path, track=track)
