@@ -36,6 +36,7 @@ from blackboard.errors import AgentError, BlackboardError, CodecError, Transport
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Event, EventKind, KnowledgeSource
+from blackboard.trust import TAG_BYTES, attachment_bytes, proof, verify
 from blackboard.zenoh_board import ZenohBoard
 
 __all__ = ["ACTIVITY_CODES", "ACTIVITY_ROW", "AgentRunner"]
@@ -82,8 +83,10 @@ class AgentRunner:
         connect: list[str],
         zenoh_options: ZenohOptions | None = None,
         max_message_bytes: int = DEFAULT_MAX_BYTES,
+        secret: str | None = None,
     ) -> None:
         self.source = source
+        self._secret = secret  # proves at join that this agent is the one the run expects
         self.name = source.name
         self.keys = RunKeys(run_id)
         self._config = zenoh_config(zenoh_options, mode="client", connect=connect)
@@ -99,6 +102,7 @@ class AgentRunner:
         self._failures = 0
         self._activity: list[tuple | dict] = []
         self._probe: int | None = None
+        self._status_seq = 0
         self._dead: str | None = None
         self._session: zenoh.Session | None = None
         self._thread: threading.Thread | None = None
@@ -142,23 +146,30 @@ class AgentRunner:
         self.board = ZenohBoard(session, self.keys, self.name, produces=self.source.produces,
                                 max_message_bytes=self._max)
         try:
-            self.board._request({
+            reply = self.board._request({
                 "op": "join",
                 "consumes": list(self.source.consumes),
                 "produces": list(self.source.produces),
                 "exclusive": list(self.source.exclusive),
                 "pid": os.getpid(),
-                "host": socket.gethostname(),
+                "host": socket.gethostname()[:200],
+                "proof": None if self._secret is None else proof(self._secret, "join", self.keys.run_id, self.name),
             })
+            self.board.agent_key = bytes.fromhex(str(reply["agent_key"]))
+            self.board.run_key = bytes.fromhex(str(reply["run_key"]))
         except BlackboardError:
             self._close_session()
             raise
+        except (KeyError, ValueError):
+            self._close_session()
+            raise TransportError(f"agent {self.name!r}: the node's join reply holds no keys (not a mapinterp node "
+                                 "of this version, or a forged reply)") from None
         self._entities.append(session.liveliness().declare_token(self.keys.liveliness(self.name)))
         try:
             self.source.setup(self.board)
         except Exception as err:  # an agent's own code: report, do not crash the runtime
             reason = f"setup failed: {type(err).__name__}: {err}"
-            self._report_dead(reason)
+            self._report_dead(reason, input_error=self._input_error(err))
             self._close_session()
             raise AgentError(self.name, reason) from err
         self._thread = threading.Thread(target=self._work, name=f"agent-{self.name}", daemon=True)
@@ -177,8 +188,17 @@ class AgentRunner:
                                          f"{wait_s:g} s (nothing listens there, or not reachable from here)") from None
             time.sleep(_RETRY_S)
 
+    def _from_node(self, sample: zenoh.Sample) -> bool:
+        """True when ``sample`` carries the run key's tag (the node sent it, or a joined agent)."""
+        run_key = self.board.run_key if self.board is not None else None
+        tag = attachment_bytes(sample)
+        return verify(run_key, sample.payload.to_bytes(), None if tag is None else tag[-TAG_BYTES:])
+
     def _on_run_end(self, sample: zenoh.Sample) -> None:
-        """Zenoh callback: only sets an event."""
+        """Zenoh callback: only sets an event (once the announcement proved to come from the node)."""
+        if not self._from_node(sample):
+            logger.warning("agent %s: ignored a run end not signed by the node", self.name)
+            return
         self._end_announced = True
         self.ended.set()
 
@@ -190,8 +210,10 @@ class AgentRunner:
             self.node_lost = True
             self.ended.set()
 
-    def stop(self, timeout_s: float = 10.0) -> None:
-        """Finish the current activation, run ``shutdown``, leave, close the session."""
+    def stop(self, timeout_s: float = 10.0, *, leave: bool = True) -> None:
+        """Finish the current activation (waiting up to ``timeout_s``), run ``shutdown``, leave
+        (unless not ``leave``: an interrupted run does not wait for the node's answer), close the
+        session."""
         if self._thread is not None:
             self._inbox.put(("stop", None))
             self._thread.join(timeout_s)
@@ -202,7 +224,8 @@ class AgentRunner:
             except Exception:  # the agent's own code
                 logger.exception("agent %s: shutdown raised", self.name)
             self._flush(state="stopped")
-            self._leave()
+            if leave:
+                self._leave()
         self._close_session()
         self.done.set()
 
@@ -212,7 +235,9 @@ class AgentRunner:
         if self._session is None or self.node_lost:
             return
         try:
-            for _ in self._session.get(self.keys.request, payload=encode({"op": "leave", "agent": self.name}),
+            payload = encode({"op": "leave", "agent": self.name})
+            attachment = self.board._tags(payload) if self.board is not None else None
+            for _ in self._session.get(self.keys.request, payload=payload, attachment=attachment,
                                        timeout=_LEAVE_TIMEOUT_S, congestion_control=zenoh.CongestionControl.BLOCK):
                 pass
         except (zenoh.ZError, CodecError) as err:
@@ -270,7 +295,10 @@ class AgentRunner:
         key = str(sample.key_expr)
         split = self.keys.split(key)
         level = split[0] if split else "?"
-        self._recv[level] = self._recv.get(level, 0) + 1
+        self._recv[level] = self._recv.get(level, 0) + 1  # counted as the node counts it: every sample
+        if not self._from_node(sample):  # checked before decoding: a forged or outsized post costs no memory
+            logger.warning("agent %s: ignored a message without the run's tag on %s", self.name, key)
+            return
         try:
             message = decode(sample.payload.to_bytes(), max_bytes=self._max, key=key)
             if not isinstance(message, dict) or message.get("op") not in _OPS:
@@ -295,6 +323,9 @@ class AgentRunner:
         self._enqueue(Event(kind, hyp))
 
     def _on_control(self, sample: zenoh.Sample) -> None:
+        if not self._from_node(sample):
+            logger.warning("agent %s: ignored a control message not signed by the node", self.name)
+            return
         try:
             message = decode(sample.payload.to_bytes(), max_bytes=self._max)
             if message.get("op") != "timeout":
@@ -308,6 +339,9 @@ class AgentRunner:
                                       Event(EventKind.TIMEOUT, hyp, str(message.get("reason", "")))))
 
     def _on_probe(self, sample: zenoh.Sample) -> None:
+        if not self._from_node(sample):
+            logger.warning("agent %s: ignored a probe not signed by the node", self.name)
+            return
         try:
             self._probe = int(decode(sample.payload.to_bytes())["probe"])
         except (CodecError, KeyError, TypeError, ValueError):
@@ -365,23 +399,39 @@ class AgentRunner:
                                "version": hyp.version, "event": event.kind.value, "message": message,
                                "traceback": traceback.format_exc(limit=8),
                                "duration_s": None if started is None else time.perf_counter() - started})
-        if self._failures >= self.source.max_failures:
+        input_error = self._input_error(err)
+        if input_error is not None:  # a user's input (file, field): no retry will help, the run must stop
+            self._report_dead(message, input_error=input_error)
+        elif self._failures >= self.source.max_failures:
             self._report_dead(f"{self._failures} failures, the last: {message}")
 
-    def _report_dead(self, reason: str) -> None:
+    def _input_error(self, err: Exception) -> str | None:
+        try:
+            message = self.source.input_error(err)
+        except Exception:  # the agent's own code
+            logger.exception("agent %s: input_error() raised", self.name)
+            return None
+        return None if message is None else str(message)[:2000]
+
+    def _report_dead(self, reason: str, *, input_error: str | None = None) -> None:
         self._dead = reason
         self._agenda.clear()
-        self._flush(state="dead", reason=reason)
+        self._flush(state="dead", reason=reason, input_error=input_error)
 
-    def _flush(self, *, state: str, reason: str | None = None) -> None:
+    def _flush(self, *, state: str, reason: str | None = None, input_error: str | None = None) -> None:
         """Send the activity records and the counters to the node (status key)."""
         if self._session is None or self._session.is_closed() or self.board is None:
             return
         message = {"agent": self.name, "state": state, "recv": self._recv, "sent": self.board.sent,
                    "timeouts": self._timeouts, "probe": self._probe, "activity": self._activity, "reason": reason}
+        if input_error is not None:
+            message["input_error"] = input_error
+        self._status_seq += 1
+        message["seq"] = self._status_seq  # the node takes no status twice (no replay)
         try:  # every part is ours (str keys, flat rows): nothing for the encoder's walk to find
-            self._session.put(self.keys.status, encode(message, check=()),
-                              congestion_control=zenoh.CongestionControl.BLOCK)
+            data = encode(message, check=())
+            self._session.put(self.keys.status, data, congestion_control=zenoh.CongestionControl.BLOCK,
+                              attachment=self.board._tags(data))
         except (zenoh.ZError, CodecError) as err:
             logger.error("agent %s: cannot report status: %s", self.name, err)
         self._activity = []

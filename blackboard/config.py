@@ -33,6 +33,8 @@ __all__ = [
     "zenoh_options_from_args",
     "free_port",
     "loopback_endpoint",
+    "is_loopback",
+    "AUTH_USER",
 ]
 
 _ENDPOINT = re.compile(r"(tcp|tls|quic|udp)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9_.-]+):\d{1,5}")
@@ -64,6 +66,9 @@ class ZenohOptions:
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     config_file: Path | None = None
+    #: the run's secret as zenoh ``usrpwd`` password (user :data:`AUTH_USER`): sessions without
+    #: it cannot connect; None: no authentication (the loopback default)
+    password: str | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for what, endpoints in (("listen", self.listen), ("connect", self.connect)):
@@ -103,7 +108,16 @@ def zenoh_config(
             config = zenoh.Config.from_file(str(options.config_file))
         except (OSError, zenoh.ZError, ValueError) as err:
             raise TransportError(f"{options.config_file}: cannot load zenoh config: {err}") from None
+        # the user's file decides what it says; what it does not say keeps our defaults, which
+        # never widen the listen address (zenoh's own default: every interface) nor scout
+        text = _read_text(options.config_file)
+        if "multicast" not in text:
+            config.insert_json5("scouting/multicast/enabled", "false")
+        if "gossip" not in text:
+            config.insert_json5("scouting/gossip/enabled", "false")
+        user_listens = re.search(r"\blisten\b", text) is not None
     else:
+        user_listens = False
         config = zenoh.Config()
         config.insert_json5("scouting/multicast/enabled", "false")
         # A put with CongestionControl.BLOCK that waits longer than this CLOSES the transport (zenoh
@@ -113,13 +127,53 @@ def zenoh_config(
     config.insert_json5("mode", json.dumps(mode))
     listen_eps = [*options.listen, *(listen or [])] if mode != "client" else []
     connect_eps = [*options.connect, *(connect or [])]
-    if mode != "client" and not listen_eps and options.config_file is None:
+    if mode != "client" and not listen_eps and not user_listens:
         listen_eps = ["tcp/127.0.0.1:0"]
-    if options.config_file is None or listen_eps or mode == "client":
+    if not user_listens or listen_eps or mode == "client":
         config.insert_json5("listen/endpoints", json.dumps(listen_eps))
     if options.config_file is None or connect_eps:
         config.insert_json5("connect/endpoints", json.dumps(connect_eps))
+    if options.password is not None:
+        auth: dict[str, str] = {"user": AUTH_USER, "password": options.password}
+        if mode != "client":  # who may connect here: this run's secret only
+            auth["dictionary_file"] = str(_dictionary_file(options.password))
+        config.insert_json5("transport/auth/usrpwd", json.dumps(auth))
     return config
+
+
+#: the zenoh ``usrpwd`` user name of every session of a run with authentication
+AUTH_USER = "mapinterp"
+_DICTIONARIES: dict[str, Path] = {}
+
+
+def _dictionary_file(password: str) -> Path:
+    """A private (0600) file of the one credential a router accepts, made once per password,
+    removed at exit."""
+    if password not in _DICTIONARIES:
+        import atexit
+        import os
+        import tempfile
+
+        fd, name = tempfile.mkstemp(prefix="mapinterp-usrpwd-", suffix=".txt")
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{AUTH_USER}:{password}\n")
+        _DICTIONARIES[password] = Path(name)
+        atexit.register(Path(name).unlink, missing_ok=True)
+    return _DICTIONARIES[password]
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8", errors="replace")
+    except OSError as err:
+        raise TransportError(f"{path}: cannot load zenoh config: {err.strerror or err}") from None
+
+
+def is_loopback(endpoint: str) -> bool:
+    """True for an endpoint on this machine only (``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``,
+    ``tcp/localhost:7447``)."""
+    host = endpoint.split("/", 1)[-1].rsplit(":", 1)[0].strip("[]")
+    return host == "localhost" or host == "::1" or host.startswith("127.")
 
 
 def open_session(config: zenoh.Config) -> zenoh.Session:

@@ -8,6 +8,7 @@ print one clear sentence instead of a traceback::
     ├── CodecError           a message could not be encoded/decoded   (.key, .message)
     ├── DeclarationError     an agent posted outside its declared levels (.agent, .level, .message)
     ├── AgentError           an agent died, failed or timed out       (.agent, .message)
+    │   └── AgentInputError  an agent met a user's input error        (.agent; str: that error's line)
     ├── TransportError       a zenoh session could not be opened or used
     └── TraceError           a trace file cannot be read              (.path, .message)
 
@@ -26,6 +27,7 @@ __all__ = [
     "DeclarationError",
     "AgentError",
     "TransportError",
+    "AgentInputError",
     "TraceError",
 ]
 
@@ -60,6 +62,17 @@ class AgentError(BlackboardError):
         self.agent = agent
         self.message = message
         super().__init__(f"agent {agent!r}: {message}")
+
+
+class AgentInputError(AgentError):
+    """An agent met a user's input error during the run (a file changed under it); ``str(err)``
+    is that error's own one-line message (file and field), so the run fails as the pre-run check
+    would have."""
+
+    def __init__(self, agent: str, message: str) -> None:
+        self.agent = agent
+        self.message = message
+        Exception.__init__(self, message)
 
 
 class TransportError(BlackboardError):

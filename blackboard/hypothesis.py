@@ -14,6 +14,7 @@ Example::
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import re
 import time
@@ -49,6 +50,11 @@ def _check_known_name(value: object, what: str) -> None:
         _KNOWN_NAMES.clear()
     _KNOWN_NAMES.add(value)  # type: ignore[arg-type]
 
+
+#: bounds on a hypothesis' numbers (a record from the network may hold anything: 1e300, 2**70)
+MAX_DEADLINE_S = 86_400.0
+MAX_VERSION = 2**62
+MAX_LINKS = 1024
 
 _PROCESS_TOKEN = os.urandom(6).hex()
 _counter = itertools.count(1)
@@ -195,10 +201,17 @@ def _check_fields(fields: dict[str, Any]) -> None:
     body = fields["body"]
     if not isinstance(body, dict):
         raise ValueError(f"body must be a dict, got {type(body).__name__}")
+    if version > MAX_VERSION:
+        raise ValueError(f"version must be <= {MAX_VERSION}, got {version!r}")
     deadline_s = fields["deadline_s"]
-    if deadline_s is not None and not float(deadline_s) > 0:
-        raise ValueError(f"deadline_s must be > 0, got {deadline_s!r}")
+    if deadline_s is not None and (isinstance(deadline_s, bool) or not isinstance(deadline_s, (int, float))
+                                   or not 0 < deadline_s <= MAX_DEADLINE_S):
+        raise ValueError(f"deadline_s must be a number of seconds in (0, {MAX_DEADLINE_S:g}], got {deadline_s!r}")
+    if not math.isfinite(fields["timestamp"]):
+        raise ValueError(f"timestamp must be finite, got {fields['timestamp']!r}")
     links = fields["links"]
+    if isinstance(links, (str, bytes, dict)) or len(links) > MAX_LINKS:
+        raise ValueError(f"links must be a list of at most {MAX_LINKS} ids")
     links = links if type(links) is tuple else tuple(links)
     for link in links:
         validate_name(link, "link")

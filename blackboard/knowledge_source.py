@@ -96,6 +96,12 @@ class KnowledgeSource:
     def shutdown(self) -> None:
         """Release resources; called once, at the end of the run."""
 
+    def input_error(self, err: Exception) -> str | None:
+        """The one-line message when ``err`` (raised by :meth:`setup`, :meth:`act`) is a user's
+        input error that no retry can mend (a malformed file): the agent then dies of it at
+        once, and the run stops with that message. None (the default): an ordinary failure."""
+        return None
+
 
 @runtime_checkable
 class Board(Protocol):

@@ -33,6 +33,8 @@ class AgentState:
     status: dict | None = None
     timeouts_sent: int = 0
     state: str = "ok"  # ok | stopped | dead: reason
+    #: the one-line message of a user's input error the agent met (it died of it), else None
+    input_error: str | None = None
 
     @property
     def live(self) -> bool:

@@ -21,7 +21,9 @@ while it is up; :meth:`BlackboardNode.wait_joined` waits for named agents to joi
 
 from __future__ import annotations
 
+import hmac
 import logging
+import os
 import queue
 import threading
 import time
@@ -35,7 +37,7 @@ from blackboard.agent import NODE_SENDER
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
 from blackboard.deadlines import Deadlines
-from blackboard.errors import CodecError
+from blackboard.errors import BlackboardError, CodecError, TransportError
 from blackboard.hypothesis import NAME_PATTERN, Hypothesis
 from blackboard.keys import RunKeys, read_parameters
 from blackboard.knowledge_source import Event, EventKind
@@ -44,6 +46,21 @@ from blackboard.quiescence import Quiescence, StepKind
 from blackboard.run_trace import RunTrace
 from blackboard.store import Barrier, Store
 from blackboard.trace import TraceKind
+from blackboard.trust import (
+    PRIVATE_LEVELS,
+    RUN_BUDGET_BYTES,
+    SEALED,
+    TAG_BYTES,
+    attachment_bytes,
+    check_request,
+    check_status,
+    proof,
+    read_message,
+    seal,
+    sign,
+    unseal,
+    verify,
+)
 
 __all__ = ["NODE_SENDER", "AgentState", "BlackboardNode"]
 
@@ -52,6 +69,10 @@ logger = logging.getLogger(__name__)
 _MAX_UNREPORTED = 100_000
 #: on close, how long the node waits for the agents still connected to leave after the run end
 END_GRACE_S = 5.0
+#: at start, how long the node waits for its links to the network it connects to, then how long
+#: it asks that network for another node of its run id
+JOIN_NETWORK_S = 3.0
+RUN_ID_PROBE_S = 1.0
 
 
 class BlackboardNode:
@@ -77,9 +98,17 @@ class BlackboardNode:
         self.endpoint = options.listen[0] if options.listen else loopback_endpoint()
         extra_listen = [] if options.listen else [self.endpoint]
         self._router_config = zenoh_config(options, mode="router", listen=extra_listen)
-        self._config = zenoh_config(ZenohOptions(config_file=options.config_file), mode="client",
-                                    connect=[self.endpoint])
+        self._joins_network = bool(options.connect) or options.config_file is not None
+        self._config = zenoh_config(ZenohOptions(config_file=options.config_file, password=options.password),
+                                    mode="client", connect=[self.endpoint])
         self._max = max_message_bytes
+        # the trust model (blackboard.trust)
+        self._run_key = os.urandom(32)  # shared with joined agents: tags the node's own messages
+        self._expected: dict[str, str] = {}  # agent name -> its join secret
+        self._agent_keys: dict[str, bytes] = {}  # joined agent -> its own key
+        self._status_seq: dict[str, int] = {}
+        self._stored_bytes = 0
+        self.run_budget_bytes = RUN_BUDGET_BYTES
         self._trace = RunTrace(trace_path)
         self.stats = self._trace.stats
         self._store = Store()
@@ -108,14 +137,21 @@ class BlackboardNode:
         self._router = open_session(self._router_config)
         try:
             self._session = session = open_session(self._config)
-        except Exception:
-            self._router.close()
+            self._refuse_run_id_in_use()
+        except BaseException:
+            for opened in (self._session, self._router):
+                if opened is not None and not opened.is_closed():
+                    opened.close()
+            self._session = None
             raise
         put = self._inbox.put
         self._entities = [
             session.declare_subscriber(self.keys.all_hypotheses, lambda s: put(("hyp", s)),
                                        allowed_origin=zenoh.Locality.REMOTE),
             session.declare_subscriber(self.keys.status, lambda s: put(("status", s))),
+            # only this node speaks on these keys: whatever else arrives there is a forgery
+            *(session.declare_subscriber(key, lambda s: put(("forged", s)), allowed_origin=zenoh.Locality.REMOTE)
+              for key in (self.keys.probe, self.keys.run_end, self.keys.inbox("*"))),
             session.declare_queryable(self.keys.request, lambda q: put(("request", q))),
             session.declare_queryable(self.keys.all_hypotheses, lambda q: put(("read", q))),
             session.liveliness().declare_subscriber(self.keys.liveliness_all, lambda s: put(("live", s)),
@@ -126,23 +162,52 @@ class BlackboardNode:
         self._thread.start()
         self._entities.append(session.liveliness().declare_token(self.keys.node_token))
 
-    def close(self) -> None:
-        """Announce the end of the run, give the agents still connected up to :data:`END_GRACE_S`
-        to leave, stop the worker, close the sessions, end and close the trace."""
+    def _refuse_run_id_in_use(self) -> None:
+        """Raise :class:`BlackboardError` when a node of this run id is already up on the zenoh
+        network this one joins, before this node declares anything (so the other run is never
+        touched). Only reachable when this router connects somewhere (``connect`` endpoints or
+        a user config): first wait up to :data:`JOIN_NETWORK_S` for those links to come up."""
+        assert self._router is not None and self._session is not None
+        if not self._joins_network:
+            return
+        deadline = time.monotonic() + JOIN_NETWORK_S
+        info = self._router.info
+        while not (list(info.routers_zid()) or list(info.peers_zid())) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        try:
+            replies = list(self._session.liveliness().get(self.keys.node_token, timeout=RUN_ID_PROBE_S))
+        except zenoh.ZError as err:
+            raise TransportError(f"cannot check whether run id {self.keys.run_id!r} is in use: {err}") from None
+        if any(reply.ok is not None for reply in replies):
+            raise BlackboardError(f"run id {self.keys.run_id!r} is already in use on this zenoh network (its node "
+                                  "is up): choose another --run-id; the other run was not touched")
+
+    def expect(self, name: str, secret: str) -> None:
+        """Let agent ``name`` join, proving it knows ``secret`` (see :mod:`blackboard.trust`)."""
+        with self._members.lock:
+            self._expected[name] = secret
+
+    def close(self, *, grace_s: float = END_GRACE_S, reason: str | None = None) -> None:
+        """Announce the end of the run, give the agents still connected up to ``grace_s`` to
+        leave, stop the worker, close the sessions, end and close the trace (``reason``, e.g.
+        ``"interrupted by SIGINT"``, goes into its ``run_end`` record)."""
         if self._thread is not None:
             gone = threading.Event()
             self._inbox.put(("end", gone))
-            if not gone.wait(END_GRACE_S):
+            if not gone.wait(grace_s):
                 logger.warning("blackboard node: agents still connected at the end of the run: %s",
                                ", ".join(self._members.connected()))
             self._inbox.put(("stop", None))
-            self._thread.join(10.0)
+            self._thread.join(max(1.0, 2 * grace_s))
             self._thread = None
         for session in (self._session, self._router):
             if session is not None and not session.is_closed():
                 session.close()
         self._entities.clear()
-        self._trace.write(TraceKind.RUN_END, stats=dict(self.stats))
+        end: dict[str, Any] = {"stats": dict(self.stats)}
+        if reason is not None:
+            end["reason"] = reason
+        self._trace.write(TraceKind.RUN_END, **end)
         self._trace.close()
 
     def post_local(self, hyp: Hypothesis) -> None:
@@ -193,7 +258,8 @@ class BlackboardNode:
         handlers: dict[str, Callable[[Any], Any]] = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
                     "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
                     "await": self._quiescence.waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
-                    "await_join": lambda item: self._members.await_join(*item), "end": self._on_end}
+                    "await_join": lambda item: self._members.await_join(*item), "end": self._on_end,
+                    "forged": self._on_forged}
         bookkept = time.monotonic()
         while True:
             try:
@@ -210,14 +276,18 @@ class BlackboardNode:
             if kind != "tick" and not self._inbox.empty() and time.monotonic() - bookkept < 0.01:
                 continue  # in a burst, deadlines and quiescence are checked every 10 ms
             bookkept = time.monotonic()
-            for hyp_id, reason in self._deadlines.due():
-                self._timeout(hyp_id, reason)
-            if self._quiescence.waiters:
-                self._check_quiescence()
+            try:
+                for hyp_id, reason in self._deadlines.due():
+                    self._timeout(hyp_id, reason)
+                if self._quiescence.waiters:
+                    self._check_quiescence()
+            except Exception:  # never let the bookkeeping kill the node either
+                logger.exception("blackboard node: bookkeeping failed")
 
     def _publish(self, key: str, data: bytes) -> None:
         assert self._session is not None
-        self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK,
+                          attachment=sign(self._run_key, data))
 
     # -- posts ---------------------------------------------------------------------------------------
 
@@ -233,8 +303,14 @@ class BlackboardNode:
             sender = message.get("sender")
             if not isinstance(sender, str) or NAME_PATTERN.fullmatch(sender) is None:
                 raise CodecError(f"bad sender {sender!r}", key=key)
+            if not verify(self._agent_keys.get(sender), data, (attachment_bytes(sample) or b"")[:TAG_BYTES]):
+                raise CodecError(f"not signed by a joined agent {sender!r} (a forgery, or from outside the run)",
+                                 key=key)
             self._barrier.received_from(sender)
-            hyp = Hypothesis.from_record(message.get("hyp"), key=key)
+            record = message.get("hyp")
+            if isinstance(record, dict) and record.get("level") in PRIVATE_LEVELS:
+                record = {**record, "body": self._unseal(record.get("body"), key)}
+            hyp = Hypothesis.from_record(record, key=key)
         except CodecError as err:
             self._trace.reject(key, err.message, size=len(data))
             self._barrier.release()
@@ -245,23 +321,45 @@ class BlackboardNode:
             self._accept_post(hyp, data, key, sender)
         self._barrier.release()
 
+    def _unseal(self, body: Any, key: str) -> Any:
+        sealed = body.get(SEALED) if isinstance(body, dict) and len(body) == 1 else None
+        plain = unseal(self._run_key, sealed)
+        if plain is None:
+            raise CodecError("a private level's body must travel sealed with the run key", key=key)
+        return decode(plain, max_bytes=self._max, key=key)
+
+    def _on_forged(self, sample: zenoh.Sample) -> None:
+        """A sample on a key only the node publishes on (probe, run end, an agent's inbox): the
+        agents ignore it (no run-key tag); the trace records it."""
+        self._trace.reject(str(sample.key_expr), "forged node message: only the node speaks on this key "
+                                                 "(agents ignore it)", size=len(sample.payload))
+
     def _on_local_post(self, hyp: Hypothesis) -> None:
         key = self.keys.hypothesis(hyp.level, hyp.id)
-        data = encode({"op": "post", "hyp": hyp.to_record(), "sender": NODE_SENDER}, max_bytes=self._max)
+        record = hyp.to_record()
+        if hyp.level in PRIVATE_LEVELS:  # on the wire sealed: only the node reads it
+            record["body"] = {SEALED: seal(self._run_key, encode(hyp.body, max_bytes=self._max))}
+        data = encode({"op": "post", "hyp": record, "sender": NODE_SENDER}, max_bytes=self._max)
         self._quiescence.sample(hyp.level)
         self._publish(key, data)
-        self._accept_post(hyp, data, key, hyp.source)
+        self._accept_post(hyp, data, key, hyp.source, local=True)
 
-    def _accept_post(self, hyp: Hypothesis, data: bytes, key: str, sender: str) -> None:
+    def _accept_post(self, hyp: Hypothesis, data: bytes, key: str, sender: str, *, local: bool = False) -> None:
         problem = self._members.declaration_problem(hyp.source, hyp.level) if sender != NODE_SENDER else None
+        if problem is None and not local and hyp.source not in self.agents:
+            problem = f"agent {hyp.source!r} has not joined"
         if problem is None and hyp.id in self._store:
             problem = f"hypothesis id {hyp.id!r} already exists"
+        if problem is None and self._stored_bytes + len(data) > self.run_budget_bytes:
+            problem = (f"the run's memory budget of {self.run_budget_bytes} bytes is spent "
+                       f"({self._stored_bytes} stored, this post {len(data)})")
         if problem is None and hyp.source != sender and sender != NODE_SENDER:
             problem = f"sender {sender!r} posted as {hyp.source!r}"
         if problem is not None:
             self._trace.reject(key, problem, agent=hyp.source, level=hyp.level, id=hyp.id)
             return
         self._store.put(hyp, data)
+        self._stored_bytes += len(data)
         self.stats["post"] += 1
         self._trace.hypothesis(TraceKind.POST, hyp)
         self._notify(EventKind.POSTED, hyp)
@@ -292,18 +390,34 @@ class BlackboardNode:
     # -- agents: status, liveliness, the end ------------------------------------------------------------
 
     def _on_status(self, sample: zenoh.Sample) -> None:
+        data = sample.payload.to_bytes()
         try:
-            message = decode(sample.payload.to_bytes(), max_bytes=self._max, key=self.keys.status)
-            agent = self.agents.get(message["agent"])
-        except (CodecError, KeyError, TypeError) as err:
-            self._trace.reject(self.keys.status, f"malformed status: {err}")
+            message = decode(data, max_bytes=self._max, key=self.keys.status)
+        except CodecError as err:
+            self._trace.reject(self.keys.status, f"malformed status: {err.message}", size=len(data))
             return
-        if agent is None:
+        problem = check_status(message)
+        name = message.get("agent") if isinstance(message, dict) else None
+        agent = self.agents.get(name) if isinstance(name, str) else None
+        if problem is None and agent is None:
+            problem = f"agent {name!r} has not joined"
+        elif problem is None and agent is not None:
+            if not verify(self._agent_keys.get(agent.name), data, attachment_bytes(sample)):
+                problem = f"not signed by agent {name!r} (a forgery, or from outside the run)"
+            elif message.get("seq", 0) <= self._status_seq.get(agent.name, 0):
+                problem = f"status {message.get('seq')} of agent {name!r} seen already (a replay)"
+        if problem is not None or agent is None:
+            self._trace.reject(self.keys.status, f"status refused: {problem}",
+                               agent=name if isinstance(name, str) and NAME_PATTERN.fullmatch(name) else None)
             return
+        self._status_seq[agent.name] = message.get("seq", 0)
         self._trace.activity(agent.name, message.get("activity") or ())
         self._members.set_status(agent, message)
         state = message.get("state")
         if state == "dead" and agent.live:
+            error = message.get("input_error")
+            if isinstance(error, str) and error:
+                agent.input_error = error[:2000]
             self._agent_gone(agent, f"dead: {message.get('reason')}", TraceKind.AGENT_DEAD)
             self._members.check_presence()
         elif state == "stopped" and agent.live:
@@ -336,14 +450,22 @@ class BlackboardNode:
     # -- requests ----------------------------------------------------------------------------------
 
     def _on_request(self, query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        problem: str | None
         try:
-            request = decode(query.payload.to_bytes() if query.payload is not None else b"", max_bytes=self._max,
-                             key=self.keys.request)
-            op, agent, sent = request["op"], str(request["agent"]), int(request.get("sent", 0))
-        except (CodecError, KeyError, TypeError, ValueError) as err:
-            self._trace.reject(self.keys.request, f"malformed request: {err}")
-            self._reply(query, {"ok": False, "error": "malformed", "message": str(err)})
+            request = decode(payload, max_bytes=self._max, key=self.keys.request)
+        except CodecError as err:
+            request, problem = None, err.message
+        else:
+            problem = check_request(request)
+        if problem is None and request["op"] != "join" and not verify(
+                self._agent_keys.get(request["agent"]), payload, attachment_bytes(query)):
+            problem = f"{request['op']} not signed by agent {request['agent']!r} (a forgery, or from outside the run)"
+        if problem is not None:
+            self._trace.reject(self.keys.request, f"request refused: {problem}")
+            self._reply(query, {"ok": False, "error": "malformed", "message": problem})
             return
+        op, agent, sent = request["op"], request["agent"], request.get("sent", 0)
         if op == "join":
             self._reply(query, self._join(agent, request))
         elif op == "leave":  # a clean stop: the token dropped next is no death
@@ -366,6 +488,16 @@ class BlackboardNode:
             query.drop()
 
     def _join(self, name: str, request: dict) -> dict:
+        with self._members.lock:
+            secret = self._expected.get(name)
+        if secret is None or not isinstance(request.get("proof"), str) or not hmac.compare_digest(
+                request["proof"], proof(secret, "join", self.keys.run_id, name)):
+            why = (f"agent {name!r} is not an agent of this run" if secret is None
+                   else f"agent {name!r} did not prove it is the one this run started (wrong or no secret)")
+            self._trace.write(TraceKind.REJECTED, agent=name, message=f"join refused: {why}")
+            return {"ok": False, "error": "declaration", "level": "", "message": f"join refused: {why}"}
+        if not set(request.get("exclusive", ())) <= set(request.get("produces", ())):
+            return {"ok": False, "error": "declaration", "level": "", "message": "exclusive levels must be produced"}
         joined = self._members.join(name, request)
         if isinstance(joined, JoinRefused):
             if joined.other is not None:
@@ -376,8 +508,11 @@ class BlackboardNode:
         self._trace.write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
                           consumes=list(joined.consumes), produces=list(joined.produces),
                           exclusive=list(joined.exclusive))
+        self._agent_keys[name] = agent_key = os.urandom(32)
+        self._status_seq[name] = 0
         self._members.check_presence()
-        return {"ok": True}
+        # a query reply goes to the querying session only: the keys bind the name to that session
+        return {"ok": True, "agent_key": agent_key.hex(), "run_key": self._run_key.hex()}
 
     def _change(self, query: zenoh.Query, op: str, agent: str, request: dict) -> None:
         self._quiescence.change()
@@ -423,17 +558,33 @@ class BlackboardNode:
         self._reply(query, {"ok": True, "hyp": new.to_record()})
 
     def _on_read(self, query: zenoh.Query) -> None:
-        agent, sent, seen = read_parameters(query.parameters)
+        params = query.parameters
+        agent, sent, seen = read_parameters(params)
+        signed = read_message(str(query.key_expr), agent, params.get("sent") or "0", params.get("after") or "")
+        try:
+            authentic = verify(self._agent_keys.get(agent), signed, bytes.fromhex(params.get("tag") or ""))
+        except ValueError:
+            authentic = False
+        if not authentic:  # anyone may read the store, but only a joined agent's read waits for posts
+            self._answer_read(query)
+            return
         self._barrier.hold(Barrier.after(agent, sent, seen), self._answer_read, query)
 
     def _answer_read(self, query: zenoh.Query) -> None:
+        key = str(query.key_expr)
+        refused = 0
         try:
-            for hyp, data in self._store.select(self.keys, str(query.key_expr)):
+            for hyp, data in self._store.select(self.keys, key):
+                if hyp.level in PRIVATE_LEVELS:  # the truth is for the run's own user side only
+                    refused += 1
+                    continue
                 query.reply(self.keys.hypothesis(hyp.level, hyp.id), data)
         except zenoh.ZError as err:
             logger.error("blackboard node: cannot answer a read: %s", err)
         finally:
             query.drop()
+        if refused:
+            self._trace.reject(key, f"read of a private level refused ({refused} hypotheses not served)")
 
     # -- deadlines and quiescence -----------------------------------------------------------------
 

@@ -20,6 +20,7 @@ runtime closes, the node announces the end of the run and such agents stop by th
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import json
 import logging
@@ -29,6 +30,7 @@ import subprocess
 import sys
 import time
 import uuid
+import weakref
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,11 +38,12 @@ from typing import Any, Literal
 
 from blackboard.agent import AgentRunner
 from blackboard.codec import DEFAULT_MAX_BYTES
-from blackboard.config import ZenohOptions
+from blackboard.config import ZenohOptions, is_loopback
 from blackboard.errors import AgentError, BlackboardError
 from blackboard.hypothesis import Hypothesis, validate_name
 from blackboard.knowledge_source import Event, KnowledgeSource
-from blackboard.node import BlackboardNode
+from blackboard.node import END_GRACE_S, BlackboardNode
+from blackboard.trust import new_secret
 
 __all__ = ["Runtime", "RunOutcome", "resolve_factory"]
 
@@ -48,6 +51,10 @@ logger = logging.getLogger(__name__)
 
 #: how long an agent may take to join and set up
 START_TIMEOUT_S = 30.0
+#: an interrupted run (Ctrl-C, SIGTERM) waits this long for agents to stop before killing them
+FAST_STOP_S = 0.25
+#: runtimes of this process not yet closed (for :meth:`Runtime.abort_all`)
+_LIVE: weakref.WeakSet[Runtime] = weakref.WeakSet()
 
 
 @dataclass
@@ -64,6 +71,8 @@ class RunOutcome:
     stats: dict[str, int] = field(default_factory=dict)
     timeouts: list[tuple[Hypothesis, str]] = field(default_factory=list)
     duration_s: float = 0.0
+    #: agent -> the one-line message of a user's input error it died of (see AgentInputError)
+    input_errors: dict[str, str] = field(default_factory=dict)
 
 
 def resolve_factory(factory: str | type[KnowledgeSource]) -> type[KnowledgeSource]:
@@ -113,13 +122,24 @@ class Runtime:
         zenoh: ZenohOptions | None = None,
         trace_path: str | Path | None = None,
         max_message_bytes: int = DEFAULT_MAX_BYTES,
+        secret: str | None = None,
+        auth: bool | None = None,
     ) -> None:
         if mode not in ("inprocess", "processes"):
             raise ValueError(f"mode must be 'inprocess' or 'processes', got {mode!r}")
         self.run_id = validate_name(run_id or f"run-{uuid.uuid4().hex[:12]}", "run id")
         self.mode = mode
         self.zenoh = zenoh or ZenohOptions()
+        self.secret = secret or new_secret()
+        if auth is None:  # on by default as soon as the node listens beyond this machine
+            auth = any(not is_loopback(ep) for ep in self.zenoh.listen)
+        if auth:
+            self.zenoh = dataclasses.replace(self.zenoh, password=self.secret)
         self.max_message_bytes = max_message_bytes
+        #: :attr:`secret`: agents started elsewhere (``mapinterp agent --secret``) prove with it
+        #: that they belong to this run (local agents get a secret each, blackboard.trust), and
+        #: with ``auth`` it is also the zenoh usrpwd password of every session of the run
+        self.auth = bool(auth)
         self.node = BlackboardNode(run_id=self.run_id, zenoh_options=self.zenoh, trace_path=trace_path,
                                    max_message_bytes=max_message_bytes)
         self._runners: dict[str, AgentRunner] = {}
@@ -129,6 +149,7 @@ class Runtime:
     def __enter__(self) -> Runtime:
         self.node.start()
         self._started = True
+        _LIVE.add(self)
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -149,20 +170,28 @@ class Runtime:
         if name in self._runners or name in self._children:
             raise AgentError(name, "an agent of this name was already added")
         options = dict(options or {})
+        secret = new_secret()
+        self.node.expect(name, secret)
         if self.mode == "inprocess":
             source = resolve_factory(factory)(name, **options)
             runner = AgentRunner(source, run_id=self.run_id, connect=[self.node.endpoint],
-                                 zenoh_options=self._agent_options(), max_message_bytes=self.max_message_bytes)
+                                 zenoh_options=self._agent_options(), max_message_bytes=self.max_message_bytes,
+                                 secret=secret)
             runner.start()
             self._runners[name] = runner
         else:
             resolve_factory(factory)  # fail early, in this process, on a bad factory
-            self._spawn(_factory_name(factory), name, options)
+            self._spawn(_factory_name(factory), name, options, secret)
+
+    def expect_remote(self, names: Iterable[str]) -> None:
+        """Let the agents ``names``, started elsewhere with this run's :attr:`secret`, join."""
+        for name in names:
+            self.node.expect(validate_name(name, "agent name"), self.secret)
 
     def _agent_options(self) -> ZenohOptions:
-        return ZenohOptions(config_file=self.zenoh.config_file)
+        return ZenohOptions(config_file=self.zenoh.config_file, password=self.zenoh.password)
 
-    def _spawn(self, factory: str, name: str, options: dict) -> None:
+    def _spawn(self, factory: str, name: str, options: dict, secret: str) -> None:
         spec = {"factory": factory, "name": name, "options": options, "run_id": self.run_id,
                 "connect": [self.node.endpoint], "zenoh_config": None if self.zenoh.config_file is None
                 else str(self.zenoh.config_file), "max_message_bytes": self.max_message_bytes}
@@ -174,7 +203,10 @@ class Runtime:
         proc = subprocess.Popen([sys.executable, "-m", "blackboard.agent_host", json.dumps(spec)],
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
         self._children[name] = proc
-        assert proc.stdout is not None
+        assert proc.stdin is not None and proc.stdout is not None
+        # on a pipe, not on the command line others can read: its join secret, the zenoh password
+        proc.stdin.write(json.dumps({"secret": secret, "password": self.zenoh.password}).encode() + b"\n")
+        proc.stdin.flush()
         ready, _, _ = select.select([proc.stdout], [], [], START_TIMEOUT_S)
         line = proc.stdout.readline().decode(errors="replace").strip() if ready else ""
         proc.stdout.close()  # after "ready" the child writes to stderr only
@@ -260,13 +292,18 @@ class Runtime:
                 raise BlackboardError(f"run {self.run_id} not quiescent after {timeout_s} s")
         finally:
             self.node.listen(None)
+        return self.snapshot(quiescent=True, duration_s=time.perf_counter() - started)
+
+    def snapshot(self, *, quiescent: bool = False, duration_s: float = 0.0) -> RunOutcome:
+        """The run as it stands (e.g. after an interruption): store, agent states, errors."""
         return RunOutcome(
-            quiescent=True,
+            quiescent=quiescent,
             hypotheses=self.node.hypotheses(),
             agents=self.agent_states(),
             stats=dict(self.node.stats),
             timeouts=list(self.node.user_timeouts),
-            duration_s=time.perf_counter() - started,
+            duration_s=duration_s,
+            input_errors={a.name: a.input_error for a in list(self.node.agents.values()) if a.input_error},
         )
 
     def hypotheses(self, level: str | None = None) -> list[Hypothesis]:
@@ -276,21 +313,58 @@ class Runtime:
     def agent_states(self) -> dict[str, str]:
         return {a.name: a.state for a in list(self.node.agents.values())}
 
-    def close(self) -> None:
-        """Stop every agent (shutdown), then the node; waits for child processes."""
+    def close(self, *, fast: bool = False, reason: str | None = None) -> None:
+        """Stop every agent (shutdown), then the node; waits for child processes.
+
+        ``fast`` (an interrupted run): an activation still running is not waited for, child
+        processes get :data:`FAST_STOP_S` to stop before they are killed, and the node gives
+        the agents no grace to leave; ``reason`` goes into the trace's ``run_end``.
+        """
+        wait_s = FAST_STOP_S if fast else 10.0
+        t0 = time.monotonic()
         for runner in self._runners.values():
-            runner.stop()
+            runner.stop(timeout_s=wait_s, leave=not fast)
         self._runners.clear()
-        for name, proc in self._children.items():
+        logger.debug("runtime %s: in-process agents stopped after %.2f s", self.run_id, time.monotonic() - t0)
+        for proc in self._children.values():  # all at once: each stops in parallel
             if proc.stdin is not None:
-                proc.stdin.close()
+                try:
+                    proc.stdin.close()
+                except OSError:
+                    pass
+        deadline = time.monotonic() + wait_s
+        for name, proc in self._children.items():
             try:
-                proc.wait(timeout=10)
+                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
-                logger.warning("agent process %s did not stop; killing it", name)
+                if not fast:
+                    logger.warning("agent process %s did not stop; killing it", name)
+                if fast:  # every one left at once: they die in parallel
+                    for other in self._children.values():
+                        if other.poll() is None:
+                            other.kill()
                 proc.kill()
                 proc.wait()
+            logger.debug("runtime %s: agent process %s gone after %.2f s", self.run_id, name, time.monotonic() - t0)
         self._children.clear()
+        _LIVE.discard(self)
+        logger.debug("runtime %s: agents stopped in %.2f s", self.run_id, time.monotonic() - t0)
         if self._started:
-            self.node.close()
+            self.node.close(grace_s=FAST_STOP_S if fast else END_GRACE_S, reason=reason)
             self._started = False
+        logger.debug("runtime %s: closed in %.2f s", self.run_id, time.monotonic() - t0)
+
+    def abort(self) -> None:
+        """Kill every child process at once (a second Ctrl-C: the process exits right after)."""
+        for proc in list(self._children.values()):
+            try:
+                proc.kill()
+                proc.wait(timeout=1.0)
+            except (OSError, subprocess.TimeoutExpired):
+                pass
+
+    @staticmethod
+    def abort_all() -> None:
+        """:meth:`abort` every runtime of this process that is not closed."""
+        for runtime in list(_LIVE):
+            runtime.abort()

@@ -20,12 +20,17 @@ from blackboard.trace import TraceRecord
 
 __all__ = [
     "filter_records",
+    "known_names",
+    "check_filters",
     "frame_ids",
     "derivation_chain",
     "summarize",
     "render_summary",
     "render_timeline",
+    "in_time_order",
     "render_chain",
+    "chain_tree",
+    "chain_dot",
     "to_json",
 ]
 
@@ -71,6 +76,23 @@ def filter_records(
     ]
 
 
+def known_names(records: Sequence[TraceRecord]) -> dict[str, list[str]]:
+    """The agents and levels that appear in ``records``, sorted: ``{"agent": [...], "level": [...]}``."""
+    return {
+        "agent": sorted({str(r["agent"]) for r in records if r.get("agent")}),
+        "level": sorted({str(r["level"]) for r in records if r.get("level")}),
+    }
+
+
+def check_filters(records: Sequence[TraceRecord], *, agent: str | None = None, level: str | None = None) -> None:
+    """Raise ``ValueError`` naming the known agents (levels) when ``agent`` (``level``) is not in the trace."""
+    known = known_names(records)
+    for what, value in (("agent", agent), ("level", level)):
+        if value is not None and value not in known[what]:
+            names = ", ".join(known[what]) or "none"
+            raise ValueError(f"no {what} {value!r} in this trace; its {what}s: {names}")
+
+
 def derivation_chain(records: Sequence[TraceRecord], hypothesis_id: str) -> list[TraceRecord]:
     """The post records of ``hypothesis_id`` and everything it was derived from (through
     ``links``, back to the inputs), breadth first, each once. Empty if the id was never posted;
@@ -92,8 +114,12 @@ def derivation_chain(records: Sequence[TraceRecord], hypothesis_id: str) -> list
     return chain
 
 
-def summarize(records: Sequence[TraceRecord]) -> dict[str, Any]:
-    """Counts and timing: per kind, per level, per agent (records, activations, time in act)."""
+def summarize(records: Sequence[TraceRecord], *, complete: bool | None = None) -> dict[str, Any]:
+    """Counts and timing: per kind, per level, per agent (records, activations, time in act).
+
+    ``complete`` says whether the run ended (a ``run_end`` record); give it when ``records`` is
+    a filtered selection, whose own records need not include the run's end.
+    """
     kinds = Counter(r.get("kind") for r in records)
     levels = Counter(r.get("level") for r in records if r.get("kind") == "post" and r.get("level"))
     agents: dict[str, dict[str, Any]] = {}
@@ -120,7 +146,7 @@ def summarize(records: Sequence[TraceRecord]) -> dict[str, Any]:
     return {
         "run_id": start.get("run_id") if start else None,
         "records": len(records),
-        "complete": any(r.get("kind") == "run_end" for r in records),
+        "complete": any(r.get("kind") == "run_end" for r in records) if complete is None else bool(complete),
         "start": min(times) if times else None,
         "duration_s": (max(times) - min(times)) if times else 0.0,
         "kinds": dict(sorted(kinds.items())),
@@ -150,6 +176,41 @@ def render_summary(summary: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _body_summary(r: TraceRecord) -> str:
+    """A few scalar fields of a posted body; an answer reads ``H1 present (score 0.82)``."""
+    body = r.get("body")
+    if not isinstance(body, dict) or r.get("kind") not in _HYP_KINDS:
+        return ""
+    if r.get("level") == "answer" and "present" in body:
+        score = body.get("score")
+        score = f" (score {float(score):.2f})" if isinstance(score, (int, float)) else ""
+        where = f" in viewframe {body['viewframe']}" if "viewframe" in body else ""
+        verdict = {True: "present", False: "absent"}.get(body["present"], "uncertain")
+        return f"{body.get('landmark', '?')} {verdict}{score}{where}"
+    shown = []
+    for key, value in body.items():
+        if isinstance(value, bool) or value is None or isinstance(value, (int, str)):
+            text = repr(value) if isinstance(value, str) else str(value)
+        elif isinstance(value, float):
+            text = f"{value:.4g}"
+        else:
+            continue
+        if len(text) <= 40:
+            shown.append(f"{key}={text}")
+        if len(shown) == 6:
+            break
+    return " ".join(shown)
+
+
+def in_time_order(records: Sequence[TraceRecord]) -> list[TraceRecord]:
+    """Records by time, then by the node's sequence number (records may arrive out of order)."""
+    def key(r: TraceRecord) -> tuple[float, int]:
+        t = r.get("t")
+        return (float(t) if isinstance(t, (int, float)) else float("inf"), int(r.get("seq", 0) or 0))
+
+    return sorted(records, key=key)
+
+
 def _describe(r: TraceRecord) -> str:
     parts = []
     if r.get("level") or r.get("id"):
@@ -161,17 +222,22 @@ def _describe(r: TraceRecord) -> str:
             parts.append(f"{name}={r[name]}")
     if r.get("duration_s") is not None:
         parts.append(f"{1000 * float(r['duration_s']):.2f} ms")
+    body = _body_summary(r)
+    if body:
+        parts.append(f"[{body}]")
     return " ".join(parts)
 
 
 def render_timeline(records: Sequence[TraceRecord]) -> str:
-    """One line per record: time since the first record, kind, agent, level/id, details."""
+    """One line per record in time order: time since the first record, kind, agent, level/id,
+    details, and a few body fields of posts (an answer's landmark, present/absent and score)."""
     if not records:
         return "(no records)"
-    t0 = min(float(r["t"]) for r in records if isinstance(r.get("t"), (int, float)))
+    times = [float(r["t"]) for r in records if isinstance(r.get("t"), (int, float))]
+    t0 = min(times) if times else 0.0
     return "\n".join(
         f"{float(r.get('t', t0)) - t0:>10.4f}s  {r.get('kind', '?'):<20} {r.get('agent', ''):<16} {_describe(r)}"
-        for r in records
+        for r in in_time_order(records)
     )
 
 
@@ -190,6 +256,67 @@ def render_chain(chain: Sequence[TraceRecord]) -> str:
         lines.append(f"{r.get('level')}/{r.get('id')} v{r.get('version')} by {r.get('agent')} "
                      f"(credibility {r.get('credibility', 1.0):.2f}) <- {links}\n    {body}")
     return "\n".join(lines)
+
+
+def _node_label(r: TraceRecord) -> str:
+    body = _body_summary(r)
+    return f"{r.get('level')}/{r.get('id')} by {r.get('agent')}" + (f": {body}" if body else "")
+
+
+def chain_tree(chain: Sequence[TraceRecord]):
+    """The derivation chain as a :class:`rich.tree.Tree`: the hypothesis at the root, each node's
+    children the hypotheses it was derived from; one met again is shown once, then "(above)"."""
+    from rich.markup import escape
+    from rich.tree import Tree
+
+    if not chain:
+        return Tree("(hypothesis not found in the trace)")
+    by_id = {r["id"]: r for r in chain}
+    root = chain[0]
+    tree = Tree(f"[bold]{escape(_node_label(root))}[/bold]")
+    shown = {root["id"]}
+
+    def grow(node, record: TraceRecord) -> None:
+        for link in record.get("links") or ():
+            child = by_id.get(link, {"kind": "missing", "id": link})
+            if child.get("kind") == "missing":
+                node.add(f"[red]{escape(link)}: not in the trace[/red]")
+            elif link in shown:
+                node.add(f"[dim]{escape(link)} (above)[/dim]")
+            else:
+                shown.add(link)
+                grow(node.add(escape(_node_label(child))), child)
+
+    grow(tree, root)
+    return tree
+
+
+def _dot_quote(text: str) -> str:
+    return '"' + text.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n") + '"'
+
+
+def chain_dot(chain: Sequence[TraceRecord]) -> str:
+    """The derivation chain as a Graphviz DOT digraph: an edge from each input to what was
+    derived from it; nodes labelled level/id, agent and a short body, coloured per level."""
+    palette = ["#a6cee3", "#b2df8a", "#fb9a99", "#fdbf6f", "#cab2d6", "#ffff99", "#1f78b4", "#33a02c",
+               "#e31a1c", "#ff7f00"]
+    levels = sorted({str(r.get("level")) for r in chain if r.get("kind") != "missing"})
+    colour = {lvl: palette[i % len(palette)] for i, lvl in enumerate(levels)}
+    lines = ["digraph derivation {", "  rankdir=BT;", '  node [shape=box, style="rounded,filled", fontsize=10];']
+    for r in chain:
+        if r.get("kind") == "missing":
+            lines.append(f"  {_dot_quote(r['id'])} [label={_dot_quote(r['id'] + chr(10) + 'not in the trace')}, "
+                         'style="dashed"];')
+            continue
+        body = _body_summary(r)
+        label = f"{r.get('level')}/{r.get('id')}\nby {r.get('agent')}" + (f"\n{body}" if body else "")
+        lines.append(f"  {_dot_quote(r['id'])} [label={_dot_quote(label)}, "
+                     f"fillcolor={_dot_quote(colour[str(r.get('level'))])}];")
+    for r in chain:
+        for link in r.get("links") or ():
+            lines.append(f"  {_dot_quote(link)} -> {_dot_quote(r['id'])};")
+    lines.append("}")
+    return "\n".join(lines) + "\n"
 
 
 def _jsonable(value: Any) -> Any:

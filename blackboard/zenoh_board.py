@@ -11,6 +11,7 @@ import zenoh
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
 from blackboard.errors import BlackboardError, CodecError, DeclarationError, TransportError
 from blackboard.hypothesis import Hypothesis, validate_name
+from blackboard.trust import PRIVATE_LEVELS, SEALED, read_message, seal, sign
 
 if TYPE_CHECKING:
     from collections.abc import Iterable
@@ -51,6 +52,10 @@ class ZenohBoard:
         self._levels_ok: set[str] = set()  # levels that passed _check_level (checked once)
         self._max = max_message_bytes
         self._lock = threading.Lock()
+        #: this agent's own key and the run's shared key, handed out by the node at join
+        #: (:mod:`blackboard.trust`); None before joining
+        self.agent_key: bytes | None = None
+        self.run_key: bytes | None = None
         self.sent = 0  # one-hop posts published so far (quiescence accounting)
         #: sender -> highest post number seen from it; the node answers this agent's requests only
         #: after it has received those posts too (so an update of a post just seen never misses it)
@@ -91,10 +96,14 @@ class ZenohBoard:
                              id=id, addressed_to=addressed_to, deadline_s=deadline_s)
         key = self._keys.hypothesis(level, hyp.id)
         with self._lock:  # the envelope is ours (str keys, validated names): only the body needs the walk
-            data = encode({"op": "post", "hyp": hyp.to_record(), "sender": self.agent, "n": self.sent + 1},
+            record = hyp.to_record()
+            if level in PRIVATE_LEVELS and self.run_key is not None:  # only the node may read it
+                record["body"] = {SEALED: seal(self.run_key, encode(hyp.body, max_bytes=self._max))}
+            data = encode({"op": "post", "hyp": record, "sender": self.agent, "n": self.sent + 1},
                           max_bytes=self._max, check=((hyp.body, 2),))
             try:
-                self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK)
+                self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK,
+                                  attachment=self._tags(data, both=True))
             except zenoh.ZError as err:
                 raise TransportError(f"agent {self.agent!r}: cannot publish on {key}: {err}") from None
             self.sent += 1
@@ -135,6 +144,9 @@ class ZenohBoard:
 
     def _read(self, key: str) -> list[Hypothesis]:
         selector = self._keys.read_selector(key, agent=self.agent, sent=self.sent, seen=self.seen_from)
+        if self.agent_key is not None:  # only an authenticated read makes the node wait for those posts
+            after = ",".join(f"{name}:{n}" for name, n in self.seen_from.items())
+            selector += f";tag={sign(self.agent_key, read_message(key, self.agent, str(self.sent), after)).hex()}"
         out = []
         for reply in self._get(selector, None):
             record = decode(reply, max_bytes=self._max, key=key)
@@ -144,7 +156,8 @@ class ZenohBoard:
 
     def _request(self, request: dict) -> dict:
         request = {**request, "agent": self.agent, "sent": self.sent, "after": dict(self.seen_from)}
-        replies = self._get(self._keys.request, encode(request, max_bytes=self._max))
+        payload = encode(request, max_bytes=self._max)
+        replies = self._get(self._keys.request, payload, attachment=self._tags(payload))
         if not replies:
             raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")
         reply = decode(replies[0], key=self._keys.request)
@@ -156,9 +169,16 @@ class ZenohBoard:
             raise DeclarationError(self.agent, str(reply.get("level")), str(reply.get("message")))
         raise BlackboardError(f"agent {self.agent!r}: {reply.get('message')}")
 
-    def _get(self, selector: str, payload: bytes | None) -> list[bytes]:
+    def _tags(self, data: bytes, *, both: bool = False) -> bytes | None:
+        """The attachment of a message of this agent: its own tag (and the run's, for posts)."""
+        if self.agent_key is None:
+            return None
+        tag = sign(self.agent_key, data)
+        return tag + sign(self.run_key, data) if both and self.run_key is not None else tag
+
+    def _get(self, selector: str, payload: bytes | None, *, attachment: bytes | None = None) -> list[bytes]:
         try:
-            replies = self._session.get(selector, payload=payload, timeout=REQUEST_TIMEOUT_S,
+            replies = self._session.get(selector, payload=payload, timeout=REQUEST_TIMEOUT_S, attachment=attachment,
                                         congestion_control=zenoh.CongestionControl.BLOCK)
             out = []
             for reply in replies:

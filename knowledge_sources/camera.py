@@ -8,6 +8,7 @@ from typing import Any, ClassVar
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from knowledge_sources.errors import input_error_message
 
 __all__ = ["Camera"]
 
@@ -37,6 +38,9 @@ class Camera(KnowledgeSource):
 
     def precondition(self, event: Event) -> float | None:
         return 1.0 if event.kind is EventKind.POSTED else None
+
+    def input_error(self, err: Exception) -> str | None:
+        return input_error_message(err)  # the scenario's files: the run stops with their error
 
     def act(self, event: Event, board: Board) -> None:
         from models.world import World

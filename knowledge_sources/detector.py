@@ -27,9 +27,16 @@ class LandmarkDetectorAgent(KnowledgeSource):
     from the blackboard and runs the detector registered for L's kind
     (:func:`models.detectors.default_registry`). It never reads the ``truth`` level.
 
+    Each answer carries the three-way ``present`` and, when the viewframe came with its view
+    without landmarks (``background``), the calibrated log-likelihood ratio ``llr`` of the
+    landmark being there (:mod:`models.detectors`).
+
     Options: ``threshold`` (score for "present"), ``absent_threshold`` (below it, "absent"; in
-    between the answer is undecided), both defaulting to the scenario schema's
-    ``scheduler.detector_threshold`` and ``scheduler.absent_threshold``; ``cache`` (frames and
+    between the answer is undecided), ``calibration`` (``{kind or family: [bias, weights...]}``)
+    and ``align_deg`` (pose errors the ratio tolerates, (pitch, heading) degrees), each
+    defaulting to the scenario schema's ``scheduler`` settings; ``camera_height`` and
+    ``fov_y_deg`` (the scenario camera's rows and vertical field of view: they turn ``align_deg``
+    into pixels; without them the detector's own default search); ``cache`` (frames and
     viewframes kept, default 64).
     """
 
@@ -42,20 +49,32 @@ class LandmarkDetectorAgent(KnowledgeSource):
         *,
         threshold: float = _DEFAULTS.detector_threshold,
         absent_threshold: float = _DEFAULTS.absent_threshold,
+        calibration: dict[str, Any] | None = None,
+        align_deg: tuple[float, float] | list[float] = _DEFAULTS.align_deg,
+        camera_height: int | None = None,
+        fov_y_deg: float | None = None,
         cache: int = 64,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
         self.threshold = float(threshold)
         self.absent_threshold = float(absent_threshold)
+        self.calibration = dict(_DEFAULTS.calibration if calibration is None else calibration)
+        self.align_deg = (float(align_deg[0]), float(align_deg[1]))
+        self.camera_height = None if camera_height is None else int(camera_height)
+        self.fov_y_deg = None if fov_y_deg is None else float(fov_y_deg)
         self.cache = int(cache)
         self._registry: DetectorRegistry | None = None
         self._store: OrderedDict[str, Hypothesis] = OrderedDict()
 
     def setup(self, board: Board) -> None:
-        from models.detectors import default_registry
+        from models.detectors import align_pixels, default_registry
 
-        self._registry = default_registry(threshold=self.threshold, absent_threshold=self.absent_threshold)
+        align = None
+        if self.camera_height is not None and self.fov_y_deg is not None:
+            align = align_pixels(height=self.camera_height, fov_y_deg=self.fov_y_deg, tolerance_deg=self.align_deg)
+        self._registry = default_registry(threshold=self.threshold, absent_threshold=self.absent_threshold,
+                                          calibration=self.calibration, align_px=align)
 
     def precondition(self, event: Event) -> float | None:
         h = event.hypothesis
@@ -85,7 +104,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
         frame = levels.SensorFrame.from_hypothesis(frame_h)
         vf = levels.Viewframe.from_hypothesis(vf_h)
         detector = self._registry.for_kind(q.kind)
-        view = CandidateView.from_mask(vf.image, vf.mask, q.landmark_index)
+        view = CandidateView.from_mask(vf.image, vf.mask, q.landmark_index, background=vf.background)
         det = detector.detect(frame.image, view=view)
         levels.post(
             board,
@@ -99,6 +118,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
                 location=None if det.location is None else list(det.location),
                 detector=detector.name,
                 reason=det.reason,
+                llr=det.llr,
             ),
             links=(event.hypothesis.id, frame_h.id, vf_h.id),
             credibility=float(min(1.0, max(0.0, det.score))),

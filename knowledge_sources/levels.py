@@ -313,6 +313,9 @@ class Viewframe(Message):
     image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
     mask: np.ndarray = field(metadata=_doc("(H, W) int16 landmark index per pixel, -1 none", dtype="int16", ndim=2))
     description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
+    background: np.ndarray | None = field(default=None, metadata=_doc(
+        "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view",
+        dtype="uint8", ndim=3, channels=3))
 
     def id(self) -> str:
         return viewframe_id(self.index)
@@ -487,6 +490,8 @@ class Answer(Message):
     location: list | None = field(metadata=_doc("(row, col) of the detection in the camera image, or null"))
     detector: str = field(metadata=_doc("detector name"))
     reason: str = field(metadata=_doc("why the detector answered so"))
+    llr: float | None = field(default=None, metadata=_doc(
+        "log-likelihood ratio of the landmark being there (calibrated), or null"))
 
     def id(self) -> str:
         return answer_id(self.query)

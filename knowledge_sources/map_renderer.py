@@ -9,6 +9,7 @@ import numpy as np
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from knowledge_sources.errors import input_error_message
 
 __all__ = ["MapRenderer"]
 
@@ -27,6 +28,9 @@ class MapRenderer(KnowledgeSource):
 
     def precondition(self, event: Event) -> float | None:
         return 1.0 if event.kind is EventKind.POSTED else None
+
+    def input_error(self, err: Exception) -> str | None:
+        return input_error_message(err)  # the scenario's files: the run stops with their error
 
     def act(self, event: Event, board: Board) -> None:
         from models.world import World
@@ -48,6 +52,7 @@ class MapRenderer(KnowledgeSource):
                 image=np.ascontiguousarray(vf.image),
                 mask=vf.mask.astype(np.int16),
                 description=vf.description.to_dict(),
+                background=None if vf.background is None else np.ascontiguousarray(vf.background),
             ), links=(source.id,))
         levels.post(board, levels.Map(
             scenario=scenario.name,

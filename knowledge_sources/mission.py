@@ -31,19 +31,26 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from blackboard.config import ZenohOptions
-from blackboard.errors import AgentError
+from blackboard.config import ZenohOptions, is_loopback
+from blackboard.errors import AgentError, AgentInputError
 from blackboard.knowledge_source import Event
 from blackboard.runtime import Runtime
+from blackboard.signals import signal_name
 from knowledge_sources import levels
-from knowledge_sources.results import frame_record, summarize, with_track
+from knowledge_sources.errors import UsageError
+from knowledge_sources.results import add_map_coordinates, frame_record, summarize, with_track
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
+from models.preflight import check_scenario, frame_count
 from models.scenario import Scenario, load_scenario
 
-__all__ = ["run_mission", "agent_plan"]
+__all__ = ["run_mission", "agent_plan", "MAX_RATE_HZ", "MAX_WAIT_S"]
 
 log = logging.getLogger(__name__)
+
+#: the camera's --rate is at most this (Hz); --timeout and --wait-remote at most this (seconds)
+MAX_RATE_HZ = 10_000.0
+MAX_WAIT_S = 7 * 24 * 3600.0
 
 
 def agent_plan(
@@ -61,9 +68,17 @@ def agent_plan(
     ]
     for s in range(shards):
         plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{s}", {"shard": s, "shards": shards}))
+    named: dict[str, str] = {}
     for kind in sorted({lm.kind for lm in scenario.landmarks}):
+        if detector_name(kind) in named:
+            raise ScenarioError(scenario.path, "landmarks", f"kinds {named[detector_name(kind)]!r} and {kind!r} both "
+                                f"name the detector agent {detector_name(kind)!r}: rename one")
+        named[detector_name(kind)] = kind
         plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
-                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold}))
+                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold,
+                      "calibration": {k: list(v) for k, v in sched.calibration.items()},
+                      "align_deg": list(sched.align_deg), "camera_height": scenario.camera.height,
+                      "fov_y_deg": scenario.camera.fov_y_deg}))
     plan.append((
         "knowledge_sources.scheduler:Scheduler",
         "scheduler",
@@ -76,12 +91,31 @@ def agent_plan(
             "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
             "tracked": tracked,
+            "backtracking": sched.backtracking,
+            "questions": sched.questions,
+            "floor": sched.floor,
+            "max_llr": sched.max_llr,
         },
     ))
     if tracked:
         plan.append(("knowledge_sources.tracker:Tracker", "tracker",
                      {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels}))
     return plan
+
+
+def _check_numbers(n_frames: int, *, timeout_s: float, frame_rate: float | None, wait_remote_s: float) -> None:
+    """The run's own numbers (command-line options): finite, positive, and coherent."""
+    for option, value in (("--timeout", timeout_s), ("--wait-remote", wait_remote_s)):
+        if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0 or value > MAX_WAIT_S:
+            raise UsageError(option, f"must be a number of seconds in (0, {MAX_WAIT_S:g}], got {value!r}")
+    if frame_rate is None:
+        return
+    if not isinstance(frame_rate, (int, float)) or not math.isfinite(frame_rate) or not 0 < frame_rate <= MAX_RATE_HZ:
+        raise UsageError("--rate", f"must be a frame rate in (0, {MAX_RATE_HZ:g}] Hz, got {frame_rate!r}")
+    span = (n_frames - 1) / frame_rate
+    if span >= timeout_s:
+        raise UsageError("--rate", f"{n_frames} frames at {frame_rate:g} Hz take {span:g} s, longer than the "
+                                   f"run's timeout of {timeout_s:g} s (raise --rate or --timeout)")
 
 
 def run_mission(
@@ -100,6 +134,9 @@ def run_mission(
     wait_remote_s: float = 60.0,
     on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
     track: bool | None = None,
+    secret: str | None = None,
+    auth: bool | None = None,
+    on_hypothesis: Callable[[str, Any, float], None] | None = None,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -130,6 +167,11 @@ def run_mission(
         like local agents.
     run_id : str, optional
         The run's id (remote agents give it with ``--run-id``); default random.
+    secret : str, optional
+        The run's secret that remote agents give (``mapinterp agent --secret``); default random.
+    auth : bool, optional
+        Zenoh user/password authentication with the secret; default on when ``zenoh.listen``
+        has a non-loopback endpoint.
     on_wait_remote : callable(commands), optional
         Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
         logged at WARNING.
@@ -137,6 +179,8 @@ def run_mission(
         Run the tracker (default: the scenario's ``tracking.enabled``); off, the results are the
         single-frame decisions. With ``tracking.smoothing``, the tracks are smoothed over the
         whole drive (forward-backward) before they become the results.
+    on_hypothesis : callable(level, body, timestamp), optional
+        Called with every hypothesis as it is first posted (phase labels, live viewers).
 
     Raises
     ------
@@ -147,21 +191,13 @@ def run_mission(
         scenario = load_scenario(scenario)
     if scenario.path is None:
         raise ScenarioError(None, None, "the scenario must come from a file to run on the blackboard")
-    if scenario.sensor is None:
-        raise ScenarioError(scenario.path, "sensor", "a mission needs camera frames: give sensor.frames or sensor.simulate")
+    check_scenario(scenario, mission=True)  # every check that can run before the run, runs now
     strategy = strategy or scenario.scheduler.strategy
     track = scenario.tracking.enabled if track is None else bool(track)
-    if scenario.sensor.frames:
-        n_frames = len(scenario.sensor.frames)
-    elif scenario.sensor.simulate is not None and scenario.sensor.simulate.drive is not None:
-        from models.sensor import drive_poses
-
-        n_frames = len(drive_poses(scenario.route, scenario.sensor.simulate.drive, rng=0))
-    else:
-        sim = scenario.sensor.simulate
-        n_frames = len(range(0, len(scenario.route), sim.stride)) * sim.per_point
+    n_frames = frame_count(scenario)
     if timeout_s is None:
         timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
+    _check_numbers(n_frames, timeout_s=timeout_s, frame_rate=frame_rate, wait_remote_s=wait_remote_s)
     done = 0
     posted: dict[str, int] = {}
 
@@ -171,6 +207,8 @@ def run_mission(
         if h.version != 1:
             return
         posted[h.level] = posted.get(h.level, 0) + 1
+        if on_hypothesis is not None:
+            on_hypothesis(h.level, h.body, h.timestamp)
         if h.level == levels.POSITION:
             done += 1
             if progress is not None:
@@ -185,54 +223,87 @@ def run_mission(
         raise AgentError(", ".join(unknown), "--remote names no agent of this mission; its agents are: "
                          + ", ".join(n for _, n, _ in plan))
     started = time.perf_counter()
+    interrupted: str | None = None
     with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path,
-                 run_id=run_id) as runtime:
-        if remote:
-            waiting_since = time.monotonic()
-            _announce_remote(runtime, plan, remote, zenoh, on_wait_remote)
-        for factory, name, options in plan:
-            if name not in remote:
-                runtime.add(factory, name=name, options=options)
-        if remote:
-            try:
-                runtime.wait_joined(remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic()))
-            except AgentError as err:
-                raise AgentError(err.agent, f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
-                                            "(was it started with the printed mapinterp agent command?)") from None
-        request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
-        runtime.post(request.level, request.to_body(), id=request.id())
-        outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
-        positions = {p.frame: p for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses
-                                          if h.level == levels.POSITION)}
-        truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
-                                       if h.level == levels.TRUTH)}
-        tracks = {t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses
-                                       if h.level == levels.TRACK)}
-        frames_seen = sorted(levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
-                             if h.level == levels.SENSOR_FRAME)
-        first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
-        last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
-        agents = dict(outcome.agents)
+                 run_id=run_id, secret=secret, auth=auth) as runtime:
+        try:
+            if remote:
+                waiting_since = time.monotonic()
+                runtime.expect_remote(remote)
+                _announce_remote(runtime, plan, remote, zenoh, on_wait_remote)
+            for factory, name, options in plan:
+                if name not in remote:
+                    runtime.add(factory, name=name, options=options)
+            if remote:
+                try:
+                    runtime.wait_joined(remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic()))
+                except AgentError as err:
+                    raise AgentError(err.agent, f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
+                                                "(was it started with the printed mapinterp agent command?)") from None
+            request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
+            runtime.post(request.level, request.to_body(), id=request.id())
+            outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
+        except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM (blackboard.signals): keep what is done
+            interrupted = signal_name(err)
+            log.warning("run %s interrupted by %s: stopping the agents", runtime.run_id, interrupted)
+            outcome = runtime.snapshot()
+            runtime.close(fast=True, reason=f"interrupted by {interrupted}")
+        except AgentError as err:
+            errors = runtime.snapshot().input_errors
+            if errors:  # the real cause: an agent met a user's input error, then the run stalled
+                name, message = next(iter(errors.items()))
+                raise AgentInputError(name, message) from err
+            raise
+    if outcome.input_errors and interrupted is None:
+        name, message = next(iter(outcome.input_errors.items()))
+        raise AgentInputError(name, message)
+    positions = {p.frame: p for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses
+                                      if h.level == levels.POSITION)}
+    truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
+                                   if h.level == levels.TRUTH)}
+    tracks = {t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses
+                                   if h.level == levels.TRACK)}
+    frames_seen = {levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
+                   if h.level == levels.SENSOR_FRAME}
+    first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
+    last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
+    agents = dict(outcome.agents)
     elapsed = time.perf_counter() - started
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
-    why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
-    estimates = _track_estimates(tracks, frames_seen, scenario) if track else {}
+    estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []
-    for f in frames_seen:
+    for f in sorted(frames_seen | set(range(n_frames))):
+        if f not in frames_seen:
+            why = ("interrupted before the camera posted it" if interrupted else
+                   "the camera never posted it" + (f" (agents not ok: {dead})" if dead else ""))
+        elif interrupted:
+            why = f"interrupted by {interrupted} before it was localized"
+        else:
+            why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
         rec = frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why)
+        rec["missing"] = f not in frames_seen
+        rec["interrupted"] = interrupted is not None and f not in positions
         p = positions.get(f)
         rec["track_prior"] = bool(p is not None and p.track_prior)
-        if track and f not in estimates:
+        if track and f in positions and f not in estimates:
             rec["reason"] += "; no track was posted (the single-frame decision stands)"
         records.append(with_track(rec, estimates.get(f)))
     summary = summarize(records)
+    summary["frames_expected"] = n_frames
+    summary["posted"] = len(frames_seen)
+    summary["missing"] = sum(1 for r in records if r.get("missing"))
     summary["wall_s"] = elapsed
     # throughput of localization proper: first camera frame posted to last position posted
     span = None if first_frame is None or last_position is None else last_position - first_frame
     summary["localization_s"] = span
-    summary["frames_per_s"] = (len(records) / span) if span else None
-    return {
+    summary["frames_per_s"] = (len(frames_seen) / span) if span else None
+    degraded = [f"agent {name} {status}" for name, status in sorted(dead.items())]
+    if summary["missing"]:
+        degraded.append(f"{summary['missing']} of {n_frames} frames never posted")
+    if interrupted:
+        degraded.append(f"interrupted by {interrupted}")
+    results = {
         "scenario": scenario.name,
         "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
@@ -242,7 +313,12 @@ def run_mission(
         "agents": agents,
         "frames": records,
         "summary": summary,
+        "degraded": degraded,
+        "interrupted": interrupted,
     }
+    if scenario.map_frame is not None:
+        add_map_coordinates(results, scenario.map_frame)
+    return results
 
 
 def _track_estimates(tracks: dict[int, levels.Track], frames: Sequence[int],
@@ -278,7 +354,8 @@ def _announce_remote(
     zenoh = zenoh or ZenohOptions()
     endpoint = (zenoh.listen or zenoh.connect or [runtime.node.endpoint])[0]
     commands = {name: command_line(factory, name, options, run_id=runtime.run_id, connect=endpoint,
-                                   zenoh_config=zenoh.config_file)
+                                   zenoh_config=zenoh.config_file, secret=runtime.secret)
+                + (["--auth"] if runtime.auth and is_loopback(endpoint) else [])
                 for factory, name, options in plan if name in remote}
     if on_wait_remote is not None:
         on_wait_remote(commands)

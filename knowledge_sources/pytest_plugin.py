@@ -13,7 +13,8 @@ has a top-level ``expect:`` block runs end to end through the blackboard and mus
       processes: false             # run every agent in its own process
 
 A miss is reported as a table of expectation, wanted, got and by how much. A malformed scenario
-fails its item with the scenario error (file and field), not with a traceback.
+fails its item with the scenario error (file and field), not with a traceback; so does a run
+that localized no frame, whatever its expectations (``top1_min`` or not).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from typing import Any
 import pytest
 import yaml
 
-__all__ = ["ScenarioFile", "ScenarioItem", "ExpectationMissed", "check_expectations"]
+__all__ = ["MARKERS", "ScenarioFile", "ScenarioItem", "ExpectationMissed", "check_expectations", "summary_line"]
 
 
 class ExpectationMissed(Exception):
@@ -68,6 +69,45 @@ def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, An
     return misses
 
 
+def _check_ran(results: dict[str, Any]) -> None:
+    """A run that localized no frame fails its item whatever the expectations say; an
+    interrupted one stops pytest as the Ctrl-C would have."""
+    from knowledge_sources.errors import RunFailed
+
+    if results.get("interrupted"):
+        raise KeyboardInterrupt(results["interrupted"])
+    s = results["summary"]
+    if s["localized"] == 0:
+        degraded = "; ".join(results.get("degraded") or [])
+        raise RunFailed(f"no frame localized ({s.get('frames_expected', s['frames'])} expected, "
+                        f"{s.get('posted', s['frames'])} posted{'; ' + degraded if degraded else ''})")
+#: markers the plugin puts on its items, registered so that ``--strict-markers`` accepts them
+MARKERS = {
+    "slow": "takes more than a few seconds (rendering a whole scenario, multi-process runs)",
+    "scenario": "a scenario YAML file's expect: block, run end to end by the mapinterp plugin",
+}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    for name, text in MARKERS.items():
+        config.addinivalue_line("markers", f"{name}: {text}")
+
+
+def summary_line(summary: dict[str, Any]) -> str:
+    """A results summary as one readable line: ``frames 30, localized 30, top-1 83.3%, ...``."""
+    def pct(v: Any) -> str:
+        return "n/a" if v is None else f"{v:.1%}"
+
+    def num(v: Any, unit: str = "", spec: str = ".2f") -> str:
+        return "n/a" if v is None else f"{v:{spec}}{unit}"
+
+    return (f"frames {summary.get('frames')}, localized {summary.get('localized', 'n/a')}, "
+            f"top-1 {pct(summary.get('top1'))}, mean queries {num(summary.get('mean_queries'))}, "
+            f"mean backtracks {num(summary.get('mean_backtracks'))}, "
+            f"mean error {num(summary.get('mean_error_m'), ' m', '.1f')}, "
+            f"latency p50 {num(summary.get('latency_ms_p50'), ' ms', '.0f')}")
+
+
 def pytest_collect_file(parent: pytest.Collector, file_path: Path):
     if file_path.suffix not in (".yaml", ".yml"):
         return None
@@ -93,6 +133,7 @@ class ScenarioItem(pytest.Item):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.add_marker(pytest.mark.slow)
+        self.add_marker(pytest.mark.scenario)
         self.results: dict[str, Any] | None = None
 
     def runtest(self) -> None:
@@ -103,9 +144,11 @@ class ScenarioItem(pytest.Item):
         expect = scenario.expect
         strategy = expect.strategy or scenario.scheduler.strategy
         self.results = run_mission(scenario, strategy=strategy, processes=expect.processes)
+        _check_ran(self.results)
         prior = None
         if expect.fewer_queries_than_prior:
             prior = run_mission(scenario, strategy="prior", processes=expect.processes)
+            _check_ran(prior)
         misses = check_expectations(expect, self.results, prior)
         if misses:
             raise ExpectationMissed(misses)
@@ -120,7 +163,7 @@ class ScenarioItem(pytest.Item):
             lines += ["  " + "  ".join(c.ljust(widths[i]) for i, c in enumerate(r)) for r in rows]
             if self.results is not None:
                 s = self.results["summary"]
-                lines.append(f"  summary: {s}")
+                lines.append(f"  summary: {summary_line(s)}")
             return "\n".join(lines)
         if isinstance(excinfo.value, MAPINTERP_ERRORS):
             return f"scenario {self.path.name}: {excinfo.value}"

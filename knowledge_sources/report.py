@@ -31,11 +31,29 @@ __all__ = ["plot_positions", "plot_frame", "plot_rankings", "plot_queries", "plo
 
 
 def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses) -> Figure:
-    """The map with each frame's true position (x) joined to its estimate (o)."""
+    """The map with each frame's true position (x) joined to its estimate (o), a legend and
+    the elevation colour bar."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     from models.overview import plot_map
 
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig, ax = plt.subplots(figsize=(9, 7))
     plot_map(ax, terrain, landmarks, route, poses)
+    h = terrain.heights
+    bar = ScalarMappable(norm=Normalize(float(h.min()), float(h.max())), cmap=plt.get_cmap("gist_earth"))
+    fig.colorbar(bar, ax=ax, shrink=0.8, label="elevation (m, hillshaded on the map)")
+    handles = [
+        Line2D([], [], color="black", lw=1.0, label="route"),
+        Line2D([], [], marker="o", ls="", mfc="yellow", mec="black", label="viewframes (route points)"),
+        Patch(color="red", label="landmarks"),
+        Line2D([], [], marker="x", ls="", color="black", label="true position"),
+        Line2D([], [], marker="o", ls="-", mfc="none", color="tab:green", label="estimate, right"),
+        Line2D([], [], marker="o", ls="-", mfc="none", color="tab:red", label="estimate, wrong"),
+    ]
+    ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85)
     for f in results["frames"]:
         if f["truth"] is None:
             continue

@@ -21,6 +21,11 @@ each route point). The summary adds ``top1_frame_only``, ``median_error_m`` and
 ``mean_error_m_frame_only``. Without tracking, the top level is the single-frame decision and
 ``frame_only`` repeats it.
 
+On a georeferenced map the file also has ``"crs"`` (the map CRS, e.g. ``EPSG:32617``) and
+``"map_frame"``, and each frame ``position_map`` / ``truth_map`` ([x, y] in the map CRS) and
+``position_lonlat`` / ``truth_lonlat`` ([lon, lat] WGS84 degrees); ``position`` and ``truth``
+stay in local metres (:mod:`models.georef`).
+
 A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
 ``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
@@ -30,18 +35,22 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from models.errors import InputError
 
 if TYPE_CHECKING:
     from knowledge_sources.levels import Position, Truth
 
-__all__ = ["frame_record", "load_results", "nearest_viewframe", "summarize", "with_track", "write_results"]
+__all__ = ["add_map_coordinates", "frame_record", "load_results", "nearest_viewframe", "summarize", "with_track",
+           "write_results", "finite_json", "check_writable"]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -143,18 +152,126 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def write_results(path: str | Path, results: dict[str, Any]) -> Path:
-    """Write a results dict as indented JSON, creating the folder; returns the path."""
+def add_map_coordinates(results: dict[str, Any], frame: Any) -> dict[str, Any]:
+    """Add the map-CRS and lon/lat coordinates of a georeferenced run to ``results`` (in place).
+
+    ``frame`` is the scenario's :class:`~models.georef.MapFrame`; returns ``results``.
+    """
+    results["crs"] = frame.name
+    results["map_frame"] = frame.describe()
+    for rec in results["frames"]:
+        for key in ("position", "truth"):
+            xy = rec.get(key)
+            if xy is None:
+                rec[f"{key}_map"] = rec[f"{key}_lonlat"] = None
+                continue
+            mx, my = frame.to_map(xy[0], xy[1])
+            lon, lat = frame.to_lonlat(xy[0], xy[1])
+            rec[f"{key}_map"] = [float(mx), float(my)]
+            rec[f"{key}_lonlat"] = [float(lon), float(lat)]
+        only = rec.get("frame_only")
+        if isinstance(only, dict):  # the single-frame decision beside the track, in map coordinates too
+            xy = only.get("position")
+            only["position_map"] = None if xy is None else [float(v) for v in frame.to_map(xy[0], xy[1])]
+            only["position_lonlat"] = None if xy is None else [float(v) for v in frame.to_lonlat(xy[0], xy[1])]
+    return results
+
+
+def finite_json(value: Any) -> Any:
+    """``value`` with every non-finite float (inf, NaN) replaced by None: strict JSON."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, np.generic):
+        return finite_json(value.item())
+    return value
+
+
+def check_writable(path: str | Path, what: str) -> Path:
+    """Refuse, before a run, an output path that cannot be written: a folder, a special or
+    read-only file, a folder that cannot be created. Creates nothing."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(results, indent=1) + "\n")
-    tmp.replace(path)
+    if path.is_dir():
+        raise InputError(path, f"{what}: is a folder, not a file")
+    if path.exists():
+        if not path.is_file():
+            raise InputError(path, f"{what}: not a regular file")
+        if not os.access(path, os.W_OK):
+            raise InputError(path, f"{what}: not writable")
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(path, f"{what}: {parent} is not a folder")
+    try:  # the only sure test (root may write anywhere, but not into /proc): a file made and removed
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=".mapinterp-check-"):
+            pass
+    except OSError as err:
+        raise InputError(path, f"{what}: cannot create files in {parent} ({err.strerror or err})") from None
     return path
 
 
+def write_results(path: str | Path, results: dict[str, Any]) -> Path:
+    """Write a results dict as indented strict JSON (no Infinity, no NaN: those become null),
+    creating the folder; returns the path. Raises :class:`InputError` when it cannot be written."""
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp.write_text(json.dumps(finite_json(results), indent=1, allow_nan=False) + "\n")
+        tmp.replace(path)
+    except OSError as err:
+        raise InputError(path, f"cannot write the results: {err.strerror or err}") from None
+    return path
+
+
+class _Frame(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    frame: int = Field(ge=0)
+    viewframe: int | None = Field(ge=0)
+    position: tuple[float, float] | None
+    heading_deg: float | None = None
+    confidence: float = 0.0
+    queries: int = Field(default=0, ge=0)
+    backtracks: int = Field(default=0, ge=0)
+    latency_ms: float | None = None
+    ranking: list[tuple[int, float]] = []
+    truth: tuple[float, float, float] | None = None
+    truth_viewframe: int | None = Field(default=None, ge=0)
+    correct: bool | None = None
+    error_m: float | None = None
+    reason: str = ""
+
+
+class _Summary(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    frames: int = Field(ge=0)
+    top1: float | None = None
+    mean_queries: float = 0.0
+    mean_error_m: float | None = None
+    latency_ms_p50: float = 0.0
+
+
+class _Results(BaseModel):
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+    scenario: str
+    strategy: str
+    scenario_path: str | None = None
+    frames: list[_Frame]
+    summary: _Summary
+
+
 def load_results(path: str | Path) -> dict[str, Any]:
-    """Read a results file; :class:`~models.errors.InputError` names the file and the problem."""
+    """Read and validate a results file; :class:`~models.errors.InputError` names the file,
+    the field and the problem (``r.json: frames[3].viewframe: must be an integer``)."""
+    from models.scenario import validation_problem
+
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "results file not found")
@@ -165,4 +282,9 @@ def load_results(path: str | Path) -> dict[str, Any]:
     for key in ("scenario", "strategy", "frames", "summary"):
         if not isinstance(data, dict) or key not in data:
             raise InputError(path, f"missing field {key!r}: not a mapinterp results file")
-    return data
+    try:
+        checked = _Results.model_validate(data)
+    except ValidationError as exc:
+        field, message = validation_problem(exc)
+        raise InputError(path, f"{field}: {message}" if field else message) from None
+    return checked.model_dump(mode="json")  # the values as validated ("3" read as 3), unknown fields kept

@@ -21,24 +21,53 @@ Candidates and their weights
     tracker, or the tracker is lost), the blind rule above.
 
 Posterior
-    ``pi_k ∝ w_k * prod_q lik(answer_q | k)`` over the surviving candidates, where for a landmark L
-    reported *present* the likelihood is ``q`` if L is visible in viewframe k and ``1 - q``
-    otherwise (``q`` is the detectors' assumed reliability). An *absent* landmark discards every
-    candidate that contains it (the backtrack). An unanswered question (detector dead or late)
-    changes nothing.
+    ``pi_k ∝ w_k * prod_q lik(answer_q | k)`` over the surviving candidates. How an answer about
+    landmark L enters depends on ``backtracking``:
+
+    ``hard`` (the seed paper's rule): for L reported *present* the likelihood is ``q`` if L is
+    visible in viewframe k and ``1 - q`` otherwise (``q`` is the detectors' assumed
+    reliability); an *absent* L discards every candidate that contains it (the backtrack).
+
+    ``soft`` (default): the detector reports the log-likelihood ratio ``λ = log p(image | L
+    there) / p(image | L not there)`` (calibrated on labelled frames, see
+    :mod:`models.detectors`), clipped to ``[-max_llr, max_llr]`` so that no single answer is
+    trusted beyond what the calibration can vouch for. Candidates containing L multiply their
+    likelihood by ``e**λ``, the others by 1 (it is the ratio that matters). An answer without a
+    likelihood ratio counts as ``λ = ±log(q / (1 - q))`` for present/absent. After each answer
+    a candidate whose posterior falls below ``floor`` is discarded (a backtrack): one wrong
+    "absent" lowers the right viewframe, consistent evidence against it removes it.
+
+    In both, an unanswered question (detector dead or late, or undecided) changes nothing.
 
 Which question next
-    Among landmarks visible in at least one surviving candidate and not yet asked, the one with the
-    highest ``P(L|A) = sum_{k ∋ L} pi_k`` (most probable first); ties go to the landmark of the
-    better-ranked candidate, then to the id. The detector is asked about L as seen from the most
+    Among landmarks visible in at least one surviving candidate and not yet asked, with
+    ``p_L = P(L|A) = sum_{k ∋ L} pi_k``:
+
+    ``questions: probability`` (the seed's order): the highest ``p_L`` first (most probable
+    first).
+
+    ``questions: information`` (default): the highest expected information gain about which
+    candidate is right, ``IG(L) = H(p_L q + (1 - p_L)(1 - q)) - H(q)`` bits (``H`` the binary
+    entropy, the detector a binary channel of reliability ``q``): it favours the landmark that
+    splits the posterior mass most evenly, the one that discriminates between the leading
+    candidates; ``p_L`` breaks ties.
+
+    Further ties go to the landmark of the better-ranked candidate, then to the id. A landmark
+    visible in every surviving candidate cannot discriminate; it is asked only when it belongs
+    to the best candidate (it confirms it). The detector is asked about L as seen from the most
     probable surviving candidate containing L.
 
 Acceptance
     The best candidate ``b`` (highest ``pi``) is accepted when ``pi_b >= accept`` and its own
-    landmarks have been checked: at least one of them confirmed present, or it has none (a
-    viewframe without visible landmarks is decided by the ranking alone). When no useful question
-    is left, ``b`` is accepted whatever ``pi_b`` is. The confidence reported is ``pi_b``.
-    When every candidate has been discarded, the frame is not localized (``viewframe=None``).
+    landmarks have been checked: at least one of them confirmed present (``hard``: answered
+    present; ``soft``: ``λ > 0``), or it has none (a viewframe without visible landmarks is
+    decided by the ranking alone). When no useful question is left, ``b`` is accepted whatever
+    ``pi_b`` is. The confidence reported is ``pi_b``. When every candidate has been discarded
+    (``hard`` only: ``soft`` always keeps the best), the frame is not localized
+    (``viewframe=None``).
+
+``backtracking: hard`` with ``questions: probability`` is the seed paper's rule exactly, the
+rule of the first version of mapinterp.
 """
 
 from __future__ import annotations
@@ -52,12 +81,29 @@ import numpy as np
 
 from models.scenario import SchedulerSpec
 
-__all__ = ["Question", "Decision", "SceneAnalysis", "ranking_weights"]
+__all__ = ["Question", "Decision", "SceneAnalysis", "ranking_weights", "information_gain"]
 
 Strategy = Literal["associative", "prior"]
+Backtracking = Literal["hard", "soft"]
+QuestionOrder = Literal["information", "probability"]
 
-#: the defaults (strategy, candidates, accept, reliability, beta): the scenario schema's
+#: the defaults (strategy, candidates, accept, reliability, beta, backtracking, questions, floor,
+#: max_llr): the scenario schema's
 _DEFAULTS = SchedulerSpec()
+
+
+def _entropy(p: float) -> float:
+    """Binary entropy in bits."""
+    if p <= 0.0 or p >= 1.0:
+        return 0.0
+    return -(p * math.log2(p) + (1.0 - p) * math.log2(1.0 - p))
+
+
+def information_gain(p: float, *, reliability: float) -> float:
+    """Expected information (bits) a yes/no answer about a landmark of probability ``p`` gives
+    about the candidate, the detector being right with probability ``reliability``."""
+    q = reliability
+    return _entropy(p * q + (1.0 - p) * (1.0 - q)) - _entropy(q)
 
 
 def ranking_weights(variances: Sequence[float] | np.ndarray, *, beta: float = _DEFAULTS.beta) -> np.ndarray:
@@ -127,6 +173,14 @@ class SceneAnalysis:
         Assumed probability ``q`` that a detector's "present" is right, in (0.5, 1).
     priors : mapping landmark -> P(L), optional
         A-priori landmark probabilities; the ``prior`` strategy's question order follows them.
+    backtracking : "hard" or "soft"
+        How answers enter (module docstring).
+    questions : "information" or "probability"
+        The question order (module docstring).
+    floor : float
+        ``soft``: a candidate whose posterior falls below it is discarded.
+    max_llr : float
+        ``soft``: answers' log-likelihood ratios are clipped to ``[-max_llr, max_llr]``.
     beta : float
         Sharpness of the ranking weights (:func:`ranking_weights`).
     track_prior : mapping viewframe -> probability, optional
@@ -147,6 +201,10 @@ class SceneAnalysis:
     priors: Mapping[str, float] | None = None
     beta: float = _DEFAULTS.beta
     track_prior: Mapping[int, float] | None = None
+    backtracking: Backtracking = _DEFAULTS.backtracking
+    questions: QuestionOrder = _DEFAULTS.questions
+    floor: float = _DEFAULTS.floor
+    max_llr: float = _DEFAULTS.max_llr
     _weights: dict[int, float] = field(init=False, repr=False)
     _rank: dict[int, int] = field(init=False, repr=False)
     _likelihood: dict[int, float] = field(init=False, repr=False)
@@ -169,6 +227,14 @@ class SceneAnalysis:
             raise ValueError("accept must be in (0, 1]")
         if not 0.5 < self.reliability < 1.0:
             raise ValueError("reliability must be in (0.5, 1)")
+        if self.backtracking not in ("hard", "soft"):
+            raise ValueError(f"backtracking must be 'hard' or 'soft', not {self.backtracking!r}")
+        if self.questions not in ("information", "probability"):
+            raise ValueError(f"questions must be 'information' or 'probability', not {self.questions!r}")
+        if not 0.0 <= self.floor < 1.0:
+            raise ValueError("floor must be in [0, 1)")
+        if not self.max_llr > 0:
+            raise ValueError("max_llr must be > 0")
         ranked = [int(k) for k, _ in self.ranking]
         self._rank = {k: i for i, k in enumerate(ranked)}
         if self.track_prior is not None:
@@ -187,7 +253,8 @@ class SceneAnalysis:
             self._weights = {k: float(w[i]) for i, k in enumerate(ranked[: self.candidates])}
         else:
             self._weights = {k: 1.0 for k in ranked}
-        self._likelihood = {k: 1.0 for k in self._weights}
+        # hard: likelihood products; soft: log-likelihoods
+        self._likelihood = {k: (0.0 if self.backtracking == "soft" else 1.0) for k in self._weights}
         self._asked = set()
         self._present = set()
         self._steps = []
@@ -198,7 +265,16 @@ class SceneAnalysis:
 
     def posterior(self) -> dict[int, float]:
         """Posterior probability of each surviving candidate (sums to 1; empty when none left)."""
-        raw = {k: self._weights[k] * self._likelihood[k] for k in self._weights}
+        if self.backtracking == "soft":
+            # log space: many strong answers must not underflow
+            logs = {k: (math.log(w) if (w := self._weights[k]) > 0 else -math.inf) + self._likelihood[k]
+                    for k in self._weights}
+            if not logs:
+                return {}
+            top = max(logs.values())
+            raw = {k: math.exp(v - top) for k, v in logs.items()}
+        else:
+            raw = {k: self._weights[k] * self._likelihood[k] for k in self._weights}
         total = sum(raw.values())
         if total <= 0:
             return {}
@@ -243,6 +319,9 @@ class SceneAnalysis:
             # the seed's order: a-priori P(L), most probable first, then P(L|A) to break ties
             priors = self.priors or {}
             order = sorted(open_, key=lambda lm: (-priors.get(lm, 0.0), -open_[lm], lm))
+        elif self.questions == "information":
+            gain = {lm: information_gain(p, reliability=self.reliability) for lm, p in open_.items()}
+            order = sorted(open_, key=lambda lm: (-round(gain[lm], 12), -open_[lm], self._first_rank(lm, post), lm))
         else:
             order = sorted(open_, key=lambda lm: (-open_[lm], self._first_rank(lm, post), lm))
         # A landmark visible in every surviving candidate cannot discriminate; it is still worth
@@ -258,12 +337,14 @@ class SceneAnalysis:
     def _first_rank(self, lm: str, post: Mapping[int, float]) -> int:
         return min(self._rank.get(k, len(self._rank)) for k in post if lm in self._landmarks(k))
 
-    def answer(self, question: Question, present: bool | None, *, score: float | None = None) -> None:
+    def answer(self, question: Question, present: bool | None, *, score: float | None = None,
+               llr: float | None = None) -> None:
         """Record the detector's answer to ``question``.
 
         ``present`` is ``True``/``False``, or ``None`` when the detector could not tell or no answer
         came (detector dead or late): the landmark is then marked as asked and nothing else changes.
-        Every call counts as one query.
+        ``llr`` is the detector's log-likelihood ratio (``soft`` backtracking uses it; ``hard``
+        uses ``present`` only). Every call counts as one query.
         """
         if self._pending is None or question != self._pending:
             raise ValueError(f"answer to {question} does not match the pending question {self._pending}")
@@ -272,7 +353,9 @@ class SceneAnalysis:
         step = {"landmark": question.landmark, "viewframe": question.viewframe,
                 "p": round(question.probability, 6), "present": present, "score": score}
         self._queries += 1  # every question asked counts, answered or not
-        if present is None:
+        if self.backtracking == "soft":
+            self._answer_soft(question, present, llr, step)
+        elif present is None:
             step["effect"] = "no evidence"
         else:
             holders = [k for k in self._weights if question.landmark in self._landmarks(k)]
@@ -289,6 +372,30 @@ class SceneAnalysis:
                 self._backtracks += 1
                 step["effect"] = f"discarded {sorted(holders)}"
         self._steps.append(step)
+
+    def _answer_soft(self, question: Question, present: bool | None, llr: float | None, step: dict) -> None:
+        if llr is None or not math.isfinite(float(llr)):
+            if present is None:
+                step["effect"] = "no evidence"
+                return
+            implied = math.log(self.reliability / (1.0 - self.reliability))
+            llr = implied if present else -implied
+        llr = max(-self.max_llr, min(self.max_llr, float(llr)))
+        step["llr"] = round(llr, 4)
+        holders = [k for k in self._weights if question.landmark in self._landmarks(k)]
+        for k in holders:
+            self._likelihood[k] += llr
+        if llr > 0:
+            self._present.add(question.landmark)
+        post = self.posterior()
+        best = self._best(post)
+        low = sorted(k for k, p in post.items() if p < self.floor and k != best)
+        for k in low:
+            del self._weights[k]
+            del self._likelihood[k]
+        if low:
+            self._backtracks += 1
+        step["effect"] = f"llr {llr:+.2f} on {len(holders)}" + (f", discarded {low}" if low else "")
 
     def _decide(self, viewframe: int | None, confidence: float, reason: str) -> None:
         self._decision = Decision(viewframe, float(confidence), self._queries, self._backtracks,

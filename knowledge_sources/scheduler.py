@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
-from knowledge_sources.scene_analysis import Question, SceneAnalysis, Strategy
+from knowledge_sources.scene_analysis import Backtracking, Question, QuestionOrder, SceneAnalysis, Strategy
 from models.scenario import SchedulerSpec
 
 __all__ = ["Scheduler", "detector_name"]
@@ -65,9 +65,11 @@ class Scheduler(KnowledgeSource):
     """Options: ``strategy`` ("associative" or "prior"), ``candidates``, ``accept``,
     ``reliability`` (assumed detector reliability), ``beta`` (ranking weight sharpness),
     ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
-    the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``; each defaults
-    to the scenario schema's (:class:`models.scenario.SchedulerSpec`). ``tracked``: a tracker
-    runs, frames are conditioned on its tracks (see the module docstring).
+    the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``,
+    ``backtracking`` ("hard" or "soft"), ``questions`` ("information" or "probability"),
+    ``floor``, ``max_llr`` (the scene-analysis rule's, :mod:`knowledge_sources.scene_analysis`);
+    each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
+    ``tracked``: a tracker runs, frames are conditioned on its tracks (see the module docstring).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER, levels.TRACK)
@@ -86,6 +88,10 @@ class Scheduler(KnowledgeSource):
         min_pixels: int = _DEFAULTS.min_pixels,
         query_timeout_s: float = _DEFAULTS.query_timeout_s,
         tracked: bool = False,
+        backtracking: str = _DEFAULTS.backtracking,
+        questions: str = _DEFAULTS.questions,
+        floor: float = _DEFAULTS.floor,
+        max_llr: float = _DEFAULTS.max_llr,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -98,6 +104,14 @@ class Scheduler(KnowledgeSource):
         self.beta = float(beta)
         self.min_pixels = int(min_pixels)
         self.query_timeout_s = float(query_timeout_s)
+        if backtracking not in ("hard", "soft"):
+            raise ValueError(f"backtracking must be 'hard' or 'soft', not {backtracking!r}")
+        if questions not in ("information", "probability"):
+            raise ValueError(f"questions must be 'information' or 'probability', not {questions!r}")
+        self.backtracking: Backtracking = backtracking  # type: ignore[assignment]  # checked just above
+        self.questions: QuestionOrder = questions  # type: ignore[assignment]  # checked just above
+        self.floor = float(floor)
+        self.max_llr = float(max_llr)
         self._map: levels.Map | None = None
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
@@ -193,6 +207,10 @@ class Scheduler(KnowledgeSource):
             beta=self.beta,
             priors=mp.priors,
             track_prior=None if prior is None else {k: float(p) for k, p in enumerate(prior)},
+            backtracking=self.backtracking,
+            questions=self.questions,
+            floor=self.floor,
+            max_llr=self.max_llr,
         )
         self._advance(st, board)
 
@@ -205,8 +223,8 @@ class Scheduler(KnowledgeSource):
         assert question is not None
         present = answer.present
         st.links.append(h.id)
-        st.analysis.answer(question, present, score=answer.score)
-        if present is None:
+        st.analysis.answer(question, present, score=answer.score, llr=answer.llr)
+        if present is None and (answer.llr is None or self.backtracking == "hard"):
             # the detector could not tell: no evidence either way, and not counted as a query
             st.degraded.append(f"{question.landmark}: undecided ({answer.reason})")
         self._advance(st, board)

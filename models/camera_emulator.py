@@ -305,6 +305,44 @@ class CameraEmulator:
             len(self.environment.tile_mesh(t, lv).indices) for t, lv in enumerate(levels) if lv >= 0
         )
 
+    def _prepare(
+        self,
+        pose: Pose,
+        light_intensity: float | None,
+        light_direction: tuple[float, float, float] | None,
+    ) -> None:
+        if self._renderer is None:
+            raise RenderError("the camera emulator is closed")
+        self._set_levels(pose)
+        m = np.eye(4)
+        rot = pose.rotation()
+        m[:3, 0], m[:3, 1], m[:3, 2] = rot[0], rot[1], -rot[2]
+        m[:3, 3] = pose.position
+        self.scene.set_pose(self._cam_node, m)
+        self._light.intensity = _DEFAULT_LIGHT_INTENSITY if light_intensity is None else float(light_intensity)
+        self.scene.set_pose(self._light_node, _light_pose(light_direction or _DEFAULT_LIGHT_DIRECTION))
+
+    def render_background(
+        self,
+        pose: Pose,
+        *,
+        light_intensity: float | None = None,
+        light_direction: tuple[float, float, float] | None = None,
+    ) -> np.ndarray:
+        """The colour image from ``pose`` with every landmark box left out: the bare terrain and
+        sky, uint8 (H, W, 3) RGB. Where a landmark covers pixels of :meth:`render`'s image, these
+        are the pixels behind it (what the camera sees when the landmark is not there). One
+        colour pass, no segmentation pass; lighting options as in :meth:`render`.
+        """
+        self._prepare(pose, light_intensity, light_direction)
+        for node in self._landmark_nodes:
+            self.scene.deactivate(node)
+        try:
+            color, _ = self._renderer.render(self.scene)
+        except Exception as exc:
+            raise RenderError(f"rendering failed: {exc}") from exc
+        return np.ascontiguousarray(color[..., :3], dtype=np.uint8)
+
     def render(
         self,
         pose: Pose,
@@ -318,16 +356,7 @@ class CameraEmulator:
         ``light_direction`` (world (x, y, z) direction the sunlight travels, default from the
         south-east and high) change the lighting of this view only.
         """
-        if self._renderer is None:
-            raise RenderError("the camera emulator is closed")
-        self._set_levels(pose)
-        m = np.eye(4)
-        rot = pose.rotation()
-        m[:3, 0], m[:3, 1], m[:3, 2] = rot[0], rot[1], -rot[2]
-        m[:3, 3] = pose.position
-        self.scene.set_pose(self._cam_node, m)
-        self._light.intensity = _DEFAULT_LIGHT_INTENSITY if light_intensity is None else float(light_intensity)
-        self.scene.set_pose(self._light_node, _light_pose(light_direction or _DEFAULT_LIGHT_DIRECTION))
+        self._prepare(pose, light_intensity, light_direction)
         try:
             color, _ = self._renderer.render(self.scene)
             # depth from the segmentation pass: it rasterises without multisampling, so depth is

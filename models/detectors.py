@@ -14,11 +14,27 @@ cross-correlation it does not reward a weak, noisy patch (an empty sky) whose sh
 align, because the camera's edge energy there must also match the template's. The answer is
 *present* when the best score reaches ``threshold``, *absent* below ``absent_threshold``, and
 *undecided* (``present=None``) in between or when the landmark covers too few pixels in the
-viewframe for a template to mean anything. The default thresholds are the scenario schema's
-(``scheduler.detector_threshold`` and ``scheduler.absent_threshold`` of
-:class:`models.scenario.SchedulerSpec`), chosen with the scheduler on simulated frames of the
-bundled scenarios with other seeds (BENCHMARKS.md): a false "absent" discards the right
-viewframe, so "absent" is called only when the evidence is clearly missing.
+viewframe for a template to mean anything. A false "absent" discarded the right viewframe under
+the seed paper's hard backtracking, so "absent" is called only when the evidence is clearly
+missing. The default thresholds are the scenario schema's (``scheduler.detector_threshold`` and
+``scheduler.absent_threshold`` of :class:`models.scenario.SchedulerSpec`), chosen with the
+scheduler on simulated frames of the bundled scenarios with other seeds (BENCHMARKS.md).
+
+The likelihood ratio
+    Beside the three-way answer the detector reports ``llr``, the log of the likelihood ratio
+    p(camera image | landmark there) / p(camera image | landmark not there). It compares the
+    camera image with the viewframe *with* the landmark and *without* it: the camera emulator
+    renders every viewframe once without landmark boxes
+    (:meth:`models.camera.CameraEmulator.render_background`), and the "without" view is the
+    viewframe with the landmark's silhouette filled from it (:class:`CandidateView`'s
+    ``without``). Both are matched against the camera image with an alignment search that
+    covers the pose errors (:func:`align_pixels`; :meth:`EdgeTemplateDetector.evidence` says
+    how), and the evidence is turned into a log-likelihood ratio by a logistic
+    :class:`Calibration` fitted per detector family on labelled frames of tuning seeds
+    (bench/tuning/calibrate_detectors.py; its coefficients are the scenario schema's
+    ``scheduler.calibration`` defaults). The scheduler's ``soft`` backtracking multiplies the
+    candidates' likelihoods by it (:mod:`knowledge_sources.scene_analysis`). How well it
+    separates, per landmark kind on held-out frames: bench/detectors.py and BENCHMARKS.md.
 
 Detectors are pluggable: anything with the :class:`LandmarkDetector` protocol can be registered
 for a landmark kind in a :class:`DetectorRegistry`.
@@ -28,6 +44,8 @@ Images are ``(H, W)`` or ``(H, W, 3)`` arrays indexed ``(row, col)``.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
@@ -44,9 +62,13 @@ __all__ = [
     "DetectorRegistry",
     "default_registry",
     "edge_image",
+    "Calibration",
+    "LR_FEATURES",
+    "KIND_FAMILY",
+    "align_pixels",
 ]
 
-#: the default thresholds: the scenario schema's ``scheduler`` settings
+#: the defaults (thresholds, calibration, alignment tolerance): the scenario schema's ``scheduler``
 _DEFAULTS = SchedulerSpec()
 
 
@@ -60,15 +82,30 @@ class CandidateView:
         The synthetic viewframe image.
     silhouette : ndarray of shape (H, W), bool
         Pixels where the landmark is visible in the viewframe.
+    without : ndarray like ``image``, optional
+        The viewframe as it would look without this landmark (its silhouette filled with the
+        terrain and sky behind it, :func:`models.viewframes.without_landmark`). Without it a
+        detector can still answer present/absent but cannot give a likelihood ratio.
     """
 
     image: np.ndarray
     silhouette: np.ndarray
+    without: np.ndarray | None = None
 
     @classmethod
-    def from_mask(cls, image: np.ndarray, mask: np.ndarray, landmark_index: int) -> CandidateView:
-        """Build from a viewframe's landmark id mask (``-1`` background, else landmark index)."""
-        return cls(image, np.asarray(mask) == landmark_index)
+    def from_mask(
+        cls, image: np.ndarray, mask: np.ndarray, landmark_index: int, *, background: np.ndarray | None = None
+    ) -> CandidateView:
+        """Build from a viewframe's landmark id mask (``-1`` background, else landmark index) and,
+        optionally, the viewframe rendered without landmarks (``background``, same shape as ``image``)."""
+        sil = np.asarray(mask) == landmark_index
+        without = None
+        if background is not None:
+            if background.shape != image.shape:
+                raise ValueError(f"background shape {background.shape} must equal the image's {image.shape}")
+            without = image.copy()
+            without[sil] = background[sil]
+        return cls(image, sil, without)
 
 
 @dataclass(frozen=True)
@@ -77,13 +114,18 @@ class Detection:
 
     ``present`` is ``True``, ``False`` or ``None`` (cannot tell); ``score`` in [-1, 1] is the
     best energy-aware correlation; ``location`` the ``(row, col)`` of the landmark's bounding-box top-left
-    corner at the best match, ``None`` when not searched.
+    corner at the best match, ``None`` when not searched. ``llr`` is the calibrated natural log of
+    the likelihood ratio p(image | landmark there) / p(image | landmark not there), ``None``
+    when the detector cannot give one (no view without the landmark, too few pixels);
+    ``statistic`` the uncalibrated with/without statistic it came from.
     """
 
     present: bool | None
     score: float
     location: tuple[int, int] | None = None
     reason: str = ""
+    llr: float | None = None
+    statistic: float | None = None
 
 
 @runtime_checkable
@@ -95,6 +137,40 @@ class LandmarkDetector(Protocol):
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
         """Answer whether the landmark of ``view`` is present in camera ``image``."""
         ...
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Logistic calibration of a detector's evidence into a log-likelihood ratio.
+
+    ``llr = bias + sum_i weights[i] * features[i]``, the features being
+    :data:`LR_FEATURES` (the with/without statistic and the energy-aware score). The
+    coefficients come from a logistic regression on labelled frames (landmark truly visible or
+    not) with the training set's prior log-odds removed from the bias, so that ``llr`` is a
+    likelihood ratio, not a posterior: the scheduler supplies the prior.
+    """
+
+    bias: float
+    weights: tuple[float, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.weights) != len(LR_FEATURES):
+            raise ValueError(f"weights must have {len(LR_FEATURES)} values ({', '.join(LR_FEATURES)})")
+
+    @classmethod
+    def from_sequence(cls, values) -> Calibration:
+        """From ``[bias, w_1, ..., w_n]`` (the scenario schema's form)."""
+        values = [float(v) for v in values]
+        if len(values) != len(LR_FEATURES) + 1:
+            raise ValueError(f"a calibration is [bias, {', '.join(LR_FEATURES)}]: {len(LR_FEATURES) + 1} numbers")
+        return cls(values[0], tuple(values[1:]))
+
+    def llr(self, features) -> float:
+        return float(self.bias + sum(w * float(f) for w, f in zip(self.weights, features)))
+
+
+#: the features a :class:`Calibration` weighs, in order
+LR_FEATURES: tuple[str, ...] = ("statistic", "score", "contrast")
 
 
 def edge_image(image: np.ndarray, *, axis: str = "both", blur_sigma: float = 1.0) -> np.ndarray:
@@ -128,7 +204,8 @@ def edge_image(image: np.ndarray, *, axis: str = "both", blur_sigma: float = 1.0
 
 @dataclass
 class EdgeTemplateDetector:
-    """Masked edge-template matching around the expected place (see the module docstring).
+    """Masked edge-template matching around the expected place, and the with/without likelihood
+    ratio (see the module docstring).
 
     Parameters
     ----------
@@ -149,6 +226,12 @@ class EdgeTemplateDetector:
     axis : str
         Edge orientation used: ``"both"``, or ``"x"`` for tall thin landmarks (towers, masts)
         whose evidence is their vertical edges.
+    calibration : Calibration, optional
+        Turns the evidence into a log-likelihood ratio (``Detection.llr``); without one, or when
+        the view has no ``without`` image, ``llr`` is ``None``.
+    align_px : (rows, cols)
+        Half-size of the likelihood ratio's alignment search in pixels: the pose errors it must
+        tolerate (pitch moves the view vertically, heading horizontally), see :func:`align_pixels`.
     """
 
     name: str = "edge-template"
@@ -159,16 +242,90 @@ class EdgeTemplateDetector:
     dilate: int = 2
     min_pixels: int = 24
     axis: str = "both"
+    calibration: Calibration | None = None
+    align_px: tuple[int, int] = (9, 16)
+
+    def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float] | None:
+        """The uncalibrated evidence (:data:`LR_FEATURES`): ``(statistic, score, contrast)``,
+        ``None`` when the view has no ``without`` image or the landmark too few pixels.
+
+        ``statistic`` compares the camera image with the viewframe with the landmark (``T1``) and
+        without it (``T0``, the terrain and sky behind it) over the landmark's silhouette ``M``,
+        in chromaticity ``(r, g) / (r + g + b)`` (free of gain, exposure and most of the shading
+        renderers disagree on; the edges carry the shape, in ``score``). Each hypothesis is
+        matched at its best offset within the alignment search (a generalised likelihood ratio:
+        the pose error is a nuisance maximised out under each): with a Gaussian error model the
+        log-likelihood ratio is proportional to ``SSD0 - SSD1``, ``SSDi = min_offset sum M
+        |C - Ti|^2``, and ``statistic = (SSD0 - SSD1) / sum M |T1 - T0|^2`` is about +1 when the
+        camera shows the landmark as the viewframe does, -1 when it shows what lies behind it.
+        The search is ``align_px`` (pose errors) plus a quarter of the landmark's height and half
+        its width (parallax: near landmarks move more than the horizon when the camera stands
+        off the route point). ``score`` is :meth:`detect`'s edge score. ``contrast`` asks what
+        neither needs to trust a renderer's colours for: does the camera image, somewhere within
+        the same search, differ inside the silhouette from a ring around it, as a landmark in
+        front of the terrain does (its best ``|mean_in - mean_ring| / sqrt(var_in + var_ring)``
+        in gray levels), less the same contrast in the view without the landmark (a horizon
+        crossing the silhouette shows contrast with no landmark there).
+        """
+        sil = self._check(image, view)
+        if view.without is None or int(sil.sum()) < self.min_pixels:
+            return None
+        statistic = self._colour_statistic(image, view, sil)
+        if statistic is None:
+            return None
+        return statistic, self._edge_score(image, view, sil)[0], self._contrast(image, view, sil)
+
+    def _contrast(self, image: np.ndarray, view: CandidateView, sil: np.ndarray, *, ring: int = 3) -> float:
+        k = 2 * ring + 1
+        big = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+        rows, cols = np.nonzero(big)
+        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        m_in = sil[r0:r1, c0:c1].astype(np.float32)
+        m_ring = (big & ~sil)[r0:r1, c0:c1].astype(np.float32)
+        sr = self.align_px[0] + int(0.25 * (r1 - r0))
+        sc = self.align_px[1] + int(0.5 * (c1 - c0))
+        pad = max(sr, sc) + 1
+        cam = np.pad(_gray(image), pad, mode="edge")[r0 - sr + pad:r1 + sr + pad, c0 - sc + pad:c1 + sc + pad]
+        assert view.without is not None  # checked by the callers
+        behind = _gray(view.without)[r0:r1, c0:c1]
+        return float(_ring_contrast(cam, m_in, m_ring).max()) - float(_ring_contrast(behind, m_in, m_ring).max())
 
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
+        sil = self._check(image, view)
+        n = int(sil.sum())
+        if n < self.min_pixels:
+            return Detection(None, 0.0, None, f"only {n} pixels in the viewframe (< {self.min_pixels})")
+        best, loc, why = self._edge_score(image, view, sil)
+        if loc is None:
+            return Detection(None, 0.0, None, why)
+        llr = statistic = None
+        if self.calibration is not None and view.without is not None:
+            statistic = self._colour_statistic(image, view, sil)
+            if statistic is not None:
+                llr = self.calibration.llr((statistic, best, self._contrast(image, view, sil)))
+        lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
+        if best >= self.threshold:
+            return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}{lr}", llr, statistic)
+        if best < self.absent_threshold:
+            return Detection(False, best, loc, f"score {best:.3f} < {self.absent_threshold}{lr}", llr, statistic)
+        return Detection(None, best, loc, f"score {best:.3f} between {self.absent_threshold} and {self.threshold}{lr}",
+                         llr, statistic)
+
+    # -- parts ------------------------------------------------------------------------------
+    @staticmethod
+    def _check(image: np.ndarray, view: CandidateView) -> np.ndarray:
         sil = np.asarray(view.silhouette, bool)
         if sil.shape != image.shape[:2] or view.image.shape[:2] != image.shape[:2]:
             raise ValueError(
                 f"image shape {image.shape[:2]} must equal the viewframe's {view.image.shape[:2]}"
             )
-        n = int(sil.sum())
-        if n < self.min_pixels:
-            return Detection(None, 0.0, None, f"only {n} pixels in the viewframe (< {self.min_pixels})")
+        return sil
+
+    def _edge_score(
+        self, image: np.ndarray, view: CandidateView, sil: np.ndarray
+    ) -> tuple[float, tuple[int, int] | None, str]:
+        """The energy-aware edge correlation: best score and its place (``None`` and a reason
+        when the viewframe shows no edges on the landmark)."""
         h, w = sil.shape
         k = 2 * self.dilate + 1
         region = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
@@ -177,7 +334,7 @@ class EdgeTemplateDetector:
         template = _highpass(edge_image(view.image, axis=self.axis))[r0:r1, c0:c1]
         tmask = region[r0:r1, c0:c1].astype(np.float32)
         if float((template * tmask).std()) < 1e-6:
-            return Detection(None, 0.0, None, "the viewframe shows no edges on the landmark")
+            return 0.0, None, "the viewframe shows no edges on the landmark"
         s = self.search + int(round(self.search_fraction * w))
         wr0, wr1 = max(0, r0 - s), min(h, r1 + s)
         wc0, wc1 = max(0, c0 - s), min(w, c1 + s)
@@ -187,13 +344,65 @@ class EdgeTemplateDetector:
         energy = cv2.matchTemplate(window * window, tmask, cv2.TM_CCORR)
         scores = 2.0 * cross / (float((weighted * weighted).sum()) + energy + 1e-12)
         idx = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        best = float(scores[idx])
-        loc = (int(wr0 + idx[0]), int(wc0 + idx[1]))
-        if best >= self.threshold:
-            return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}")
-        if best < self.absent_threshold:
-            return Detection(False, best, loc, f"score {best:.3f} < {self.absent_threshold}")
-        return Detection(None, best, loc, f"score {best:.3f} between {self.absent_threshold} and {self.threshold}")
+        return float(scores[idx]), (int(wr0 + idx[0]), int(wc0 + idx[1])), ""
+
+    def _colour_statistic(self, image: np.ndarray, view: CandidateView, sil: np.ndarray) -> float | None:
+        rows, cols = np.nonzero(sil)
+        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        m = sil[r0:r1, c0:c1].astype(np.float32)
+        assert view.without is not None  # checked by the callers
+        t1 = _chromaticity(view.image)[r0:r1, c0:c1]
+        t0 = _chromaticity(view.without)[r0:r1, c0:c1]
+        d2 = float((m[..., None] * (t1 - t0) ** 2).sum())
+        if d2 < 1e-9:
+            return None  # the landmark has the colour of what lies behind it: no colour evidence
+        h, w = sil.shape
+        sr = self.align_px[0] + int(0.25 * (r1 - r0))
+        sc = self.align_px[1] + int(0.5 * (c1 - c0))
+        win = _chromaticity(image)[max(0, r0 - sr):min(h, r1 + sr), max(0, c0 - sc):min(w, c1 + sc)]
+        ssd0, ssd1 = (_masked_ssd(win, t, m) for t in (t0, t1))
+        return (float(ssd0.min()) - float(ssd1.min())) / d2
+
+
+def _gray(image: np.ndarray) -> np.ndarray:
+    if image.ndim == 3:
+        return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY).astype(np.float32)
+    return image.astype(np.float32)
+
+
+def _ring_contrast(window: np.ndarray, inner: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """``|mean_inner - mean_ring| / sqrt(var_inner + var_ring + 4)`` of the gray ``window`` for every
+    offset of the two masks (same shape) inside it; the 4 (gray levels squared) keeps flat
+    patches finite."""
+    n_in, n_ring = float(inner.sum()), float(ring.sum())
+    if n_in == 0 or n_ring == 0:
+        return np.zeros((1, 1), np.float32)
+    mi = cv2.matchTemplate(window, inner, cv2.TM_CCORR) / n_in
+    mr = cv2.matchTemplate(window, ring, cv2.TM_CCORR) / n_ring
+    vi = cv2.matchTemplate(window * window, inner, cv2.TM_CCORR) / n_in - mi * mi
+    vr = cv2.matchTemplate(window * window, ring, cv2.TM_CCORR) / n_ring - mr * mr
+    return np.abs(mi - mr) / np.sqrt(np.maximum(vi, 0) + np.maximum(vr, 0) + 4.0)
+
+
+def _chromaticity(image: np.ndarray) -> np.ndarray:
+    """``(r, g) / (r + g + b)`` of an RGB image (H, W, 3) -> (H, W, 2) float32; a gray image gives
+    the neutral 1/3 everywhere."""
+    if image.ndim == 2:
+        return np.full((*image.shape, 2), 1.0 / 3.0, np.float32)
+    f = image.astype(np.float32) + 1.0
+    return np.ascontiguousarray(f[..., :2] / f.sum(axis=2, keepdims=True))
+
+
+def _masked_ssd(window: np.ndarray, template: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``sum mask * |window_o - template|^2`` over channels for every offset ``o`` of the template
+    (H_t, W_t, C) inside the window (H_w, W_w, C); returns (H_w - H_t + 1, W_w - W_t + 1)."""
+    out = np.zeros((window.shape[0] - template.shape[0] + 1, window.shape[1] - template.shape[1] + 1), np.float32)
+    for c in range(template.shape[2]):
+        w = np.ascontiguousarray(window[..., c])
+        t = np.ascontiguousarray(template[..., c])
+        out += (cv2.matchTemplate(w * w, mask, cv2.TM_CCORR) - 2.0 * cv2.matchTemplate(w, mask * t, cv2.TM_CCORR)
+                + float((mask * t * t).sum()))
+    return out
 
 
 def _highpass(edges: np.ndarray, *, sigma: float = 4.0) -> np.ndarray:
@@ -224,18 +433,55 @@ class DetectorRegistry:
         return sorted(self.detectors)
 
 
+def align_pixels(
+    *, height: int, fov_y_deg: float, tolerance_deg: tuple[float, float], margin: int = 3
+) -> tuple[int, int]:
+    """The alignment search, ``(rows, cols)`` half-sizes in pixels, that covers pose errors of
+    ``tolerance_deg = (pitch, heading)`` degrees for a camera of ``height`` rows and vertical
+    field of view ``fov_y_deg`` (square pixels, :mod:`models.camera`'s pinhole), plus ``margin``
+    pixels for position errors and rendering differences."""
+    if height < 1 or not 0 < fov_y_deg < 180:
+        raise ValueError("height must be >= 1 and fov_y_deg in (0, 180)")
+    if any(t < 0 or t >= 45 for t in tolerance_deg):
+        raise ValueError("tolerance_deg must be two angles in [0, 45) degrees")
+    f = (height / 2) / math.tan(math.radians(fov_y_deg) / 2)
+    rows, cols = (int(math.ceil(f * math.tan(math.radians(t)))) + int(margin) for t in tolerance_deg)
+    return rows, cols
+
+
+#: landmark kind -> detector family (the calibration is per family); other kinds: "outline"
+KIND_FAMILY: dict[str, str] = {"house": "outline", "barn": "outline", "tower": "vertical", "silo": "vertical"}
+
+
 def default_registry(
-    *, threshold: float = _DEFAULTS.detector_threshold, absent_threshold: float = _DEFAULTS.absent_threshold
+    *,
+    threshold: float = _DEFAULTS.detector_threshold,
+    absent_threshold: float = _DEFAULTS.absent_threshold,
+    calibration: Mapping[str, Sequence[float]] | None = None,
+    align_px: tuple[int, int] | None = None,
 ) -> DetectorRegistry:
     """Detectors for the bundled landmark kinds: houses and barns (wide boxes) by their outline,
-    towers and silos (tall, narrow) by their vertical edges; any other kind by the box outline."""
+    towers and silos (tall, narrow) by their vertical edges; any other kind by the box outline.
 
-    def detector(name: str, **options: Any) -> EdgeTemplateDetector:
-        return EdgeTemplateDetector(name=name, threshold=threshold, absent_threshold=absent_threshold, **options)
+    ``threshold`` / ``absent_threshold``: the present/absent score thresholds;
+    ``calibration``: ``{kind or family: [bias, weights...]}`` (:class:`Calibration`; a kind's
+    own entry wins over its family's, :data:`KIND_FAMILY`; ``None``: no likelihood ratio, pass
+    the schema's ``scheduler.calibration`` for the calibrated one); ``align_px``: the likelihood
+    ratio's alignment search (:func:`align_pixels`). The values come from the scenario's
+    ``scheduler`` block (:class:`models.scenario.SchedulerSpec`).
+    """
+    cal = {k: Calibration.from_sequence(v) for k, v in (calibration or {}).items()}
 
-    reg = DetectorRegistry(fallback=detector("box-outline"))
-    reg.register("house", detector("house-outline"))
-    reg.register("barn", detector("barn-outline"))
-    reg.register("tower", detector("tower-vertical-edges", axis="x", min_pixels=12))
-    reg.register("silo", detector("silo-vertical-edges", axis="x", min_pixels=12))
+    def make(name: str, kind: str | None, **kw: Any) -> EdgeTemplateDetector:
+        family = KIND_FAMILY.get(kind or "", "outline")
+        if align_px is not None:
+            kw["align_px"] = (int(align_px[0]), int(align_px[1]))
+        return EdgeTemplateDetector(name=name, threshold=threshold, absent_threshold=absent_threshold,
+                                    calibration=cal.get(kind or "", cal.get(family)), **kw)
+
+    reg = DetectorRegistry(fallback=make("box-outline", None))
+    reg.register("house", make("house-outline", "house"))
+    reg.register("barn", make("barn-outline", "barn"))
+    reg.register("tower", make("tower-vertical-edges", "tower", axis="x", min_pixels=12))
+    reg.register("silo", make("silo-vertical-edges", "silo", axis="x", min_pixels=12))
     return reg

@@ -31,7 +31,7 @@ from scipy.interpolate import RegularGridInterpolator
 from models.errors import ScenarioError
 from models.landmarks import Landmark, place_landmarks, raised_dem
 from models.terrain import Terrain
-from models.terrain_sources import load_terrain
+from models.terrain_sources import scenario_terrain
 
 __all__ = [
     "TileMesh",
@@ -39,6 +39,7 @@ __all__ = [
     "EnvironmentModel",
     "build_environment",
     "outside_frustum",
+    "check_extents",
     "terrain_colors",
     "KIND_COLORS",
 ]
@@ -349,14 +350,32 @@ def build_environment(scenario, *, terrain: Terrain | None = None, **lod) -> Env
     ``lod`` passes ``tile_cells``, ``levels`` and ``lod_factor`` to :class:`EnvironmentModel`.
     """
     if terrain is None:
-        terrain = load_terrain(scenario.terrain, base_dir=scenario.base_dir, seed=scenario.seed)
+        terrain = scenario_terrain(scenario)
+    landmarks = check_extents(scenario, terrain)
+    return EnvironmentModel(terrain, landmarks, **lod)
+
+
+def check_extents(scenario, terrain: Terrain) -> list[Landmark]:
+    """Every route point and every landmark footprint inside ``terrain``; returns the landmarks
+    placed on it. Raises :class:`ScenarioError` naming the first one outside."""
     x0, x1, y0, y1 = terrain.extent
     where = f"outside the terrain (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} m)"
+    frame = getattr(scenario, "map_frame", None)
+    if frame is not None:
+        (mx0, mx1), (my0, my1) = frame.to_map([x0, x1], [y0, y1])
+        where = (f"outside the terrain ({frame.name}: x {float(mx0):.7g}..{float(mx1):.7g}, "
+                 f"y {float(my0):.7g}..{float(my1):.7g}; is the scenario's crs: right?)")
     for i, (x, y) in enumerate(scenario.route):
         if not terrain.contains(x, y):
-            raise ScenarioError(scenario.path, f"route[{i}]", f"({x:g}, {y:g}) is {where}")
+            shown = f"({x:g}, {y:g})" if frame is None else "({:.7g}, {:.7g})".format(*map(float, frame.to_map(x, y)))
+            raise ScenarioError(scenario.path, f"route[{i}]", f"{shown} is {where}")
+    for i, spec in enumerate(scenario.landmarks):
+        if not terrain.contains(spec.x, spec.y):
+            shown = (f"({spec.x:g}, {spec.y:g})" if frame is None
+                     else "({:.7g}, {:.7g})".format(*map(float, frame.to_map(spec.x, spec.y))))
+            raise ScenarioError(scenario.path, f"landmarks[{i}]", f"{spec.id!r} at {shown} is {where}")
     landmarks = place_landmarks(terrain, scenario.landmarks)
     for i, lm in enumerate(landmarks):
         if not all(terrain.contains(px, py) for px, py in lm.corners()):
             raise ScenarioError(scenario.path, f"landmarks[{i}]", f"footprint of {lm.id!r} is {where}")
-    return EnvironmentModel(terrain, landmarks, **lod)
+    return landmarks

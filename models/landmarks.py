@@ -90,4 +90,4 @@ def raised_dem(terrain: Terrain, landmarks: Iterable[Landmark]) -> Terrain:
         inside = (np.abs(u) <= lm.width / 2 + 1e-9) & (np.abs(v) <= lm.depth / 2 + 1e-9)
         block = h[r0 : r1 + 1, c0 : c1 + 1]
         block[inside] = np.maximum(block[inside], lm.top)
-    return Terrain(heights=h, cell_size=terrain.cell_size)
+    return Terrain(heights=h, cell_size=terrain.cell_size, frame=terrain.frame)

@@ -24,6 +24,21 @@ functions that use them (:mod:`models.preprocess`, :mod:`models.associative`,
 agents) take their default values from these specs (``MemorySpec().blur_sigma`` ...) and write
 none of their own. Why each default was chosen is in BENCHMARKS.md ("Choosing the memory and
 scheduler defaults").
+
+On a georeferenced map (``terrain.dem`` a GeoTIFF or other GDAL raster, or contour lines with a
+CRS) the route, landmark and truth coordinates are in the map's CRS, or in the CRS named by the
+top-level ``crs:`` (``EPSG:4326``: [lon, lat] degrees); they are converted to local metres on
+load (:class:`~models.georef.MapFrame`, in :attr:`Scenario.map_frame`), so every model and agent
+sees local metres::
+
+    terrain: {dem: data/dem.tif}        # cell size and CRS from the GeoTIFF
+    crs: EPSG:4326
+    route: [[-84.301, 36.402], [-84.300, 36.403]]
+
+Positions are converted; directions (``landmarks[].yaw_deg``, ``truth.heading_deg``) are taken
+as they are, counterclockwise from the working CRS's grid east: within a map's extent that
+differs from true east by the grid convergence (zero on a transverse Mercator's central
+meridian, up to a few degrees at a UTM zone's edge).
 """
 
 from __future__ import annotations
@@ -66,6 +81,7 @@ __all__ = [
     "load_scenario",
     "scenario_from_dict",
     "SAMPLE_DEMS",
+    "validation_problem",
 ]
 
 log = logging.getLogger(__name__)
@@ -74,8 +90,22 @@ log = logging.getLogger(__name__)
 SAMPLE_DEMS: tuple[str, ...] = ("jacksboro",)
 
 
+#: bounds shared by several fields: world coordinates and lengths (metres), seeds
+MAX_COORD_M = 1e7
+MAX_SIZE_M = 1e4
+MAX_SEED = 2**32 - 1
+#: at most this many route points and camera frames in one scenario
+MAX_ROUTE_POINTS = 1_000_000
+MAX_FRAMES = 1_000_000
+MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
+MAX_SPEED_MPS = 1000.0
+#: smallest camera image on file accepted, pixels per side (the camera's own lower bound)
+MIN_IMAGE_PX = 8
+
+
 class _Spec(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # no inf/NaN anywhere: every float is finite (pydantic's finite_number error)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _resolve_path(value: Path, info: ValidationInfo, *, must_exist: bool = True) -> Path:
@@ -93,18 +123,27 @@ class ProceduralSpec(_Spec):
     """Procedural hills: ``{size: 256, relief: 120.0, seed: 3}`` (seed None -> scenario seed)."""
 
     size: int = Field(ge=8, le=4096)
-    relief: float = Field(gt=0)
-    seed: int | None = None
+    relief: float = Field(gt=0, le=MAX_SIZE_M)
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
 
 
 class TerrainSpec(_Spec):
-    """``cell_size`` plus exactly one source: ``dem``, ``procedural``, ``contours`` or ``sample``."""
+    """Exactly one source, ``dem``, ``procedural``, ``contours`` or ``sample``, and ``cell_size``.
 
-    cell_size: float = Field(gt=0)
+    ``cell_size`` (metres) is required but for a raster ``dem`` (a GeoTIFF or any GDAL raster),
+    whose own cells are used unless ``cell_size`` asks for others (it is then resampled, see
+    :mod:`models.georaster`). ``nodata`` says what a raster's nodata cells become: ``fill``
+    (nearest valid height, with a warning) or ``refuse`` (an error). ``elevation_attribute``
+    names the contour files' height attribute.
+    """
+
+    cell_size: float | None = Field(default=None, gt=0, le=MAX_SIZE_M)
     dem: Path | None = None
     procedural: ProceduralSpec | None = None
     contours: Path | None = None
     sample: Literal["jacksboro"] | None = None
+    nodata: Literal["fill", "refuse"] = "fill"
+    elevation_attribute: str = Field(default="elevation", min_length=1)
 
     @field_validator("dem", "contours")
     @classmethod
@@ -117,20 +156,23 @@ class TerrainSpec(_Spec):
         if len(given) != 1:
             got = ", ".join(given) if given else "none"
             raise ValueError(f"needs exactly one of dem, procedural, contours, sample (got {got})")
+        raster = self.dem is not None and self.dem.suffix.lower() != ".npy"
+        if self.cell_size is None and not raster:
+            raise ValueError("cell_size is required (metres per DEM cell) but for a georeferenced raster dem")
         return self
 
 
 class LandmarkSpec(_Spec):
     """A box landmark: footprint centre (x, y), width along local x, depth along local y."""
 
-    id: str = Field(min_length=1)
-    kind: str = Field(min_length=1)
-    x: float
-    y: float
-    width: float = Field(gt=0)
-    depth: float = Field(gt=0)
-    height: float = Field(gt=0)
-    yaw_deg: float = 0.0
+    id: str = Field(min_length=1, max_length=64)
+    kind: str = Field(min_length=1, max_length=64)
+    x: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    y: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    width: float = Field(gt=0, le=MAX_SIZE_M)
+    depth: float = Field(gt=0, le=MAX_SIZE_M)
+    height: float = Field(gt=0, le=MAX_SIZE_M)
+    yaw_deg: float = Field(default=0.0, ge=-360, le=360)
 
 
 class CameraSpec(_Spec):
@@ -139,10 +181,10 @@ class CameraSpec(_Spec):
     width: int = Field(ge=8, le=4096)
     height: int = Field(ge=8, le=4096)
     fov_y_deg: float = Field(gt=0, lt=180)
-    eye_height: float = Field(ge=0)
+    eye_height: float = Field(ge=0, le=MAX_SIZE_M)
     pitch_deg: float = Field(default=0.0, gt=-90, lt=90)
-    near: float = Field(gt=0)
-    far: float = Field(gt=0)
+    near: float = Field(gt=0, le=MAX_SIZE_M)
+    far: float = Field(gt=0, le=MAX_COORD_M)
 
     @field_validator("far")
     @classmethod
@@ -156,9 +198,9 @@ class CameraSpec(_Spec):
 class TruthSpec(_Spec):
     """True pose of a camera frame (for evaluation only)."""
 
-    x: float
-    y: float
-    heading_deg: float
+    x: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    y: float = Field(ge=-MAX_COORD_M, le=MAX_COORD_M)
+    heading_deg: float = Field(ge=-360, le=360)
 
 
 class FrameSpec(_Spec):
@@ -167,7 +209,7 @@ class FrameSpec(_Spec):
 
     image: Path
     truth: TruthSpec | None = None
-    time: float | None = Field(default=None, allow_inf_nan=False)
+    time: float | None = Field(default=None, ge=-MAX_TIME_S, le=MAX_TIME_S)
 
     @field_validator("image")
     @classmethod
@@ -189,23 +231,23 @@ class DriveSpec(_Spec):
     ``frames`` frames.
     """
 
-    interval_s: float = Field(default=2.0, gt=0)
+    interval_s: float = Field(default=2.0, gt=0, le=3600)
     speed_mps: tuple[float, float] = (8.0, 20.0)
     speed_change: float = Field(default=0.2, ge=0, le=1)
     p_stop: float = Field(default=0.05, ge=0, lt=1)
-    stop_frames: int = Field(default=3, ge=1)
-    lateral_m: float = Field(default=1.5, ge=0)
-    heading_deg: float = Field(default=3.0, ge=0)
+    stop_frames: int = Field(default=3, ge=1, le=MAX_FRAMES)
+    lateral_m: float = Field(default=1.5, ge=0, le=1000)
+    heading_deg: float = Field(default=3.0, ge=0, le=180)
     start: float = Field(default=0.0, ge=0, lt=1)
-    kidnap_at: int | None = Field(default=None, ge=1)
+    kidnap_at: int | None = Field(default=None, ge=1, le=MAX_FRAMES)
     kidnap_to: float | None = Field(default=None, ge=0, lt=1)
-    frames: int | None = Field(default=None, ge=1)
+    frames: int | None = Field(default=None, ge=1, le=MAX_FRAMES)
 
     @field_validator("speed_mps")
     @classmethod
     def _speeds(cls, value: tuple[float, float]) -> tuple[float, float]:
-        if not 0 <= value[0] <= value[1] or value[1] <= 0:
-            raise ValueError("must be [min, max] with 0 <= min <= max and max > 0")
+        if not 0 <= value[0] <= value[1] <= MAX_SPEED_MPS or value[1] <= 0:
+            raise ValueError(f"must be [min, max] with 0 <= min <= max <= {MAX_SPEED_MPS:g} and max > 0")
         return value
 
 
@@ -213,26 +255,26 @@ class SimulateSpec(_Spec):
     """Simulated camera frames near the route points (see the end-to-end issue), or along a
     ``drive`` (then ``per_point``, ``stride``, ``jitter_*`` and ``advance`` do not apply)."""
 
-    per_point: int = Field(default=1, ge=1)
-    stride: int = Field(default=1, ge=1)  # frames at every stride-th route point only
-    jitter_m: float = Field(default=1.5, ge=0)
-    jitter_deg: float = Field(default=3.0, ge=0)
+    per_point: int = Field(default=1, ge=1, le=1000)
+    stride: int = Field(default=1, ge=1, le=MAX_ROUTE_POINTS)  # frames at every stride-th route point only
+    jitter_m: float = Field(default=1.5, ge=0, le=1000)
+    jitter_deg: float = Field(default=3.0, ge=0, le=180)
     advance: float = Field(default=0.15, ge=0, lt=1)
-    lighting: float = Field(default=0.3, ge=0)
-    haze: float = Field(default=0.2, ge=0)
-    gain: float = Field(default=0.2, ge=0)
-    gamma: float = Field(default=0.2, ge=0)
-    noise: float = Field(default=4.0, ge=0)
-    blur: float = Field(default=0.7, ge=0)
-    texture: float = Field(default=0.3, ge=0)
-    seed: int | None = Field(default=None, ge=0)
+    lighting: float = Field(default=0.3, ge=0, le=1)  # light intensity 1 ± lighting: must stay >= 0
+    haze: float = Field(default=0.2, ge=0, le=1)  # a blend fraction
+    gain: float = Field(default=0.2, ge=0, le=1)  # gain 1 ± gain
+    gamma: float = Field(default=0.2, ge=0, le=5)
+    noise: float = Field(default=4.0, ge=0, le=255)  # gray levels
+    blur: float = Field(default=0.7, ge=0, le=50)  # pixels
+    texture: float = Field(default=0.3, ge=0, le=4)
+    seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
     drive: DriveSpec | None = None
 
 
 class SensorSpec(_Spec):
     """Exactly one of ``frames`` (real images) or ``simulate``."""
 
-    frames: list[FrameSpec] | None = Field(default=None, min_length=1)
+    frames: list[FrameSpec] | None = Field(default=None, min_length=1, max_length=MAX_FRAMES)
     simulate: SimulateSpec | None = None
 
     @model_validator(mode="after")
@@ -277,10 +319,10 @@ class MemorySpec(_Spec):
 
     size: int = 128
     edge: Literal["sobel", "scharr", "laplacian", "canny", "none"] = "sobel"
-    blur_sigma: float = Field(default=1.0, gt=0)
+    blur_sigma: float = Field(default=1.0, gt=0, le=64)
     whiten: bool = True
-    bank_size: int = Field(default=1, ge=1)
-    shard_size: int = Field(default=512, ge=1)
+    bank_size: int = Field(default=1, ge=1, le=4096)
+    shard_size: int = Field(default=512, ge=1, le=MAX_ROUTE_POINTS)
     max_shift: tuple[int, int] = (8, 16)
     key: Literal["phase", "quantized"] = "phase"
 
@@ -299,6 +341,14 @@ class MemorySpec(_Spec):
         return value
 
 
+#: the detectors' calibration by family (models.detectors.KIND_FAMILY), fitted by
+#: bench/tuning/calibrate_detectors.py on simulated frames of tuning seeds (see BENCHMARKS.md)
+DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float]] = {
+    "outline": (0.0653, 3.7564, 1.9014, 2.0618),
+    "vertical": (-2.9711, 0.4912, 6.028, 0.9215),
+}
+
+
 class SchedulerSpec(_Spec):
     """Scene-analysis scheduler and landmark detector settings (the rule is documented in
     :mod:`knowledge_sources.scene_analysis`).
@@ -314,15 +364,38 @@ class SchedulerSpec(_Spec):
         scheduler: {candidates: 8, accept: 0.6, min_pixels: 60, detector_threshold: 0.65}
     """
 
-    candidates: int = Field(default=8, ge=1)
+    candidates: int = Field(default=8, ge=1, le=MAX_ROUTE_POINTS)
     accept: float = Field(default=0.6, gt=0, le=1)
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
-    beta: float = Field(default=3.0, gt=0)
-    min_pixels: int = Field(default=60, ge=1)
+    beta: float = Field(default=3.0, gt=0, le=100)
+    min_pixels: int = Field(default=60, ge=1, le=4096 * 4096)
     detector_threshold: float = Field(default=0.65, ge=0, le=1)
     absent_threshold: float = Field(default=0.15, ge=0, le=1)
-    query_timeout_s: float = Field(default=10.0, gt=0)
+    # a question unanswered this long is given up (its detector is taken as dead for it)
+    query_timeout_s: float = Field(default=10.0, ge=0.01, le=3600)
     strategy: Literal["associative", "prior"] = "associative"
+    #: how detector answers enter the posterior: "hard" (an absent landmark discards its
+    #: viewframes, the seed paper's) or "soft" (the answer's likelihood ratio enters it)
+    backtracking: Literal["hard", "soft"] = "soft"
+    #: question order: "information" (expected information gain) or "probability" (P(L|A))
+    questions: Literal["information", "probability"] = "information"
+    #: soft: a candidate whose posterior falls below this is discarded
+    floor: float = Field(default=1e-3, ge=0, lt=1)
+    #: soft: no single answer moves a candidate's log-odds by more than this
+    max_llr: float = Field(default=3.0, gt=0)
+    #: pose errors, (pitch, heading) degrees, the detectors' likelihood ratio must tolerate
+    align_deg: tuple[float, float] = (2.0, 5.0)
+    #: detector calibration, {landmark kind or detector family: [bias, w_statistic, w_score, w_contrast]}:
+    #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
+    #: by bench/tuning/calibrate_detectors.py on tuning seeds
+    calibration: dict[str, tuple[float, float, float, float]] = Field(default_factory=lambda: dict(DETECTOR_CALIBRATION))
+
+    @field_validator("align_deg")
+    @classmethod
+    def _align(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not all(0 <= v < 45 for v in value):
+            raise ValueError("must be two angles in [0, 45) degrees: (pitch, heading)")
+        return value
 
     @model_validator(mode="after")
     def _thresholds(self) -> SchedulerSpec:
@@ -355,21 +428,21 @@ class TrackingSpec(_Spec):
 
     enabled: bool = True
     smoothing: bool = False
-    cell_m: float = Field(default=2.0, gt=0)
-    tail: float = Field(default=0.5, ge=0)
-    max_speed_mps: float = Field(default=30.0, gt=0)
-    cruise_points: float = Field(default=2.0, gt=0)
-    max_skip_points: float = Field(default=6.0, gt=0)
+    cell_m: float = Field(default=2.0, gt=0, le=MAX_SIZE_M)
+    tail: float = Field(default=0.5, ge=0, le=100)
+    max_speed_mps: float = Field(default=30.0, gt=0, le=MAX_SPEED_MPS)
+    cruise_points: float = Field(default=2.0, gt=0, le=MAX_ROUTE_POINTS)
+    max_skip_points: float = Field(default=6.0, gt=0, le=MAX_ROUTE_POINTS)
     p_skip: float = Field(default=0.15, ge=0, le=1)
     p_stop: float = Field(default=0.1, ge=0, lt=1)
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
-    reverse_m: float = Field(default=10.0, ge=0)
+    reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
-    temperature: float = Field(default=1.11, gt=0)
-    gain: float = 0.0
+    temperature: float = Field(default=1.11, gt=0, le=1000)
+    gain: float = Field(default=0.0, ge=-100, le=100)
     eps: float = Field(default=1e-4, ge=0, le=1)
-    margin_scale: float = Field(default=0.0, ge=0)
-    spread: float = Field(default=0.45, ge=0)
+    margin_scale: float = Field(default=0.0, ge=0, le=1000)
+    spread: float = Field(default=0.45, ge=0, le=1000)
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)
     exit: float = Field(default=0.25, ge=0, le=1)
@@ -391,8 +464,8 @@ class ExpectSpec(_Spec):
     strategy: Literal["associative", "prior"] | None = None
     top1_min: float | None = Field(default=None, ge=0, le=1)
     top1_frame_only_min: float | None = Field(default=None, ge=0, le=1)
-    mean_queries_max: float | None = Field(default=None, gt=0)
-    mean_error_m_max: float | None = Field(default=None, gt=0)
+    mean_queries_max: float | None = Field(default=None, gt=0, le=1e6)
+    mean_error_m_max: float | None = Field(default=None, gt=0, le=MAX_COORD_M)
     fewer_queries_than_prior: bool = False
     processes: bool = False
 
@@ -400,11 +473,12 @@ class ExpectSpec(_Spec):
 class Scenario(_Spec):
     """A validated scenario. Build it with :func:`load_scenario` or :func:`scenario_from_dict`."""
 
-    name: str = Field(min_length=1)
-    seed: int = 0
+    name: str = Field(min_length=1, max_length=200)
+    seed: int = Field(default=0, ge=0, le=MAX_SEED)
+    crs: str | None = Field(default=None, min_length=1, max_length=1000)
     terrain: TerrainSpec
     landmarks: list[LandmarkSpec] = Field(default_factory=list)
-    route: list[tuple[float, float]] = Field(min_length=2)
+    route: list[tuple[float, float]] = Field(min_length=2, max_length=MAX_ROUTE_POINTS)
     camera: CameraSpec
     sensor: SensorSpec | None = None
     memory: MemorySpec = MemorySpec()
@@ -413,6 +487,16 @@ class Scenario(_Spec):
     expect: ExpectSpec | None = None
 
     _path: Path | None = PrivateAttr(default=None)
+    _frame: Any = PrivateAttr(default=None)
+
+    @field_validator("crs")
+    @classmethod
+    def _known_crs(cls, value: str | None) -> str | None:
+        if value is not None:
+            from models.georef import parse_crs
+
+            parse_crs(value)
+        return value
 
     @field_validator("landmarks")
     @classmethod
@@ -427,9 +511,10 @@ class Scenario(_Spec):
     @field_validator("route")
     @classmethod
     def _distinct(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        for i, point in enumerate(value):
+            if not all(math.isfinite(v) and abs(v) <= MAX_COORD_M for v in point):
+                raise ValueError(f"point {i} must be finite, within ±{MAX_COORD_M:g} m")
         for i, (a, b) in enumerate(zip(value, value[1:]), start=1):
-            if not all(math.isfinite(v) for v in (*a, *b)):
-                raise ValueError(f"point {i} is not finite")
             if math.hypot(b[0] - a[0], b[1] - a[1]) < 1e-6:
                 raise ValueError(f"points {i - 1} and {i} coincide")
         return value
@@ -438,6 +523,11 @@ class Scenario(_Spec):
     def path(self) -> Path | None:
         """The scenario file, or None for a scenario built from a dict without a path."""
         return self._path
+
+    @property
+    def map_frame(self):
+        """The :class:`~models.georef.MapFrame` of a georeferenced map, else None (local metres)."""
+        return self._frame
 
     @property
     def base_dir(self) -> Path:
@@ -455,6 +545,7 @@ _MESSAGES = {
     "too_short": "needs at least {min_length} items",
     "too_long": "allows at most {max_length} items",
     "string_too_short": "must not be empty",
+    "string_too_long": "must be at most {max_length} characters",
     "int_parsing": "must be an integer",
     "int_from_float": "must be an integer",
     "int_type": "must be an integer",
@@ -499,19 +590,80 @@ def _message(err: ErrorDetails) -> str:
         return err["msg"]
 
 
-def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
+def validation_problem(exc: ValidationError) -> tuple[str | None, str]:
+    """``(field path, message)`` of a pydantic error, worded as this module's scenario errors
+    (``landmarks[3].height``, ``must be > 0 (and 2 more errors)``); for other user files too."""
     errors = exc.errors()
     # union members (e.g. route tuple) report the deepest location first; keep the first error
     err = errors[0]
     more = f" (and {len(errors) - 1} more error{'s' if len(errors) > 2 else ''})" if len(errors) > 1 else ""
-    return ScenarioError(path, _field_path(tuple(err["loc"])) or None, _message(err) + more)
+    return _field_path(tuple(err["loc"])) or None, _message(err) + more
+
+
+def _model_at(loc: tuple[Any, ...]) -> type[BaseModel] | None:
+    """The spec class whose fields are at ``loc`` (a field path into :class:`Scenario`), or None."""
+    import typing
+
+    cls: type[BaseModel] = Scenario
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        field = cls.model_fields.get(str(part))
+        if field is None:
+            return None
+        todo, found = [field.annotation], None
+        while todo and found is None:
+            t = todo.pop()
+            if isinstance(t, type) and issubclass(t, BaseModel):
+                found = t
+            else:
+                todo.extend(typing.get_args(t))
+        if found is None:
+            return None
+        cls = found
+    return cls
+
+
+def _did_you_mean(err: ErrorDetails) -> str:
+    """`` (did you mean cell_size?)`` for a misspelt field, else ``""``."""
+    import difflib
+
+    loc = tuple(err["loc"])
+    if err["type"] != "extra_forbidden" or not loc or not isinstance(loc[-1], str):
+        return ""
+    model = _model_at(loc[:-1])
+    if model is None:
+        return ""
+    close = difflib.get_close_matches(loc[-1], list(model.model_fields), n=2, cutoff=0.6)
+    if not close:
+        return f" (known: {', '.join(model.model_fields)})"
+    return f" (did you mean {' or '.join(close)}?)"
+
+
+def _to_scenario_error(exc: ValidationError, path: Path | None) -> ScenarioError:
+    """One error listing every problem, one line each naming the file and field; the first
+    problem's field is ``.field`` and ``.problems`` holds all (field, message) pairs."""
+    problems: list[tuple[str | None, str]] = []
+    seen: set[str | None] = set()
+    for err in exc.errors():
+        field = _field_path(tuple(err["loc"])) or None
+        if field in seen:  # members of a union report one mistake several times
+            continue
+        seen.add(field)
+        problems.append((field, _message(err) + _did_you_mean(err)))
+    first_field, first = problems[0]
+    rest = "".join("\n" + ": ".join(str(p) for p in (path, f, m) if p) for f, m in problems[1:])
+    error = ScenarioError(path, first_field, first + rest)
+    error.problems = problems  # type: ignore[attr-defined]
+    return error
 
 
 def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     """Validate ``data`` (the parsed YAML) into a :class:`Scenario`.
 
     ``path`` is the file it came from: relative paths resolve against its folder and errors
-    name it. Raises :class:`ScenarioError` naming the field path on the first problem.
+    name it. Raises :class:`ScenarioError` listing every problem, one line each with its field
+    path, a misspelt field with the names it may have meant.
     """
     path = None if path is None else Path(path)
     if not isinstance(data, dict):
@@ -524,7 +676,58 @@ def scenario_from_dict(data: dict, *, path: Path | None = None) -> Scenario:
     except ValidationError as exc:
         raise _to_scenario_error(exc, path) from None
     scenario._path = path
-    return scenario
+    return _georeferenced(scenario, path)
+
+
+def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
+    """The scenario with its coordinates in local metres and its map frame, for a georeferenced map."""
+    from models.errors import InputError
+    from models.terrain_sources import terrain_frame
+
+    try:
+        frame = terrain_frame(scenario.terrain, base_dir=scenario.base_dir)
+    except InputError as exc:  # name the scenario field as well as the file
+        field = "terrain.dem" if scenario.terrain.dem is not None else "terrain.contours"
+        raise ScenarioError(path, field, str(exc)) from None
+    if frame is None:
+        if scenario.crs is not None:
+            raise ScenarioError(
+                path,
+                "crs",
+                "needs a georeferenced map: terrain.dem a GeoTIFF (or other GDAL "
+                "raster) with a CRS, or contour lines with a CRS",
+            )
+        return scenario
+    src = scenario.crs or frame.crs
+    label = scenario.crs or frame.name
+
+    def convert(fields: list[str], pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        x, y = frame.to_local([p[0] for p in pts], [p[1] for p in pts], crs=src)
+        for field, p, a, b in zip(fields, pts, x.tolist(), y.tolist()):
+            if not (math.isfinite(a) and math.isfinite(b)):
+                raise ScenarioError(path, field, f"({p[0]:g}, {p[1]:g}) cannot be converted from {label}")
+        return [(float(a), float(b)) for a, b in zip(x.tolist(), y.tolist())]
+
+    route = list(scenario.route)
+    update: dict[str, Any] = {"route": convert([f"route[{i}]" for i in range(len(route))], route)}
+    if scenario.landmarks:
+        xy = convert(
+            [f"landmarks[{i}]" for i in range(len(scenario.landmarks))], [(lm.x, lm.y) for lm in scenario.landmarks]
+        )
+        update["landmarks"] = [lm.model_copy(update={"x": x, "y": y}) for lm, (x, y) in zip(scenario.landmarks, xy)]
+    sensor = scenario.sensor
+    if sensor is not None and sensor.frames:
+        frames = list(sensor.frames)
+        truths = {i: f.truth for i, f in enumerate(frames) if f.truth is not None}
+        if truths:
+            xy = convert([f"sensor.frames[{i}].truth" for i in truths], [(t.x, t.y) for t in truths.values()])
+            for (i, t), (x, y) in zip(truths.items(), xy):
+                frames[i] = frames[i].model_copy(update={"truth": t.model_copy(update={"x": x, "y": y})})
+            update["sensor"] = sensor.model_copy(update={"frames": frames})
+    out = scenario.model_copy(update=update)
+    out._path, out._frame = scenario._path, frame
+    log.debug("scenario %s: coordinates in %s converted to local metres (origin %s)", path, label, frame.origin)
+    return out
 
 
 def load_scenario(path: str | Path) -> Scenario:

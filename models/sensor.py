@@ -22,8 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from models.errors import InputError
-from models.scenario import DriveSpec, Scenario, SimulateSpec
+from models.errors import InputError, ScenarioError
+from models.scenario import MIN_IMAGE_PX, DriveSpec, Scenario, SimulateSpec
 
 __all__ = [
     "SensorFrame",
@@ -147,6 +147,9 @@ def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray
     data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if data is None or data.size == 0:
         raise InputError(path, "not a readable image (PNG or JPEG expected)")
+    if min(data.shape[:2]) < MIN_IMAGE_PX:
+        raise InputError(path, f"image is {data.shape[1]}x{data.shape[0]} pixels; at least "
+                               f"{MIN_IMAGE_PX}x{MIN_IMAGE_PX} needed")
     if data.dtype != np.uint8:
         data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if data.ndim == 2:
@@ -162,11 +165,16 @@ def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray
 
 
 def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
-    """The scenario's ``sensor.frames``, read and resized to the camera size."""
+    """The scenario's ``sensor.frames``, read and resized to the camera size.
+
+    Raises :class:`~models.errors.ScenarioError` naming the scenario, the field and the file."""
     cam = scenario.camera
     frames = []
     for i, spec in enumerate((scenario.sensor.frames if scenario.sensor else None) or []):
-        image = load_frame_image(spec.image, width=cam.width, height=cam.height)
+        try:
+            image = load_frame_image(spec.image, width=cam.width, height=cam.height)
+        except InputError as err:  # name the scenario and the field too (as the pre-run check does)
+            raise ScenarioError(scenario.path, f"sensor.frames[{i}].image", str(err)) from None
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
         frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time))
     return frames

@@ -6,24 +6,34 @@ southern edge (y = 0), so the array is *not* image-oriented: show it with ``orig
 F(x, y) is the bilinear interpolation of the bare DEM, clamped at the border.
 
 Building the terrain a scenario names (a DEM file, contours, ...) is :mod:`models.terrain_sources`.
+A georeferenced map (``terrain.dem`` a GeoTIFF or other GDAL raster, or contours with a CRS)
+carries a :class:`~models.georef.MapFrame` in :attr:`Terrain.frame` that ties these local
+metres to its CRS; the grid is made from the raster by :mod:`models.georaster`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from models.georef import MapFrame
 
 __all__ = ["Terrain", "procedural_terrain", "sample_terrain"]
 
 
 @dataclass(frozen=True, eq=False)
 class Terrain:
-    """A DEM: ``heights`` ndarray of shape (rows, cols), float64 metres; ``cell_size`` metres."""
+    """A DEM: ``heights`` ndarray of shape (rows, cols), float64 metres; ``cell_size`` metres.
+
+    ``frame`` places the local metres on the Earth for a georeferenced map, else None.
+    """
 
     heights: np.ndarray
     cell_size: float
+    frame: MapFrame | None = None
 
     def __post_init__(self) -> None:
         h = np.asarray(self.heights, dtype=np.float64)

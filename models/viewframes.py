@@ -8,7 +8,7 @@ scenario's viewframes are :attr:`models.world.World.viewframes`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,14 +18,19 @@ from models.scenario import Scenario
 from models.symbolic import SymbolicDescription, describe
 from models.terrain import Terrain
 
-__all__ = ["Viewframe", "route_headings", "route_poses", "render_viewframes"]
+__all__ = ["Viewframe", "without_landmark", "route_headings", "route_poses", "render_viewframes"]
 
 
 @dataclass
 class Viewframe:
     """A stored a-priori view: ``index`` is its viewframe index (the route point's number),
     image uint8 (H, W, 3) RGB, depth float32 (H, W) metres, mask int32 (H, W) landmark indices
-    (-1 none), and its symbolic description."""
+    (-1 none), and its symbolic description.
+
+    ``background`` uint8 (H, W, 3) is the same view rendered without any landmark (the terrain
+    and sky behind them), or ``None`` when no landmark is in view: a landmark detector compares
+    the camera image with the view with the landmark and without it (:meth:`without_landmark`).
+    """
 
     index: int
     pose: Pose
@@ -33,6 +38,32 @@ class Viewframe:
     depth: np.ndarray
     mask: np.ndarray
     description: SymbolicDescription
+    background: np.ndarray | None = None
+
+    def without_landmark(self, landmark_index: int) -> np.ndarray:
+        """The viewframe image with landmark ``landmark_index``'s pixels replaced by what lies
+        behind them (see :func:`without_landmark`)."""
+        return without_landmark(self.image, self.mask, landmark_index, background=self.background)
+
+
+def without_landmark(
+    image: np.ndarray, mask: np.ndarray, landmark_index: int, *, background: np.ndarray | None
+) -> np.ndarray:
+    """The view ``image`` (H, W, 3) as it would look if landmark ``landmark_index`` were not there:
+    its pixels in ``mask`` (H, W; landmark indices, -1 none) replaced by ``background``'s (the
+    view rendered without landmarks). Other landmarks stay. With ``background=None`` the image
+    is returned unchanged when the landmark has no pixel, else ``ValueError``.
+    """
+    sil = np.asarray(mask) == int(landmark_index)
+    if not sil.any():
+        return image
+    if background is None:
+        raise ValueError(f"landmark {landmark_index} is in view but no background image was given")
+    if background.shape != image.shape:
+        raise ValueError(f"background shape {background.shape} must equal the image's {image.shape}")
+    out = image.copy()
+    out[sil] = background[sil]
+    return out
 
 
 def route_headings(route) -> list[float]:
@@ -52,12 +83,19 @@ def route_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
-def render_viewframes(emulator: CameraEmulator, poses: Sequence[Pose]) -> list[Viewframe]:
-    """Render and describe the viewframe at every pose (the route poses), numbered in order."""
+def render_viewframes(
+    emulator: CameraEmulator, poses: Sequence[Pose], *, progress: Callable[[int, int], None] | None = None
+) -> list[Viewframe]:
+    """Render and describe the viewframe at every pose (the route poses), numbered in order; where
+    a landmark is in view, also the same view without landmarks (:attr:`Viewframe.background`).
+    ``progress(done, total)`` is called after each."""
     env = emulator.environment
     frames = []
     for i, pose in enumerate(poses):
         view = emulator.render(pose)
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
-        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc))
+        background = emulator.render_background(pose) if (view.mask >= 0).any() else None
+        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc, background))
+        if progress is not None:
+            progress(i + 1, len(poses))
     return frames

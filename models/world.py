@@ -18,6 +18,7 @@ coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emu
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -43,12 +44,22 @@ class World:
     scenario : Scenario
     terrain : Terrain, optional
         An already loaded terrain (default: the scenario's, loaded on first use).
+    progress : callable(done, total), optional
+        Called after each viewframe is rendered (progress bars).
     **lod
         ``tile_cells``, ``levels``, ``lod_factor``, ``refine`` of :class:`EnvironmentModel`.
     """
 
-    def __init__(self, scenario: Scenario, *, terrain: Terrain | None = None, **lod: Any) -> None:
+    def __init__(
+        self,
+        scenario: Scenario,
+        *,
+        terrain: Terrain | None = None,
+        progress: Callable[[int, int], None] | None = None,
+        **lod: Any,
+    ) -> None:
         self.scenario = scenario
+        self._progress = progress
         self._terrain = terrain
         self._lod = lod
         self._emulator: CameraEmulator | None = None
@@ -79,7 +90,7 @@ class World:
     @cached_property
     def viewframes(self) -> list[Viewframe]:
         """The viewframe at every route point, rendered and symbolically described."""
-        frames = render_viewframes(self.emulator, self.poses)
+        frames = render_viewframes(self.emulator, self.poses, progress=self._progress)
         log.info("rendered %d viewframes of %s", len(frames), self.scenario.name)
         return frames
 

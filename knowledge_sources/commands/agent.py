@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import sys
 import threading
@@ -24,7 +25,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from blackboard.config import ZenohOptions, add_zenoh_arguments, zenoh_options_from_args
+from blackboard.config import ZenohOptions, add_zenoh_arguments, is_loopback, zenoh_options_from_args
 
 HELP = "run one knowledge source here, joining a run on another machine (--connect ENDPOINT)"
 
@@ -72,6 +73,7 @@ def command_line(
     run_id: str,
     connect: str,
     zenoh_config: str | Path | None = None,
+    secret: str | None = None,
 ) -> list[str]:
     """The ``mapinterp agent ...`` argv that joins agent ``name`` to run ``run_id`` at ``connect``
     (``shlex.join`` it to print)."""
@@ -80,6 +82,8 @@ def command_line(
         argv += ["--option", format_option(key, value)]
     if zenoh_config is not None:
         argv += ["--zenoh-config", str(zenoh_config)]
+    if secret is not None:
+        argv += ["--secret", secret]
     return argv
 
 
@@ -94,13 +98,10 @@ def run_id_argument(text: str) -> str:
 
 
 def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
-    return value
+    from knowledge_sources.commands import bounded_number
+    from knowledge_sources.mission import MAX_WAIT_S
+
+    return bounded_number(0, MAX_WAIT_S, "s")(text)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -112,6 +113,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run-id", required=True, type=run_id_argument, metavar="RUN", help="the run to join (mapinterp run --run-id)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="an option of the knowledge source; VALUE is JSON or text (repeatable)")
+    parser.add_argument("--secret", default=os.environ.get("MAPINTERP_SECRET"), metavar="SECRET",
+                        help="the run's secret, as mapinterp run printed it (default: $MAPINTERP_SECRET)")
+    parser.add_argument("--auth", action="store_true",
+                        help="authenticate to the run's router with the secret (default: when --connect "
+                             "is not a loopback address, as the run's router then asks for it)")
     parser.add_argument("--connect-timeout", type=_positive, default=CONNECT_TIMEOUT_S, metavar="SECONDS",
                         help=f"keep trying to reach the blackboard this long (default {CONNECT_TIMEOUT_S:g})")
     add_zenoh_arguments(parser)
@@ -138,8 +144,14 @@ def main(args: argparse.Namespace) -> int:
         raise AgentError(args.name, f"bad options for {args.factory}: {err}") from None
     except ValueError as err:  # a bad name, a bad option value
         raise AgentError(args.name, str(err)) from None
-    runner = AgentRunner(source, run_id=args.run_id, connect=options.connect,
-                         zenoh_options=ZenohOptions(config_file=options.config_file))
+    if not args.secret:
+        raise AgentError(args.name, "needs the run's secret: --secret SECRET (printed by mapinterp run) or "
+                                    "$MAPINTERP_SECRET")
+    # the run's router asks for the secret as password when it listens beyond this machine
+    auth = args.auth or any(not is_loopback(ep) for ep in options.connect)
+    runner = AgentRunner(source, run_id=args.run_id, connect=options.connect, secret=args.secret,
+                         zenoh_options=ZenohOptions(config_file=options.config_file,
+                                                    password=args.secret if auth else None))
     stop = threading.Event()
     handled = (signal.SIGTERM, signal.SIGINT)
     previous: dict[int, Any] = {}

@@ -34,32 +34,39 @@ def main(args: argparse.Namespace) -> int:
     """Render every viewframe of the scenario into ``args.out``; returns 0."""
     from dataclasses import asdict
 
+    from knowledge_sources.progress import callback, progress_bar
     from models.overview import draw_overview
+    from models.scenario import load_scenario
     from models.world import World
 
-    world = World.from_scenario(args.scenario)
-    scenario = world.scenario
+    scenario = load_scenario(args.scenario)
     out: Path = args.out
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(out, f"cannot create the output folder: {exc}") from None
-    env = world.environment
-    t0 = time.perf_counter()
-    with world:
-        frames = world.viewframes
-    dt = time.perf_counter() - t0
-    for vf in frames:
-        stem = out / f"vf_{vf.index:03d}"
-        if not cv2.imwrite(str(stem.with_suffix(".png")), cv2.cvtColor(vf.image, cv2.COLOR_RGB2BGR)):
-            raise InputError(stem.with_suffix(".png"), "cannot write image")
-        doc = {"index": vf.index, "pose": asdict(vf.pose), "description": vf.description.to_dict()}
-        stem.with_suffix(".json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
-    priors = world.priors
-    (out / "priors.json").write_text(json.dumps(priors, indent=1), encoding="utf-8")
-    if not args.no_overview:
-        draw_overview(env.terrain, env.landmarks, scenario.route, [vf.pose for vf in frames],
-                      out / "overview.png", title=scenario.name)
+    with progress_bar() as bar:
+        task = bar.add_task(f"{scenario.name}: building the environment model", total=None)
+        world = World(scenario, progress=callback(bar, task, f"{scenario.name}: rendering viewframes"))
+        env = world.environment
+        t0 = time.perf_counter()
+        with world:
+            frames = world.viewframes
+        dt = time.perf_counter() - t0
+        bar.update(task, description=f"{scenario.name}: writing", completed=0, total=len(frames))
+        for vf in frames:
+            stem = out / f"vf_{vf.index:03d}"
+            if not cv2.imwrite(str(stem.with_suffix(".png")), cv2.cvtColor(vf.image, cv2.COLOR_RGB2BGR)):
+                raise InputError(stem.with_suffix(".png"), "cannot write image")
+            doc = {"index": vf.index, "pose": asdict(vf.pose), "description": vf.description.to_dict()}
+            stem.with_suffix(".json").write_text(json.dumps(doc, indent=1), encoding="utf-8")
+            bar.advance(task)
+        priors = world.priors
+        (out / "priors.json").write_text(json.dumps(priors, indent=1), encoding="utf-8")
+        if not args.no_overview:
+            bar.update(task, description=f"{scenario.name}: drawing overview.png", total=None)
+            draw_overview(env.terrain, env.landmarks, scenario.route, [vf.pose for vf in frames],
+                          out / "overview.png", title=scenario.name)
     seen = sum(1 for vf in frames if vf.description.visible)
     print(f"{scenario.name}: {len(frames)} viewframes in {dt:.2f} s ({len(frames) / dt:.1f}/s), "
           f"{seen} with landmarks in view -> {out}")

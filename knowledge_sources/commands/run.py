@@ -7,17 +7,31 @@ the ``mapinterp agent ...`` line that starts it on another machine, and waits fo
 from __future__ import annotations
 
 import argparse
+import os
 import shlex
 import sys
 from pathlib import Path
 from typing import Any
 
 from blackboard.config import add_zenoh_arguments, zenoh_options_from_args
+from knowledge_sources.commands import bounded_number
 from knowledge_sources.commands.agent import run_id_argument
+from knowledge_sources.mission import MAX_RATE_HZ, MAX_WAIT_S
 
 HELP = "localize the vehicle: run the agent ensemble on a scenario over the blackboard"
 
-__all__ = ["HELP", "add_arguments", "main", "render_summary"]
+__all__ = ["HELP", "EXIT_DEGRADED", "add_arguments", "main", "render_summary"]
+
+
+#: progress-bar phase shown when the first hypothesis of a level is posted, before frames are localized
+PHASES = {
+    "scenario": "rendering viewframes",
+    "viewframe": "rendering viewframes",
+    "map": "storing viewframes in the associative memories",
+    "index": "memories ready; camera posting frames",
+    "sensor_frame": "ranking the first camera frames",
+    "ranking": "asking the landmark detectors",
+}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,17 +44,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-track", action="store_true",
                         help="no tracker: every frame localized alone (default: the scenario's tracking.enabled, "
                              "normally on)")
-    parser.add_argument("--rate", type=float, default=None, metavar="HZ",
+    parser.add_argument("--rate", type=bounded_number(0, MAX_RATE_HZ, "Hz"), default=None, metavar="HZ",
                         help="the camera posts frames at this rate, as a real one would (default: all at once)")
-    parser.add_argument("--timeout", type=float, default=None, metavar="SECONDS",
+    parser.add_argument("--timeout", type=bounded_number(0, MAX_WAIT_S, "s"), default=None, metavar="SECONDS",
                         help="give up (with an error naming the busy agents) after this long")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--rerun", nargs="?", const="spawn", default=None, metavar="TARGET",
+                        help="stream the run to Rerun as frames are localized: a new viewer (no TARGET), "
+                             "a viewer's URL (rerun+http://127.0.0.1:9876/proxy) or a FILE.rrd "
+                             "(needs pip install 'mapinterp[rerun]')")
     parser.add_argument("--run-id", default=None, type=run_id_argument, metavar="RUN",
                         help="the run's id, which remote agents give to join it (default: random)")
     parser.add_argument("--remote", action="append", default=[], metavar="AGENT",
                         help="do not start this agent of the mission here; wait for it to join from "
                              "elsewhere with `mapinterp agent` (repeatable; the commands are printed)")
-    parser.add_argument("--wait-remote", type=float, default=60.0, metavar="SECONDS",
+    parser.add_argument("--secret", default=os.environ.get("MAPINTERP_SECRET"), metavar="SECRET",
+                        help="the run's secret the --remote agents give to join (default: $MAPINTERP_SECRET, "
+                             "else a fresh one, printed in their commands)")
+    parser.add_argument("--auth", action="store_true", default=None,
+                        help="zenoh user/password authentication with the run's secret (default: on when "
+                             "--listen is not a loopback address)")
+    parser.add_argument("--wait-remote", type=bounded_number(0, MAX_WAIT_S, "s"), default=60.0, metavar="SECONDS",
                         help="how long to wait for the --remote agents to join (default 60)")
     add_zenoh_arguments(parser)
 
@@ -98,37 +122,86 @@ def _print_remote(commands: dict[str, list[str]], wait_s: float) -> None:
     sys.stderr.flush()
 
 
+#: exit status of a run that finished degraded: agents died, frames never came (some localized)
+EXIT_DEGRADED = 1
+
+
 def main(args: argparse.Namespace) -> int:
+    """Run the mission; returns 0 (every agent ok, every frame posted), :data:`EXIT_DEGRADED`,
+    or ``128 + signal`` when interrupted (the results so far are written). Raises
+    :class:`RunFailed` (status 2) when no frame was localized."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from blackboard.signals import interrupt_on_signals
+    from knowledge_sources.errors import RunFailed
     from knowledge_sources.mission import run_mission
-    from knowledge_sources.results import write_results
+    from knowledge_sources.results import check_writable, write_results
     from models.scenario import load_scenario
 
+    # refuse unwritable outputs before anything runs (a folder, /proc/version, a read-only file)
+    if args.out is not None:
+        check_writable(args.out, "--out")
+    if args.trace is not None:
+        check_writable(args.trace, "--trace")
     scenario = load_scenario(args.scenario)
     console = Console(stderr=True)
     show = not args.no_progress and sys.stderr.isatty()
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, disable=not show, transient=True) as bar:
-        task = bar.add_task(f"localizing {scenario.name}", total=None)
+    live = None
+    if args.rerun is not None:
+        from knowledge_sources.rerun_export import RerunLogger, open_stream, require_rerun
+
+        require_rerun()  # before a long run: say at once when the extra is missing
+    with interrupt_on_signals(), Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                          TimeElapsedColumn(), console=console, disable=not show,
+                                          transient=True) as bar:
+        if args.rerun is not None:
+            from knowledge_sources.replay import replay
+
+            task0 = bar.add_task("rendering the views for rerun", total=None)
+            live = RerunLogger(open_stream(args.rerun, recording_id=args.run_id or scenario.name), replay(scenario))
+            bar.remove_task(task0)
+        task = bar.add_task(f"{scenario.name}: starting agents", total=None)
 
         def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
+            bar.update(task, completed=done, total=total, description=f"{scenario.name}: localizing")
+
+        def on_hypothesis(level: str, body: Any, t: float) -> None:
+            phase = PHASES.get(level)
+            if phase is not None and not bar.tasks[-1].completed:
+                bar.update(task, description=f"{scenario.name}: {phase}")
+            if live is not None:
+                live.on_hypothesis(level, body, t)
 
         results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
                               zenoh=zenoh_options_from_args(args), trace_path=args.trace,
                               timeout_s=args.timeout, progress=progress, frame_rate=args.rate,
                               remote=args.remote, run_id=args.run_id, wait_remote_s=args.wait_remote,
+                              secret=args.secret, auth=args.auth,
                               on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
-                              track=False if args.no_track else None)
+                              on_hypothesis=on_hypothesis, track=False if args.no_track else None)
+        # still under the handlers: a second Ctrl-C while the results are written exits at once
+        if args.out is not None:
+            write_results(args.out, results)
+    if live is not None:
+        live.rec.flush()
+        live.rec.disconnect()
+        console.print(f"{live.frames_logged} frames sent to rerun ({args.rerun})")
     Console().print(render_summary(results))
     if args.out is not None:
-        write_results(args.out, results)
         console.print(f"results written to {args.out}")
     if args.trace is not None:
         console.print(f"blackboard trace written to {args.trace} (inspect with: mapinterp trace {args.trace})")
-    dead = {k: v for k, v in results["agents"].items() if v.startswith("dead")}
-    if dead:
-        console.print(f"[yellow]degraded run: agents not ok: {dead}[/]")
-    return 0
+    s = results["summary"]
+    if results["degraded"]:
+        console.print(f"[yellow]degraded run: {'; '.join(results['degraded'])}[/]")
+    if results["interrupted"]:
+        import signal
+
+        print(f"mapinterp run: interrupted by {results['interrupted']}: {s['localized']} of "
+              f"{s['frames_expected']} frames localized", file=sys.stderr)
+        return 128 + signal.Signals[results["interrupted"]].value
+    if s["localized"] == 0:
+        raise RunFailed(f"no frame localized ({s['frames_expected']} expected, {s['posted']} posted"
+                        + (f"; {'; '.join(results['degraded'])}" if results["degraded"] else "") + ")")
+    return EXIT_DEGRADED if results["degraded"] else 0

@@ -15,13 +15,14 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from models.errors import ScenarioError
 
-__all__ = ["HELP", "TableRow", "add_arguments", "error_variance_table", "format_table", "main"]
+__all__ = ["HELP", "TableRow", "add_arguments", "error_variance_table", "format_table", "rich_table", "main"]
 
 log = logging.getLogger(__name__)
 
@@ -62,8 +63,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
+def error_variance_table(scenario, *, progress: Callable[[str, int, int], None] | None = None) -> tuple[list, list[TableRow]]:
     """Render, store and rank: ``(viewframes, rows)`` for a loaded scenario with sensor frames.
+
+    ``progress(phase, done, total)`` follows the rendering and the ranking.
 
     Raises :class:`~models.errors.ScenarioError` when the scenario has no ``sensor`` block.
     """
@@ -73,8 +76,11 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
 
     if scenario.sensor is None:
         raise ScenarioError(scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate")
-    with World(scenario) as world:
+    viewframes_progress = None if progress is None else (lambda d, t: progress("rendering viewframes", d, t))
+    with World(scenario, progress=viewframes_progress) as world:
         viewframes = world.viewframes
+        if progress is not None:
+            progress("rendering camera frames", 0, 0)
         frames = world.sensor_frames
     index = ViewframeIndex(scenario.memory, seed=scenario.seed)
     index.add([vf.image for vf in viewframes], [vf.index for vf in viewframes])
@@ -87,6 +93,8 @@ def error_variance_table(scenario) -> tuple[list, list[TableRow]]:
         if frame.truth is not None:
             truth = nearest_viewframe(frame.truth[0], frame.truth[1], scenario.route)
         rows.append(TableRow(frame.index, frame.source, variances, int(ranking.viewframes[0]), ranking.reliability, truth))
+        if progress is not None:
+            progress("ranking camera frames", len(rows), len(frames))
     return viewframes, rows
 
 
@@ -113,11 +121,41 @@ def format_table(scenario_name: str, viewframe_indices: list[int], rows: list[Ta
     return "\n".join(lines)
 
 
+def rich_table(scenario_name: str, viewframe_indices: list[int], rows: list[TableRow], *, size: int) -> Any:
+    """:func:`format_table` as a rich Table: row minimum marked ``*`` (bold), wrong verdicts red."""
+    from rich.table import Table
+
+    scale = float(size * size)
+    judged = [r for r in rows if r.truth is not None]
+    caption = None
+    if judged:
+        caption = f"{sum(bool(r.correct) for r in judged)}/{len(judged)} rows have their minimum on the truth viewframe"
+    table = Table(title=f"error variance x {size}^2 of the recall against each stored viewframe ({scenario_name}); "
+                        "* row minimum", caption=caption)
+    table.add_column("frame", justify="left")
+    for v in viewframe_indices:
+        table.add_column(f"V{v}", justify="right")
+    table.add_column("rel", justify="right")
+    table.add_column("truth", justify="left")
+    for r in rows:
+        name = Path(r.source).name if r.source != "simulated" else f"simulated {r.frame}"
+        cells = [f"[bold]{v * scale:.4f}*[/bold]" if j == r.best else f"{v * scale:.4f} "
+                 for j, v in zip(viewframe_indices, r.variances)]
+        verdict = "-" if r.truth is None else (f"V{r.truth} ok" if r.correct else f"[red]V{r.truth} WRONG[/red]")
+        table.add_row(name, *cells, f"{r.reliability:.2f}", verdict)
+    return table
+
+
 def main(args: argparse.Namespace) -> int:
+    from knowledge_sources.progress import progress_bar
     from models.scenario import load_scenario
 
     scenario = load_scenario(args.scenario)
-    viewframes, rows = error_variance_table(scenario)
+    with progress_bar() as bar:
+        task = bar.add_task(f"{scenario.name}: rendering viewframes", total=None)
+        viewframes, rows = error_variance_table(
+            scenario, progress=lambda phase, done, total: bar.update(
+                task, description=f"{scenario.name}: {phase}", completed=done, total=total or None))
     indices = [vf.index for vf in viewframes]
     if args.json:
         doc = {
@@ -130,5 +168,11 @@ def main(args: argparse.Namespace) -> int:
         }
         print(json.dumps(doc, indent=1))
     else:
-        print(format_table(scenario.name, indices, rows, size=scenario.memory.size))
+        import shutil
+        import sys
+
+        from rich.console import Console
+
+        width = None if sys.stdout.isatty() else shutil.get_terminal_size((160, 24)).columns
+        Console(width=width, highlight=False).print(rich_table(scenario.name, indices, rows, size=scenario.memory.size))
     return 0

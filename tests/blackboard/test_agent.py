@@ -13,6 +13,7 @@ from blackboard.config import ZenohOptions, open_session, zenoh_config
 from blackboard.keys import RunKeys
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
+from blackboard.trust import proof, sign
 
 AGENTS = "tests.blackboard.agents"
 _HEAD = ["seq", "t", "kind", "agent", "level", "id", "version", "event", "rating"]
@@ -86,11 +87,19 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
     with Runtime(run_id=run_id, trace_path=trace) as rt:
         raw = open_session(zenoh_config(ZenohOptions(), mode="client", connect=[rt.node.endpoint]))
         try:
+            agent_key = b""
+
             def request(message: dict) -> dict:
-                replies = list(raw.get(keys.request, payload=encode(message), timeout=10))
+                payload = encode(message)
+                replies = list(raw.get(keys.request, payload=payload, timeout=10,
+                                       attachment=sign(agent_key, payload) if agent_key else None))
                 return decode(replies[0].ok.payload.to_bytes())
 
-            assert request({"op": "join", "agent": "old", "consumes": [], "produces": [], "exclusive": []})["ok"]
+            rt.node.expect("old", "sekrit")  # a joined agent of this run, speaking for itself
+            joined = request({"op": "join", "agent": "old", "consumes": [], "produces": [], "exclusive": [],
+                              "proof": proof("sekrit", "join", run_id, "old")})
+            assert joined["ok"]
+            agent_key = bytes.fromhex(joined["agent_key"])
             activity = [
                 {**head, "kind": "activation_start"},  # an older agent
                 {**head, "kind": "activation_finish", "t": 13.0, "duration_s": 0.5},
@@ -99,9 +108,10 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
                 ["o", *head.values(), "superseded by version 2"],
                 ["?", *head.values(), None],  # unknown: ignored
             ]
-            raw.put(keys.status, encode({"agent": "old", "state": "busy", "recv": {}, "sent": 0, "timeouts": 0,
-                                         "probe": None, "activity": activity, "reason": None}),
-                    congestion_control=zenoh.CongestionControl.BLOCK)
+            status = encode({"agent": "old", "state": "busy", "recv": {}, "sent": 0, "timeouts": 0,
+                             "probe": None, "activity": activity, "reason": None, "seq": 1})
+            raw.put(keys.status, status, congestion_control=zenoh.CongestionControl.BLOCK,
+                    attachment=sign(agent_key, status))
             assert request({"op": "leave", "agent": "old"})["ok"]
             rt.post("number", {"x": 1})
             outcome = rt.run(timeout_s=10)

@@ -54,7 +54,7 @@ def test_malformed_and_oversized_messages_are_rejected_and_traced(run_id: str, t
     assert "malformed" in by_key["garbage"]
     assert "exceeds the limit" in by_key["huge"]
     assert "not a post" in by_key["no-op"]
-    assert "does not match" in by_key["mismatch"]
+    assert "not signed by a joined agent 'x'" in by_key["mismatch"]
     assert "malformed status" in by_key["status"]
 
 

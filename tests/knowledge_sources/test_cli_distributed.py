@@ -147,8 +147,9 @@ def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_pa
         if router is not None:
             stack.callback(router.close)
         rt = stack.enter_context(Runtime(run_id=run_id, zenoh=options, trace_path=trace))
+        rt.expect_remote(["doubler"])
         agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint), ROOT)
+                           "--connect", endpoint, "--secret", rt.secret), ROOT)
         rt.add(f"{AGENTS}:Echo", name="echo")
         rt.wait_joined(["doubler"], timeout_s=PATIENCE_S)
         for x in (1, 2, 3):
@@ -170,8 +171,9 @@ def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_pa
 def test_killed_remote_agent_is_detected_and_its_questions_time_out(procs, tmp_path: Path) -> None:
     endpoint, run_id = loopback_endpoint(), _run_id()
     with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=tmp_path / "run.trace") as rt:
-        echo = procs(_cli("agent", f"{AGENTS}:Echo", "--name", "echo", "--run-id", run_id, "--connect", endpoint),
-                     ROOT)
+        rt.expect_remote(["echo"])
+        echo = procs(_cli("agent", f"{AGENTS}:Echo", "--name", "echo", "--run-id", run_id, "--connect", endpoint,
+                          "--secret", rt.secret), ROOT)
         rt.add(f"{AGENTS}:Asker", name="asker")
         rt.wait_joined(["echo"], timeout_s=PATIENCE_S)
         echo.proc.kill()  # kill -9: no goodbye, only its liveliness token disappears
@@ -189,8 +191,9 @@ def test_signal_stops_the_agent_cleanly(procs, tmp_path: Path, signum: int) -> N
     endpoint, run_id = loopback_endpoint(), _run_id()
     trace = tmp_path / "run.trace"
     with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=trace) as rt:
+        rt.expect_remote(["doubler"])
         agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint), ROOT)
+                           "--connect", endpoint, "--secret", rt.secret), ROOT)
         agent.wait_line(lambda s: "joined run" in s)
         rt.wait_joined(["doubler"], timeout_s=PATIENCE_S)
         agent.proc.send_signal(signum)
@@ -204,7 +207,8 @@ _NODE_ONLY = """
 import sys, time
 from blackboard.config import ZenohOptions
 from blackboard.runtime import Runtime
-rt = Runtime(run_id=sys.argv[1], zenoh=ZenohOptions(listen=[sys.argv[2]])).__enter__()
+rt = Runtime(run_id=sys.argv[1], zenoh=ZenohOptions(listen=[sys.argv[2]]), secret="s3cret").__enter__()
+rt.expect_remote(["doubler"])
 print("up", flush=True)
 time.sleep(600)
 """
@@ -217,7 +221,7 @@ def test_agent_whose_node_crashes_exits_with_an_error(procs, tmp_path: Path) -> 
     try:
         assert node.stdout is not None and node.stdout.readline() == "up\n"
         agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint), ROOT)
+                           "--connect", endpoint, "--secret", "s3cret"), ROOT)
         agent.wait_line(lambda s: "joined run" in s)
     finally:
         node.kill()  # kill -9: no run end announced
@@ -246,7 +250,7 @@ def test_agent_that_cannot_join_fails_clearly(procs, tmp_path: Path, extra: list
     endpoint, run_id = loopback_endpoint(), _run_id()
     factory = "no.such.module:Agent" if "--name" in extra else f"{AGENTS}:Doubler"
     argv = _cli("agent", factory, "--name", "doubler", "--run-id", run_id, "--connect", endpoint,
-                "--connect-timeout", "1", *extra)
+                "--connect-timeout", "1", "--secret", "s3cret", *extra)
     started = time.monotonic()
     if needs_node:
         with Runtime(run_id=f"{run_id}-other", zenoh=ZenohOptions(listen=[endpoint])):
@@ -269,10 +273,12 @@ def test_agent_that_cannot_join_fails_clearly(procs, tmp_path: Path, extra: list
 def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path, agents_first: bool) -> None:
     endpoint, run_id = loopback_endpoint(), _run_id()
     out, trace = tmp_path / "r.json", tmp_path / "run.trace"
+    secret = "a-secret-agreed-on-beforehand"
     run_argv = _cli("run", str(small), "--listen", endpoint, "--run-id", run_id, "--remote", "detector-house",
-                    "--remote", "detector-tower", "--out", str(out), "--trace", str(trace), "--no-progress")
+                    "--remote", "detector-tower", "--out", str(out), "--trace", str(trace), "--no-progress",
+                    *(["--secret", secret] if agents_first else []))
     if agents_first:  # started before the run: they keep trying to reach it
-        commands = [_cli(*command_line(factory, name, options, run_id=run_id, connect=endpoint)[1:])
+        commands = [_cli(*command_line(factory, name, options, run_id=run_id, connect=endpoint, secret=secret)[1:])
                     for factory, name, options in agent_plan(load_scenario(small)) if name.startswith("detector-")]
         agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
         run = procs(run_argv, tmp_path)

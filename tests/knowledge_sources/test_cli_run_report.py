@@ -26,13 +26,91 @@ def test_run_then_report(small, tmp_path, capsys):
     assert main(["run", str(small), "--strategy", "prior", "--out", str(prior), "--no-progress"]) == 0
     report = tmp_path / "report"
     assert main(["report", str(out), str(prior), "--out", str(report), "--max-frames", "3"]) == 0
-    for name in ("positions.png", "track.png", "belief.png", "rankings.png", "queries.png", "frames/frame_000.png",
-                 "frames/frame_002.png"):
+    from knowledge_sources.html_report import frame_order
+
+    detailed = [f["frame"] for f in frame_order(results["frames"])[:3]]  # wrong frames first
+    for name in ("positions.png", "track.png", "belief.png", "rankings.png", "queries.png",
+                  *(f"frames/frame_{i:03d}.png" for i in detailed)):
         img = cv2.imread(str(report / name))
         assert img is not None and img.shape[0] > 200 and img.std() > 5, name  # a real, non-blank figure
-    assert not (report / "frames" / "frame_003.png").exists()  # --max-frames honoured
+    left_out = sorted(set(range(8)) - set(detailed))
+    assert not any((report / "frames" / f"frame_{i:03d}.png").exists() for i in left_out)  # --max-frames honoured
     md = (report / "report.md").read_text()
     assert "| associative |" in md and "| prior |" in md
+    _check_html(report, results, json.loads(prior.read_text()), detailed)
+
+
+def _check_html(report, results, prior, detailed) -> None:
+    """index.html parsed: every image and link it refers to exists, frames wrong-first, both runs shown."""
+    from html.parser import HTMLParser
+
+    class Page(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.refs, self.ids, self.rows, self.sections = [], set(), [], []
+            self._row: list[str] | None = None
+            self._cell: list[str] | None = None
+
+        def handle_starttag(self, tag, attrs):
+            a = dict(attrs)
+            for key in ("src", "href"):
+                if a.get(key):
+                    self.refs.append(a[key])
+            if a.get("id"):
+                self.ids.add(a["id"])
+                if tag == "section":
+                    self.sections.append(a["id"])
+            if tag == "tr":
+                self._row = []
+            if tag in ("td", "th") and self._row is not None:
+                self._cell = []
+
+        def handle_endtag(self, tag):
+            if tag in ("td", "th") and self._cell is not None and self._row is not None:
+                self._row.append("".join(self._cell).strip())
+                self._cell = None
+            if tag == "tr" and self._row is not None:
+                self.rows.append(self._row)
+                self._row = None
+
+        def handle_data(self, data):
+            if self._cell is not None:
+                self._cell.append(data)
+
+    page = Page()
+    page.feed((report / "index.html").read_text(encoding="utf-8"))
+    assert page.refs, "the page refers to nothing"
+    for ref in page.refs:
+        if ref.startswith("#"):
+            assert ref[1:] in page.ids, ref
+        else:
+            assert "://" not in ref and not ref.startswith("/"), ref  # relative: opens from disk
+            target = report / ref
+            assert target.is_file() and target.stat().st_size > 0, ref
+            if ref.endswith(".png"):
+                img = cv2.imread(str(target))
+                assert img is not None and img.std() > 1, ref
+    # the summaries side by side: one column per results file
+    header = next(r for r in page.rows if r[:1] == [""])
+    assert header[1:] == ["results.json", "prior.json"]
+    strategy = next(r for r in page.rows if r[:1] == ["strategy"])
+    assert strategy[1:] == ["associative", "prior"]
+    # frames table: every frame once, wrong first, right last
+    table = [r for r in page.rows if len(r) == 10 and r[0].isdigit()]
+    assert sorted(int(r[0]) for r in table) == list(range(8))
+    by_frame = {f["frame"]: f for f in results["frames"]}
+    rank = [0 if by_frame[int(r[0])]["correct"] is False else 2 if by_frame[int(r[0])]["correct"] else 1 for r in table]
+    assert rank == sorted(rank)
+    prior_cells = {int(r[0]): r[9] for r in table}
+    for f in prior["frames"]:
+        assert prior_cells[f["frame"]].startswith(f"{f['viewframe']} / ")
+    # a section per detailed frame, in the same order, with camera, true and both chosen viewframes
+    assert page.sections == [f"frame-{i}" for i in detailed]
+    for i in detailed:
+        assert f"frames/frame_{i:03d}_camera.png" in page.refs
+        for k in (0, 1):
+            chosen = (results if k == 0 else prior)["frames"][i]["viewframe"]
+            assert chosen is None or f"frames/frame_{i:03d}_{k}_chosen.png" in page.refs
 
 
 def test_run_malformed_scenario_is_one_clear_line(small_data, tmp_path, capsys):

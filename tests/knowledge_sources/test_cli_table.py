@@ -35,11 +35,11 @@ def test_table_a_text_marks_the_minimum(capsys: pytest.CaptureFixture[str]) -> N
     assert main(["table", str(TABLE_A)]) == 0
     out = capsys.readouterr().out
     assert "4/4 rows have their minimum on the truth viewframe" in out
-    lines = [ln for ln in out.splitlines() if ln.startswith("frame_")]
-    assert len(lines) == 4
-    for i, line in enumerate(lines):
-        cells = line.split()[1:5]
-        assert [c.endswith("*") for c in cells] == [j == i for j in range(4)]
+    rows = [[c.strip() for c in ln.split("│")[1:-1]] for ln in out.splitlines() if ln.startswith("│ frame_")]
+    assert len(rows) == 4  # a rich table: one row per camera image
+    for i, cells in enumerate(rows):
+        assert [c.endswith("*") for c in cells[1:5]] == [j == i for j in range(4)]
+        assert cells[-1] == f"V{i} ok"
 
 
 def _write_scenario(tmp_path: Path, **changes) -> Path:

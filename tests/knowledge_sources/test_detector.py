@@ -53,6 +53,24 @@ def test_absent_in_a_blank_image(small_rendered: dict) -> None:
     assert answer.present is not True and answer.score < 0.65
 
 
+def test_the_answer_carries_the_likelihood_ratio_of_the_view_with_and_without(small_rendered: dict) -> None:
+    """The map renderer posts each viewframe with its view without landmarks: the answer's ratio
+    favours the landmark when the camera sees the viewframe, and its absence when the camera sees
+    that view without it."""
+    vf, lm = _visible_landmark(small_rendered)
+    assert vf.background is not None
+    llrs = {}
+    for name, image in (("with", vf.image), ("without", vf.background)):
+        bb = MemoryBlackboard()
+        bb.add(LandmarkDetectorAgent("detector-x", camera_height=vf.image.shape[0], fov_y_deg=45.0))
+        _ask(bb, vf, lm, image, to="detector-x")
+        bb.run()
+        (h,) = bb.hypotheses(levels.ANSWER)
+        llrs[name] = levels.Answer.from_hypothesis(h).llr
+    assert llrs["with"] is not None and llrs["without"] is not None
+    assert llrs["with"] > 0.0 > llrs["without"], llrs
+
+
 def test_queries_for_another_detector_are_left_alone(small_rendered: dict) -> None:
     vf, lm = _visible_landmark(small_rendered)
     bb = MemoryBlackboard()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import pytest
 import yaml
@@ -11,7 +12,7 @@ from blackboard.trace import read_trace
 from knowledge_sources.mission import agent_plan, run_mission
 from knowledge_sources.results import load_results, write_results
 from models.errors import ScenarioError
-from models.scenario import load_scenario
+from models.scenario import SchedulerSpec, load_scenario
 
 pytestmark = pytest.mark.slow
 
@@ -20,6 +21,9 @@ CONTRACT = {
     "confidence": float, "queries": int, "backtracks": int, "latency_ms": (float, type(None)),
     "ranking": list, "truth_viewframe": (int, type(None)), "correct": (bool, type(None)),
 }
+
+
+SMALL_SPEC = SchedulerSpec()
 
 
 def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path):
@@ -46,6 +50,12 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
     assert {name for _, name, _ in agent_plan(load_scenario(small))} <= joined
     positions = [r for r in records if r["kind"] == "post" and r.get("level") == "position"]
     assert len(positions) == len(SMALL["route"])
+    # soft backtracking (the default): the detectors' answers carry their own likelihood ratios
+    # (the viewframes reached them with their views without landmarks), not the ratio the rule
+    # would imply from a bare present/absent, log(q / (1 - q))
+    implied = math.log(SMALL_SPEC.reliability / (1 - SMALL_SPEC.reliability))
+    llrs = [s["llr"] for f in results["frames"] for s in f["steps"] if "llr" in s]
+    assert llrs and any(abs(abs(v) - implied) > 1e-3 for v in llrs), llrs
 
 
 def test_same_results_in_one_process_and_in_processes(small):

@@ -3,7 +3,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from knowledge_sources.scene_analysis import Question, SceneAnalysis, ranking_weights
+from knowledge_sources.scene_analysis import Question, SceneAnalysis, information_gain, ranking_weights
+
+from . import seed_scene_analysis as seed
+
+#: the seed paper's rule (the first version's)
+HARD = {"backtracking": "hard", "questions": "probability"}
 
 # viewframe -> visible landmarks, a small route
 VISIBLE = {
@@ -70,7 +75,7 @@ def test_landmark_free_viewframe_decided_by_ranking_alone():
 def test_absent_landmark_backtracks_to_next_candidate():
     # the ranking puts 1 first, but the camera is at 2: H1 is absent, so 0 and 1 are discarded
     ranking = [(1, 1.0), (2, 1.01), (0, 1.02)] + [(k, 2.0 + k) for k in (3, 4, 5, 6, 7)]
-    sa = SceneAnalysis(ranking, VISIBLE, candidates=3)
+    sa = SceneAnalysis(ranking, VISIBLE, candidates=3, **HARD)
     decision, asked = _run(sa, 2)
     assert decision.viewframe == 2
     assert decision.backtracks >= 1
@@ -78,7 +83,7 @@ def test_absent_landmark_backtracks_to_next_candidate():
 
 
 def test_most_probable_landmark_asked_first():
-    sa = SceneAnalysis(_ranking(5, sharp=False), VISIBLE)
+    sa = SceneAnalysis(_ranking(5, sharp=False), VISIBLE, questions="probability")
     probs = sa.landmark_probabilities()
     q = sa.next_question()
     assert q.landmark == max(probs, key=probs.get)
@@ -100,7 +105,7 @@ def test_associative_asks_fewer_questions_than_prior():
 
 def test_all_candidates_discarded_is_a_result_not_an_error():
     visible = {0: {"A"}, 1: {"A"}}
-    sa = SceneAnalysis([(0, 1.0), (1, 1.1)], visible)
+    sa = SceneAnalysis([(0, 1.0), (1, 1.1)], visible, **HARD)
     decision, _ = _run(sa, 0, visible=visible, liar={"A"})
     assert decision.viewframe is None
     assert "discarded" in decision.reason
@@ -130,6 +135,10 @@ def test_answer_must_match_pending_question():
         ({"candidates": 0}, "candidates"),
         ({"accept": 0.0}, "accept"),
         ({"reliability": 0.5}, "reliability"),
+        ({"backtracking": "firm"}, "backtracking"),
+        ({"questions": "random"}, "questions"),
+        ({"floor": 1.0}, "floor"),
+        ({"max_llr": 0.0}, "max_llr"),
     ],
 )
 def test_invalid_parameters(kwargs, message):
@@ -168,3 +177,135 @@ def test_no_track_prior_is_the_blind_rule():
     a = SceneAnalysis(ranking, VISIBLE, candidates=4)
     b = SceneAnalysis(ranking, VISIBLE, candidates=4, track_prior=None)
     assert a.posterior() == b.posterior()
+# -- hard backtracking is the seed paper's rule, exactly ------------------------------------------
+
+def _random_case(rng: np.random.Generator) -> tuple[list[tuple[int, float]], dict[int, set[str]], dict]:
+    n = int(rng.integers(2, 14))
+    names = [f"L{i}" for i in range(int(rng.integers(1, 7)))]
+    visible = {k: {lm for lm in names if rng.random() < 0.35} for k in range(n)}
+    variances = rng.normal(1.0, 0.05, n)
+    if rng.random() < 0.3:
+        variances[: n // 2] = 1.0  # ties
+    order = np.argsort(variances, kind="stable")
+    ranking = [(int(k), float(variances[k])) for k in order]
+    options = {"strategy": str(rng.choice(["associative", "prior"])), "candidates": int(rng.integers(1, 9)),
+               "accept": float(rng.choice([0.5, 0.6, 0.75, 0.9, 1.0])), "reliability": float(rng.uniform(0.55, 0.95)),
+               "beta": float(rng.uniform(0.5, 5.0)), "priors": {lm: float(rng.random()) for lm in names}}
+    return ranking, visible, options
+
+
+def _drive(sa, rng: np.random.Generator, truth: int, visible, lie: float) -> tuple:
+    """Answer as a detector that lies with probability ``lie`` and sometimes cannot tell."""
+    asked = []
+    while (q := sa.next_question()) is not None:
+        u = rng.random()
+        present = None if u < 0.1 else ((q.landmark in visible[truth]) != (u < 0.1 + lie))
+        asked.append((q.landmark, q.viewframe, q.probability, present))
+        sa.answer(q, present)
+    d = sa.decision
+    return d.viewframe, d.confidence, d.queries, d.backtracks, d.reason, d.steps, asked
+
+
+def test_hard_backtracking_equals_the_seed_rule_exactly():
+    """600 random cases (rankings with ties, both strategies, random options, lying and undecided
+    detectors): every question, answer effect and decision is the first version's."""
+    rng = np.random.default_rng(11)
+    differing_from_soft = 0
+    for case in range(600):
+        ranking, visible, options = _random_case(rng)
+        truth = int(rng.integers(0, len(ranking)))
+        lie = float(rng.choice([0.0, 0.2, 0.5]))
+        answers_seed = np.random.default_rng(case)
+        answers_new = np.random.default_rng(case)
+        want = _drive(seed.SceneAnalysis(ranking, visible, **options), answers_seed, truth, visible, lie)
+        got = _drive(SceneAnalysis(ranking, visible, **options, **HARD), answers_new, truth, visible, lie)
+        assert got == want, (case, options)
+        soft = _drive(SceneAnalysis(ranking, visible, **options), np.random.default_rng(case), truth, visible, lie)
+        differing_from_soft += soft[:4] != want[:4]
+    assert differing_from_soft > 30  # the comparison can fail: soft is another rule
+
+
+# -- soft backtracking ---------------------------------------------------------------------------
+
+SOFT_VISIBLE = {0: {"A", "B"}, 1: {"C"}, 2: {"A"}, 3: {"D"}}
+
+
+def test_one_wrong_absent_does_not_discard_the_right_viewframe():
+    ranking = [(0, 1.0), (1, 1.004), (2, 1.01), (3, 1.05)]
+    hard = SceneAnalysis(ranking, SOFT_VISIBLE, **HARD)
+    q = hard.next_question()
+    assert q.landmark == "A"
+    hard.answer(q, False)  # the detector wrongly says A is absent: the truth is 0
+    assert 0 not in hard.posterior()  # the seed rule loses the right viewframe for good
+
+    soft = SceneAnalysis(ranking, SOFT_VISIBLE, questions="probability")
+    q = soft.next_question()
+    soft.answer(q, False, llr=-2.5)
+    assert 0 in soft.posterior()
+    # B (only in 0) is then found present, strongly: 0 comes back and is accepted
+    while (q := soft.next_question()) is not None:
+        truth_says = q.landmark in SOFT_VISIBLE[0]
+        soft.answer(q, truth_says, llr=3.0 if truth_says else -3.0)
+    assert soft.decision.viewframe == 0
+
+
+def test_consistent_evidence_discards_a_candidate():
+    # the ranking prefers 0 (landmarks A, B, E); the camera is at 1 (no landmark)
+    ranking = [(0, 1.0), (1, 1.0), (2, 1.3), (3, 1.3)]
+    visible = {0: {"A", "B", "E"}, 1: set(), 2: set(), 3: set()}
+    sa = SceneAnalysis(ranking, visible, questions="probability", floor=1e-3, max_llr=3.0, accept=1.0)
+    kept = []
+    while (q := sa.next_question()) is not None:
+        sa.answer(q, False, llr=-3.0)
+        kept.append(0 in sa.posterior())
+    assert kept[0] is True  # one answer against it: lowered, kept
+    assert kept[-1] is False  # consistent answers against it: discarded
+    assert sa.decision.viewframe == 1
+    assert sa.decision.backtracks == 1
+
+
+def test_soft_answers_move_the_posterior_by_the_likelihood_ratio():
+    ranking = [(0, 1.0), (1, 1.0), (2, 1.0), (3, 1.0)]  # uniform weights
+    sa = SceneAnalysis(ranking, SOFT_VISIBLE, questions="probability", max_llr=10.0, floor=0.0)
+    prior = sa.posterior()
+    q = sa.next_question()
+    assert q.landmark == "A"  # in 0 and 2
+    sa.answer(q, True, llr=1.5)
+    post = sa.posterior()
+    odds = (post[0] / post[1]) / (prior[0] / prior[1])
+    assert odds == pytest.approx(np.exp(1.5))
+    assert post[2] / post[0] == pytest.approx(prior[2] / prior[0])  # both hold A
+
+
+def test_soft_llr_is_clipped_and_never_discards_the_best():
+    ranking = [(0, 1.0), (1, 1.0)]
+    visible = {0: {"A"}, 1: set()}
+    sa = SceneAnalysis(ranking, visible, max_llr=2.0, floor=0.05, questions="probability")
+    q = sa.next_question()
+    sa.answer(q, False, llr=-50.0)
+    post = sa.posterior()
+    assert post[0] / post[1] == pytest.approx(np.exp(-2.0))
+    sa2 = SceneAnalysis([(0, 1.0)], {0: {"A"}}, floor=0.5, questions="probability")
+    q = sa2.next_question()
+    sa2.answer(q, False, llr=-50.0)
+    assert list(sa2.posterior()) == [0]  # the only candidate is kept: the best is never discarded
+
+
+# -- question choice -----------------------------------------------------------------------------
+
+def test_information_gain_is_largest_for_an_even_split():
+    gains = [information_gain(p, reliability=0.8) for p in (0.05, 0.3, 0.5, 0.7, 0.99)]
+    assert max(gains) == gains[2]
+    assert information_gain(1.0, reliability=0.8) == pytest.approx(0.0)
+    assert information_gain(0.5, reliability=0.99) > information_gain(0.5, reliability=0.7)
+
+
+def test_information_gain_picks_the_discriminating_landmark():
+    # two leading candidates 0 and 1; "S" is seen by both (and a far one), "D" only by 1:
+    # P(S|A) is highest, but only D tells 0 from 1
+    ranking = [(0, 1.0), (1, 1.001), (2, 1.2), (3, 1.3)]
+    visible = {0: {"S"}, 1: {"S", "D"}, 2: {"E"}, 3: set()}
+    by_p = SceneAnalysis(ranking, visible, questions="probability").next_question()
+    by_ig = SceneAnalysis(ranking, visible, questions="information").next_question()
+    assert by_p.landmark == "S"
+    assert by_ig.landmark == "D"

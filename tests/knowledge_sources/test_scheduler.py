@@ -29,11 +29,12 @@ def _rank(bb: MemoryBlackboard, frame: int, shards: dict[int, list[tuple[int, fl
                                             reliability=3.0))
 
 
-def _answer(bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None) -> None:
+def _answer(bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None,
+            llr: float | None = None) -> None:
     levels.post(bb.board("user"), levels.Answer(query=query_id, frame=query.frame, landmark=query.landmark,
                                                 viewframe=query.viewframe, present=present,
                                                 score=0.9 if present else 0.0, location=None, detector="test",
-                                                reason="scripted"), links=(query_id,))
+                                                reason="scripted", llr=llr), links=(query_id,))
 
 
 def _board(**options: object) -> MemoryBlackboard:
@@ -83,7 +84,7 @@ def test_a_confirmed_landmark_localizes_the_frame_at_the_viewframe_pose() -> Non
 
 
 def test_an_absent_landmark_backtracks() -> None:
-    bb = _board()
+    bb = _board(backtracking="hard", questions="probability")  # the seed paper's rule
     _rank(bb, 1, SHARDS)
     bb.run(timeouts=False)
     answered = set()
@@ -98,6 +99,33 @@ def test_an_absent_landmark_backtracks() -> None:
     p = levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0])
     assert p.backtracks >= 1 and p.viewframe not in (0, 2, 3)
     assert [q.number for _, q in _queries(bb)] == list(range(1, len(answered) + 1))
+
+
+def test_soft_backtracking_takes_the_answers_likelihood_ratio() -> None:
+    """The default rule: the answers' ratios decide between close candidates even when the
+    detector's own three-way answer is undecided (which the seed rule takes as no evidence); such
+    an answer is evidence, not a degraded query."""
+    close = {0: [(2, 1.0e-5), (0, 1.2e-5)], 1: [(1, 1.05e-5), (3, 1.1e-5)]}  # near-equal weights
+    results = {}
+    for llr in (-3.0, 3.0):
+        bb = _board()
+        _rank(bb, 1, close)
+        bb.run(timeouts=False)
+        answered = set()
+        for _ in range(10):
+            pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
+            if not pending:
+                break
+            ((qid, q),) = pending
+            answered.add(qid)
+            _answer(bb, q, qid, None, llr=llr if q.viewframe == 2 else -llr)  # the detector itself undecided
+            bb.run(timeouts=False)
+        (ph,) = bb.hypotheses(levels.POSITION)
+        results[llr] = levels.Position.from_hypothesis(ph)
+    # H1 (seen by 0, 2, 3) there and T1 (seen by 1) not: 2, the best of them; the other way: 1
+    assert results[3.0].viewframe == 2 and results[-3.0].viewframe == 1
+    assert all(p.degraded == [] for p in results.values())
+    assert [s["llr"] for s in results[-3.0].steps] == [-3.0, 3.0]
 
 
 def test_an_unanswered_query_times_out_and_the_position_says_degraded() -> None:

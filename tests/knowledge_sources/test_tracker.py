@@ -147,11 +147,13 @@ def test_no_track_equals_the_reference_results_of_the_code_before_tracking(tmp_p
     """table_a (camera frames on file) with --no-track decides as the code before the tracker did
     (bench/reference/results_before.json, produced from 11d7ded by bench/compare_results.py), given
     the memory settings of that code (max_shift [2, 16]: the default changed since; table_a sets its
-    own bank size)."""
+    own bank size) and its scene-analysis rule (hard backtracking, questions by probability: the
+    default became soft backtracking and information-gain questions since)."""
     root = Path(__file__).resolve().parents[2]
     reference = json.loads((root / "bench" / "reference" / "results_before.json").read_text())
     data = yaml.safe_load((root / "scenarios" / "table_a.yaml").read_text())
     data["memory"] = {**data.get("memory", {}), "max_shift": [2, 16]}
+    data["scheduler"] = {**data.get("scheduler", {}), "backtracking": "hard", "questions": "probability"}
     for f in data["sensor"]["frames"]:
         f["image"] = str(root / "scenarios" / f["image"])
     data["terrain"] = {k: (str(root / "scenarios" / v) if k in ("dem", "contours") else v)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 
@@ -107,6 +108,21 @@ def test_views_are_reproducible_and_lighting_changes_only_the_image(flat):
     assert dim.image[ground].mean() < a.image[ground].mean() - 10
     c = flat.render(pose)
     np.testing.assert_array_equal(c.image, a.image)  # defaults restored
+
+
+def test_background_leaves_the_landmark_out_and_the_rest_alone(flat):
+    pose = Pose(100.0, 500.0, 2.0, 5.0)
+    view = flat.render(pose)
+    bare = flat.render_background(pose)
+    box = view.mask == 0
+    assert box.sum() > 50
+    diff = np.abs(bare.astype(int) - view.image.astype(int)).sum(axis=2)
+    # where the box was, the ground or the sky behind it (nothing of the box's colour is left)
+    assert (diff[box] > 30).mean() > 0.9
+    # elsewhere the same picture, but for antialiased pixels along the box's outline
+    near_box = cv2.dilate(box.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    assert diff[~near_box].max() <= 2
+    np.testing.assert_array_equal(flat.render(pose).image, view.image)  # the boxes come back
 
 
 def test_closed_emulator_refuses_to_render():

@@ -92,3 +92,63 @@ def test_multilinestring_and_errors_of_contours_to_dem(tmp_path):
         contours_to_dem(lines, cell_size=10.0)
     with pytest.raises(ValueError, match=">= 0"):
         contours_to_dem([(np.array([[-50.0, 0], [0, 0]]), 1.0), (np.array([[0.0, 5], [9, 9]]), 2.0)], cell_size=10.0)
+
+
+# --- vector formats through pyogrio, georeferenced contour files -------------------------------
+
+
+@pytest.mark.parametrize("suffix", [".shp", ".gpkg", ".geojson"])
+def test_georeferenced_contour_files_give_the_local_dem_and_a_map_frame(tmp_path, suffix):
+    """The same lines as local metres (plain GeoJSON) and in UTM (Shapefile, GeoPackage, GeoJSON
+    with a crs member) give the same DEM; the map frame puts local (0, 0) at the lines' SW corner."""
+    from models.contours import read_contours
+    from tests.models.geofiles import UTM, X0, Y0, write_contour_vector
+
+    truth = _analytic(cell=20.0, n=31)
+    lines = dem_to_contours(truth, interval=10.0)
+    save_contours(lines, tmp_path / "local.geojson", decimals=6)
+    local, frame = read_contours(tmp_path / "local.geojson")
+    assert frame is None
+    lo = np.concatenate([p for p, _ in lines]).min(axis=0)
+    path = write_contour_vector(tmp_path / f"utm{suffix}", [(p + (X0, Y0), e) for p, e in lines], crs=UTM,
+                                attribute="ELEV")
+    geo, frame = read_contours(path, attribute="ELEV")
+    assert frame is not None and frame.name == UTM
+    np.testing.assert_allclose(frame.origin, (X0 + lo[0], Y0 + lo[1]), atol=1e-6)
+    assert len(geo) == len(local)
+    for (pg, eg), (pl, el) in zip(geo, local):
+        assert eg == el
+        np.testing.assert_allclose(pg, pl - lo, atol=1e-5)
+    # the scenario's terrain: the same heights at the same map positions
+    a = contours_to_dem(local, cell_size=20.0)
+    b = contours_to_dem(geo, cell_size=20.0)
+    mx, my = frame.to_map(300.0, 400.0)
+    assert b.height_at(300.0, 400.0) == pytest.approx(a.height_at(mx - X0, my - Y0), abs=0.5)
+
+
+def test_contour_attribute_errors_list_the_fields(tmp_path):
+    from tests.models.geofiles import UTM, write_contour_vector
+
+    path = write_contour_vector(tmp_path / "c.gpkg", [(np.array([[0.0, 0], [10, 10]]), 5.0)], crs=UTM,
+                                attribute="hoehe")
+    with pytest.raises(InputError, match=r"c.gpkg: no attribute 'elevation'.*the file has: id, hoehe"):
+        load_contours(path)
+    (tmp_path / "junk.shp").write_bytes(b"nope")
+    with pytest.raises(InputError, match=r"junk.shp: cannot read contour lines \(OGR\)"):
+        load_contours(tmp_path / "junk.shp")
+
+
+def test_multilinestring_and_local_metres_from_a_vector_file_without_crs(tmp_path):
+    import pyogrio
+
+    from models.contours import read_contours
+    from tests.models.geofiles import wkb_multilinestring
+
+    geometry = np.array([wkb_multilinestring([np.array([[0.0, 0], [50, 0]]), np.array([[0.0, 10], [50, 10]])]),
+                         wkb_multilinestring([np.array([[0.0, 40], [50, 40]])])], dtype=object)
+    with pytest.warns(UserWarning, match="'crs' was not provided"):
+        pyogrio.raw.write(tmp_path / "m.gpkg", geometry, [np.array([1.0, 9.0])], ["elevation"],
+                          geometry_type="MultiLineString")
+    lines, frame = read_contours(tmp_path / "m.gpkg")
+    assert frame is None and [e for _, e in lines] == [1.0, 1.0, 9.0]
+    np.testing.assert_array_equal(lines[1][0], [[0.0, 10.0], [50.0, 10.0]])

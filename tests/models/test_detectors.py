@@ -6,13 +6,27 @@ import numpy as np
 import pytest
 
 from models.detectors import (
+    LR_FEATURES,
+    Calibration,
     CandidateView,
     DetectorRegistry,
     EdgeTemplateDetector,
     LandmarkDetector,
+    align_pixels,
     default_registry,
     edge_image,
 )
+from models.scenario import SchedulerSpec
+
+SPEC = SchedulerSpec()
+
+
+def _registry(**kw) -> DetectorRegistry:
+    """The registry with the scenario schema's defaults (thresholds, calibration)."""
+    opts = {"threshold": SPEC.detector_threshold, "absent_threshold": SPEC.absent_threshold,
+            "calibration": SPEC.calibration,
+            "align_px": align_pixels(height=120, fov_y_deg=45.0, tolerance_deg=SPEC.align_deg)}
+    return default_registry(**{**opts, **kw})
 
 H, W = 120, 160
 
@@ -98,7 +112,7 @@ def test_edge_image_range_and_orientation(axis):
 
 
 def test_registry_protocol_and_fallback():
-    reg = default_registry()
+    reg = _registry()
     assert {"house", "barn", "tower", "silo"} <= set(reg.kinds)  # every kind of the bundled scenarios
     assert isinstance(reg.for_kind("house"), LandmarkDetector)
     assert reg.for_kind("windmill").name == "box-outline"  # no own detector: the box fallback
@@ -133,10 +147,86 @@ def test_rendered_house_found_from_its_viewframe_and_not_elsewhere():
         away = cam.render(cam.pose_at(240, 300, 180.0))  # looking west: the house is behind
     rng = np.random.default_rng(2)
     spec = scenario.sensor.simulate
-    det = default_registry().for_kind("house")
+    det = _registry().for_kind("house")
     view = CandidateView.from_mask(vf.image, vf.mask, 0)
     found = det.detect(degrade(near.image, depth=near.depth, spec=spec, rng=rng), view=view)
     missed = det.detect(degrade(away.image, depth=away.depth, spec=spec, rng=rng), view=view)
     assert found.present is True, found
     assert missed.present is not True, missed
     assert found.score > missed.score + 0.2
+
+
+def test_align_pixels_follow_the_field_of_view_and_size():
+    small = align_pixels(height=120, fov_y_deg=45.0, tolerance_deg=(2.0, 5.0), margin=0)
+    big = align_pixels(height=480, fov_y_deg=45.0, tolerance_deg=(2.0, 5.0), margin=0)
+    assert small == (6, 13)  # f = 60 / tan(22.5°) = 144.9 px: 2° -> 5.06, 5° -> 12.7
+    assert big[0] >= 4 * small[0] - 4 and big[1] >= 4 * small[1] - 4
+    with pytest.raises(ValueError, match="tolerance_deg"):
+        align_pixels(height=120, fov_y_deg=45.0, tolerance_deg=(50.0, 5.0))
+
+
+def test_calibration_is_affine_in_the_features_and_checks_its_size():
+    cal = Calibration.from_sequence([0.5, 2.0, -1.0, 0.25])
+    assert cal.llr((1.0, 0.5, 2.0)) == pytest.approx(0.5 + 2.0 - 0.5 + 0.5)
+    with pytest.raises(ValueError, match="numbers"):
+        Calibration.from_sequence([1.0, 2.0])
+    assert len(LR_FEATURES) == 3
+    # every family and kind the schema calibrates builds
+    for values in SPEC.calibration.values():
+        Calibration.from_sequence(values)
+
+
+def test_without_view_needs_a_background_of_the_same_shape():
+    rng = np.random.default_rng(8)
+    view = _view(rng)
+    mask = np.where(view.silhouette, 0, -1)
+    with pytest.raises(ValueError, match="background shape"):
+        CandidateView.from_mask(view.image, mask, 0, background=np.zeros((10, 10, 3), np.uint8))
+    bg = np.full_like(view.image, 200)
+    cv = CandidateView.from_mask(view.image, mask, 0, background=bg)
+    assert (cv.without[view.silhouette] == 200).all()
+    assert (cv.without[~view.silhouette] == view.image[~view.silhouette]).all()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["house", "tower"])
+def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
+    """Real pyrender views: the camera frame near the viewframe, once with the landmark and once
+    the same view without it (the emulator leaves the boxes out), degraded like a camera, with
+    heading and pitch errors. The calibrated log-likelihood ratio must favour the landmark in the
+    first and its absence in the second."""
+    from models.camera_emulator import CameraEmulator
+    from models.environment import build_environment
+    from models.scenario import scenario_from_dict
+    from models.sensor import degrade
+
+    size = {"house": {"width": 20, "depth": 12, "height": 8}, "tower": {"width": 4, "depth": 4, "height": 30}}[kind]
+    data = {
+        "name": "lr-test", "seed": 1,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
+        "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": 300, **size}],
+        "route": [[240, 300], [300, 240]],
+        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+        "sensor": {"simulate": {}},
+    }
+    scenario = scenario_from_dict(data, path=Path("/nonexistent/lr-test.yaml"))
+    env = build_environment(scenario)
+    spec = scenario.sensor.simulate
+    det = _registry().for_kind(kind)
+    with CameraEmulator(env, scenario.camera) as cam:
+        pose = cam.pose_at(240, 300, 0.0)
+        vf = cam.render(pose)
+        view = CandidateView.from_mask(vf.image, vf.mask, 0, background=cam.render_background(pose))
+        assert (vf.mask == 0).sum() > 60
+        results = []
+        for i, (dh, dp) in enumerate([(0.0, 0.0), (3.5, 1.5), (-4.0, -1.5)]):
+            near = cam.pose_at(242, 301, dh, pitch_deg=dp)
+            rng = np.random.default_rng(20 + i)
+            with_lm = cam.render(near, light_intensity=1.3)
+            without_lm = cam.render_background(near, light_intensity=1.3)
+            d_with = det.detect(degrade(with_lm.image, depth=with_lm.depth, spec=spec, rng=rng), view=view)
+            d_without = det.detect(degrade(without_lm, depth=with_lm.depth, spec=spec, rng=rng), view=view)
+            results.append((d_with.llr, d_without.llr))
+    for llr_with, llr_without in results:
+        assert llr_with is not None and llr_without is not None
+        assert llr_with > 0.0 > llr_without, results

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from pydantic import ValidationError
@@ -39,13 +40,37 @@ def _with(path: str, value):
     return data
 
 
-@pytest.mark.parametrize("name", ["hills", "jacksboro", "contours"])
+@pytest.mark.parametrize("name", ["hills", "jacksboro", "contours", "jacksboro_geo"])
 def test_bundled_scenarios_load(name):
     s = load_scenario(SCENARIOS / f"{name}.yaml")
     assert s.name == name and s.path == SCENARIOS / f"{name}.yaml"
     assert s.base_dir == SCENARIOS
     assert len(s.route) >= 20 and len(s.landmarks) >= 5
     assert s.sensor is not None and s.sensor.simulate is not None
+
+
+def test_bundled_lonlat_scenario_lies_on_its_geotiff():
+    """jacksboro_geo: lon/lat route on a lon/lat GeoTIFF, converted to local metres inside the DEM."""
+    from models.terrain_sources import load_terrain
+
+    s = load_scenario(SCENARIOS / "jacksboro_geo.yaml")
+    assert s.crs == "EPSG:4326" and s.map_frame is not None and s.map_frame.name == "EPSG:4326"
+    t = load_terrain(s.terrain, base_dir=s.base_dir, seed=s.seed)
+    assert 70 < t.cell_size < 80  # 3 arc-seconds east-west at 36.6 N, the smaller ground side
+    assert all(t.contains(x, y) for x, y in s.route)
+    # consecutive route points are 50 m apart on the ground (they were laid out in metres)
+    steps = np.hypot(*np.diff(np.asarray(s.route), axis=0).T)
+    np.testing.assert_allclose(steps, 50.0, atol=0.15)  # drive() rounds to 0.1 m
+    # heights agree with the raw npz shipped with matplotlib at the first route point's cell
+    from matplotlib import cbook
+
+    lon, lat = s.map_frame.to_lonlat(*s.route[0])
+    with cbook.get_sample_data("jacksboro_fault_dem.npz") as raw:
+        z, west, north, d = raw["elevation"], float(raw["xmin"]), float(raw["ymin"]), float(raw["dx"])
+    r, c = (north - float(lat)) / d - 0.5, (float(lon) - west) / d - 0.5
+    r0, c0 = int(r), int(c)
+    near = z[r0:r0 + 2, c0:c0 + 2].astype(float)
+    assert near.min() - 1 <= t.height_at(*s.route[0]) <= near.max() + 1
 
 
 def test_valid_scenario_defaults(tmp_path):
@@ -86,6 +111,12 @@ MALFORMED = [
     ("memory", {"edge": "laplace"}, "memory.edge: must be one of 'sobel', 'scharr', 'laplacian', 'canny' or 'none'"),
     ("scheduler", {"accept": 1.5}, "scheduler.accept: must be <= 1"),
     ("scheduler", {"strategy": "random"}, "scheduler.strategy: must be one of 'associative' or 'prior'"),
+    ("scheduler", {"backtracking": "firm"}, "scheduler.backtracking: must be one of 'hard' or 'soft'"),
+    ("scheduler", {"questions": "any"}, "scheduler.questions: must be one of 'information' or 'probability'"),
+    ("scheduler", {"floor": 1.0}, "scheduler.floor: must be < 1"),
+    ("scheduler", {"max_llr": 0}, "scheduler.max_llr: must be > 0"),
+    ("scheduler", {"align_deg": [2.0, 60.0]}, "scheduler.align_deg: must be two angles in [0, 45) degrees"),
+    ("scheduler", {"calibration": {"house": [1.0, 2.0]}}, "scheduler.calibration.house"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
     ("name", "", "name: must not be empty"),
     ("speed", 3, "speed: unknown field"),
@@ -160,3 +191,88 @@ def test_scenario_is_frozen():
     s = scenario_from_dict(VALID)
     with pytest.raises(ValidationError):
         s.seed = 3
+
+
+def test_every_problem_is_listed_at_once_with_did_you_mean(tmp_path):
+    data = _with("camera.fov_y_deg", 200)
+    data["terrain"] = {**data["terrain"], "cell_sise": 10.0}
+    data["camera"]["pich_deg"] = 2.0
+    data["landmarks"][0]["height"] = -1
+    data["landmarks"][0]["colour"] = "red"
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(ScenarioError) as info:
+        load_scenario(path)
+    lines = str(info.value).splitlines()
+    assert all(line.startswith(f"{path}: ") for line in lines)
+    got = {line[len(f"{path}: "):] for line in lines}
+    assert got == {
+        "terrain.cell_sise: unknown field (did you mean cell_size?)",
+        "camera.pich_deg: unknown field (did you mean pitch_deg?)",
+        "camera.fov_y_deg: must be < 180",
+        "landmarks[0].height: must be > 0",
+        "landmarks[0].colour: unknown field (known: id, kind, x, y, width, depth, height, yaw_deg)",
+    }
+    assert len(info.value.problems) == 5 and info.value.field == lines[0][len(f"{path}: "):].split(":")[0]
+
+
+def test_json_schema_covers_the_bundled_scenarios():
+    """The schema `mapinterp schema` prints names every field the bundled scenarios use."""
+    schema = Scenario.model_json_schema()
+    defs = schema.get("$defs", {})
+
+    def fields_of(node):
+        if "$ref" in node:
+            node = defs[node["$ref"].split("/")[-1]]
+        for key in ("anyOf", "allOf"):
+            for sub in node.get(key, []):
+                yield from fields_of(sub)
+        yield from node.get("properties", {}).items()
+
+    def walk(value, node, where):
+        if isinstance(value, dict):
+            props = dict(fields_of(node))
+            for k, v in value.items():
+                assert k in props, f"{where}.{k} not in the schema"
+                walk(v, props[k], f"{where}.{k}")
+        elif isinstance(value, list) and value and isinstance(value[0], dict):
+            items = next((n["items"] for n in [node, *node.get("anyOf", [])] if "items" in n), {})
+            for i, v in enumerate(value):
+                walk(v, items, f"{where}[{i}]")
+
+    for path in sorted(SCENARIOS.glob("*.yaml")):
+        walk(yaml.safe_load(path.read_text()), schema, path.name)
+
+
+def test_readme_documents_every_field_the_bundled_scenarios_use():
+    import re
+
+    readme = (SCENARIOS.parent / "README.md").read_text(encoding="utf-8")
+    documented: set[str] = set()
+    for line in readme.splitlines():
+        if not line.startswith("| `"):
+            continue
+        names = re.findall(r"`([^`]+)`", line.split("|")[1])
+        if not names:
+            continue
+        first = names[0]
+        documented.add(first)
+        base = first.rsplit(".", 1)[0] if "." in first else ""
+        documented |= {base + n for n in names[1:] if n.startswith(".")}
+    used: set[str] = set()
+
+    def walk(value, where):
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(v, f"{where}.{k}" if where else k)
+        elif isinstance(value, list) and value and isinstance(value[0], dict):
+            for v in value:
+                walk(v, where + "[]")
+        else:
+            used.add(where)
+
+    for path in SCENARIOS.glob("*.yaml"):
+        walk(yaml.safe_load(path.read_text()), "")
+    wild = {d[:-1] for d in documented if d.endswith("*")}
+    missing = sorted(u for u in used if u not in documented and not any(u.startswith(w) for w in wild))
+    assert not missing, f"README.md does not document {missing}"
