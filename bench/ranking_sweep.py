@@ -53,8 +53,14 @@ def prepare(case) -> dict[str, Any]:
         vfs = [v.image for v in world.viewframes]
         frames = world.sensor_frames
     truth = [nearest_viewframe(f.truth[0], f.truth[1], sc.route) for f in frames]
-    return {"name": case.name, "terrain": case.terrain, "memory": sc.memory.model_dump(), "viewframes": vfs,
-            "frames": [f.image for f in frames], "truth": truth}
+    return {
+        "name": case.name,
+        "terrain": case.terrain,
+        "memory": sc.memory.model_dump(),
+        "viewframes": vfs,
+        "frames": [f.image for f in frames],
+        "truth": truth,
+    }
 
 
 def rank_case(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -73,8 +79,12 @@ def rank_case(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]
 
 def _summary(places: list[int]) -> dict[str, float]:
     p = np.asarray(places)
-    return {"frames": int(p.size), "top1": float(np.mean(p == 0)), "top5": float(np.mean(p < 5)),
-            "median_place": float(np.median(p))}
+    return {
+        "frames": int(p.size),
+        "top1": float(np.mean(p == 0)),
+        "top5": float(np.mean(p < 5)),
+        "median_place": float(np.median(p)),
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -100,8 +110,14 @@ def main(argv: list[str] | None = None) -> int:
             ms.append(r["rank_ms"])
         allp = [p for v in by_terrain.values() for p in v]
         print(f"{json.dumps(cfg)}: top-1 {np.mean(np.asarray(allp) == 0):.3f}", file=sys.stderr, flush=True)
-        out["configs"].append({"memory": cfg, "terrains": {t: _summary(v) for t, v in by_terrain.items()},
-                               "all": _summary(allp), "rank_ms": float(np.mean(ms))})
+        out["configs"].append(
+            {
+                "memory": cfg,
+                "terrains": {t: _summary(v) for t, v in by_terrain.items()},
+                "all": _summary(allp),
+                "rank_ms": float(np.mean(ms)),
+            }
+        )
     print(json.dumps(out, indent=1))
     if not args.json_only:
         terrains = list(out["configs"][0]["terrains"]) if out["configs"] else []
@@ -109,9 +125,11 @@ def main(argv: list[str] | None = None) -> int:
         head = ["memory overrides"] + terrains + ["all", "ms/frame"]
         rows = []
         for c in out["configs"]:
-            rows.append([json.dumps(c["memory"]) if c["memory"] else "(defaults)"]
-                        + [f"{c['terrains'][t]['top1']:.2f}/{c['terrains'][t]['top5']:.2f}" for t in terrains]
-                        + [f"{c['all']['top1']:.3f}/{c['all']['top5']:.3f}", f"{c['rank_ms']:.1f}"])
+            rows.append(
+                [json.dumps(c["memory"]) if c["memory"] else "(defaults)"]
+                + [f"{c['terrains'][t]['top1']:.2f}/{c['terrains'][t]['top5']:.2f}" for t in terrains]
+                + [f"{c['all']['top1']:.3f}/{c['all']['top5']:.3f}", f"{c['rank_ms']:.1f}"]
+            )
         widths = [max(len(r[i]) for r in [head, *rows]) for i in range(len(head))]
         for r in [head, *rows]:
             print("  ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))))

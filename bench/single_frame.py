@@ -73,8 +73,13 @@ def measure(frames: Sequence[Frame]) -> dict[str, Any]:
     return {name: fn(frames) for name, _, fn in COLUMNS}
 
 
-def run(split: str, *, names: Sequence[str] | None = None, kinds: Sequence[str] | None = None,
-        blocks: dict[str, Any] | None = None) -> dict[str, Any]:
+def run(
+    split: str,
+    *,
+    names: Sequence[str] | None = None,
+    kinds: Sequence[str] | None = None,
+    blocks: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """Run every selected case; returns per-case results, per-terrain and overall measures."""
     per_case, by_terrain, everything = {}, {}, []
     for case in cases(split, names=names, kinds=kinds):
@@ -85,8 +90,12 @@ def run(split: str, *, names: Sequence[str] | None = None, kinds: Sequence[str] 
         frames = res["frames"]
         for f, truth in zip(frames, case.frames):
             f["case"], f["event"], f["size"] = case.name, truth.event, list(truth.size)
-        per_case[case.name] = {**measure(frames), "fps": res["summary"]["frames_per_s"], "wall_s": wall,
-                               "description": case.description}
+        per_case[case.name] = {
+            **measure(frames),
+            "fps": res["summary"]["frames_per_s"],
+            "wall_s": wall,
+            "description": case.description,
+        }
         by_terrain.setdefault(case.terrain, []).extend(frames)
         everything.extend(frames)
     terrains = {t: measure(fr) for t, fr in by_terrain.items()}
@@ -99,8 +108,10 @@ def table(result: dict[str, Any]) -> str:
     rows = [[t] + [_fmt(m[c], f) for c, f, _ in COLUMNS] for t, m in result["terrains"].items()]
     rows.append(["all"] + [_fmt(result["all"][c], f) for c, f, _ in COLUMNS])
     widths = [max(len(str(r[i])) for r in [head, *rows]) for i in range(len(head))]
-    lines = ["  ".join(str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
-             for r in [head, *rows]]
+    lines = [
+        "  ".join(str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(r, widths)))
+        for r in [head, *rows]
+    ]
     return "\n".join(lines)
 
 
@@ -125,8 +136,12 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
     result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks)
-    result["machine"] = {"python": platform.python_version(), "cpus": __import__("os").cpu_count(),
-                         "load_at_start": load, "wall_s": time.time() - t0}
+    result["machine"] = {
+        "python": platform.python_version(),
+        "cpus": __import__("os").cpu_count(),
+        "load_at_start": load,
+        "wall_s": time.time() - t0,
+    }
     print(json.dumps(result, indent=1))
     if not args.json_only:
         print()

@@ -42,10 +42,11 @@ formula). The similarities at every circular lag are the inverse FFT of the prot
 times the query key (see :func:`_search`), so the window costs one N x N inverse FFT per
 searched prototype, whatever its size; the default window is the scenario schema's
 (:class:`models.scenario.MemorySpec`). To keep the ranking bound by memory bandwidth, every
-prototype is scored at zero shift (one matrix-vector product) and only the
-:data:`SHIFT_SEARCH_TOP` (32) best are searched over the shifts; their variances can only fall,
-so the others' order is unaffected, but a prototype ranked below 32nd at zero shift is not
-rescued (and keeps its zero-shift variance).
+prototype is scored at zero shift in one pass over the prototype matrix, together with a
+low-passed zero-shift score (gaussian of :data:`PRESELECT_SIGMA` pixels, tolerant of the offsets
+the search is for); only the :data:`SHIFT_SEARCH_TOP` (32) best by either score are searched
+over the shifts. Their variances can only fall; a prototype not among them keeps its zero-shift
+variance.
 
 **Reliability** of a ranking: how many robust standard deviations the best stands below the
 others, ``(median(rest) - best) / (1.4826 * MAD(rest))`` with ``rest`` all variances but the
@@ -86,6 +87,7 @@ from models.scenario import MemorySpec
 
 __all__ = [
     "SHIFT_SEARCH_TOP",
+    "PRESELECT_SIGMA",
     "Ranking",
     "reliability",
     "HolographicMemory",
@@ -99,6 +101,11 @@ logger = logging.getLogger(__name__)
 _DEFAULTS = MemorySpec()
 #: the shift search refines this many best zero-shift candidates of a ranking
 SHIFT_SEARCH_TOP = 32
+#: the shift search also refines the SHIFT_SEARCH_TOP best after a gaussian low-pass of this many
+#: memory pixels (of the zero-lag similarity): on 128 pooled viewframes of the evaluation set's
+#: tuning split the zero-lag candidates alone missed the truth of 14 % of the frames that a full
+#: search finds (BENCHMARKS.md, "Associative ranking defaults")
+PRESELECT_SIGMA = 8.0
 
 _MAD_TO_STD = 1.4826
 
@@ -215,20 +222,32 @@ def _search(
 ) -> NDArray[np.float64]:
     """``scale * max over lags of <shift_lag(R), P_h>`` for every row h of ``matrix``, shape (H,).
 
-    Zero lag for every row: one matrix-vector product, bound by memory bandwidth. The other lags
-    only for the :data:`SHIFT_SEARCH_TOP` best rows (the search only raises a similarity, so no
-    other row can overtake them): for each, the similarities at *every* circular lag are one
-    inverse FFT of its row times the key (row h is ``w FP_h conj(FM)``; the interleaved dot
-    product with a query vector q is ``Re sum row conj(q)``, with q = conj(FK) e^(-2 pi i k.d/N)
-    for lag d, so ``<shift_d(R), P_h> = Re sum_half w FP_h conj(FM) FK e^(2 pi i k.d/N)``, which
-    is ``irfft2(FP_h conj(FM) FK)`` at d: the weights w are irfft2's own), and the maximum is
-    taken over the ``max_shift`` window. The cost hardly depends on the window.
+    Zero lag for every row: one pass over the matrix, bound by memory bandwidth. The other lags
+    only for the candidates that pass: the :data:`SHIFT_SEARCH_TOP` best at zero lag and the as
+    many best at zero lag after a low-pass of :data:`PRESELECT_SIGMA` memory pixels (a camera
+    frame a few rows or columns off its viewframe keeps its low-passed similarity, while its
+    zero-lag one decorrelates; the low-passed query rides along in the same pass). The search
+    only raises a similarity, so no other row overtakes a searched one unfairly: a row not
+    searched keeps its zero-lag similarity. For each candidate, the similarities at *every*
+    circular lag are one inverse FFT of its row times the key (row h is ``w FP_h conj(FM)``; the
+    interleaved dot product with a query vector q is ``Re sum row conj(q)``, with q = conj(FK)
+    e^(-2 pi i k.d/N) for lag d, so ``<shift_d(R), P_h> = Re sum_half w FP_h conj(FM) FK
+    e^(2 pi i k.d/N)``, which is ``irfft2(FP_h conj(FM) FK)`` at d: the weights w are irfft2's
+    own), and the maximum is taken over the ``max_shift`` window. The cost hardly depends on the
+    window.
     """
-    c = (matrix @ _zero_lag_query(key)).astype(np.float64) * scale
+    if max_shift == (0, 0) or matrix.shape[0] <= SHIFT_SEARCH_TOP:
+        c = (matrix @ _zero_lag_query(key)).astype(np.float64) * scale
+        top = np.arange(c.size)
+    else:
+        n = key.shape[0]
+        both = matrix @ np.stack([_zero_lag_query(key), _zero_lag_query(key * _lowpass(n, PRESELECT_SIGMA))], 1)
+        c = both[:, 0].astype(np.float64) * scale
+        low = both[:, 1].astype(np.float64) * scale
+        k = SHIFT_SEARCH_TOP
+        top = np.union1d(np.argpartition(-c, k - 1)[:k], np.argpartition(-low, k - 1)[:k])
     if max_shift != (0, 0) and c.size:
         n = key.shape[0]
-        k = min(SHIFT_SEARCH_TOP, c.size)
-        top = np.argpartition(-c, k - 1)[:k] if k < c.size else np.arange(c.size)
         rows = np.ascontiguousarray(matrix[top]).view(np.complex64).reshape(len(top), n, n // 2 + 1)
         prod = rows * (key / _half_weights(n)).astype(np.complex64)[None]
         lag = np.fft.irfft2(prod, s=(n, n), axes=(-2, -1))  # lag[r % n, c % n] is lag (r, c)
@@ -237,6 +256,15 @@ def _search(
         best = lag[:, rr][:, :, cc].reshape(len(top), -1).max(axis=1)
         c[top] = np.maximum(best.astype(np.float64) * scale[top], c[top])
     return c
+
+
+@lru_cache(maxsize=8)
+def _lowpass(n: int, sigma: float) -> NDArray[np.float64]:
+    """Half-spectrum (N, N // 2 + 1) transfer function of a gaussian blur of ``sigma`` pixels."""
+    f2 = np.fft.fftfreq(n)[:, None] ** 2 + np.fft.rfftfreq(n)[None, :] ** 2
+    g = np.exp(-2.0 * np.pi**2 * sigma * sigma * f2)
+    g.setflags(write=False)
+    return g
 
 
 @lru_cache(maxsize=8)

@@ -24,6 +24,11 @@ image files and truth (x, y, heading_deg)), ``route``, ``spacing_m``, ``frames``
 (:class:`EvalFrame`), ``description``; :meth:`Case.write_scenario` writes a copy with other
 ``memory``/``scheduler``/... blocks; :meth:`Case.horizons` the true horizon row per column.
 
+The scenario files' ``sensor.frames`` carry image and truth only (the scenario schema has no
+frame ``time`` yet): read times and the rest of the truth from ``case.frames``. This API
+(:func:`cases`, :class:`Case`, :class:`EvalFrame` and their fields) is kept stable; a change
+of what is generated bumps :data:`GENERATOR_VERSION`.
+
 **A frame** (:class:`EvalFrame`): ``index``, ``image`` (path), ``size`` (width, height),
 ``time_s``, true camera ``x, y, z``, ``heading_deg``, ``pitch_deg``, ``roll_deg``,
 ``eye_height_m``, ``route_index`` (nearest route point: the results' criterion), ``arc_m``,
@@ -60,5 +65,17 @@ from bench.evalset.cases import (
     seeds,
 )
 
-__all__ = ["cases", "case_names", "seeds", "Case", "EvalFrame", "TerrainEntry", "TERRAINS", "SPLITS",
-           "ERROR_BOUNDS", "CAMERA", "GENERATOR_VERSION", "default_out_dir"]
+__all__ = [
+    "cases",
+    "case_names",
+    "seeds",
+    "Case",
+    "EvalFrame",
+    "TerrainEntry",
+    "TERRAINS",
+    "SPLITS",
+    "ERROR_BOUNDS",
+    "CAMERA",
+    "GENERATOR_VERSION",
+    "default_out_dir",
+]

@@ -23,8 +23,20 @@ import yaml
 
 from bench.evalset import raycast, terrains
 
-__all__ = ["CAMERA", "SPLITS", "TerrainEntry", "EvalFrame", "Case", "TERRAINS", "cases", "case_names", "seeds",
-           "ERROR_BOUNDS", "GENERATOR_VERSION", "default_out_dir"]
+__all__ = [
+    "CAMERA",
+    "SPLITS",
+    "TerrainEntry",
+    "EvalFrame",
+    "Case",
+    "TERRAINS",
+    "cases",
+    "case_names",
+    "seeds",
+    "ERROR_BOUNDS",
+    "GENERATOR_VERSION",
+    "default_out_dir",
+]
 
 log = logging.getLogger(__name__)
 
@@ -37,12 +49,25 @@ SPLITS: tuple[str, ...] = ("tuning", "heldout")
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
 #: pitch and roll in degrees, eye height in metres (around the scenario camera's)
-ERROR_BOUNDS: dict[str, float] = {"along_frac": 0.3, "lateral_m": 4.0, "heading_deg": 5.0,
-                                  "pitch_deg": 2.0, "roll_deg": 2.0, "eye_height_m": 0.2}
+ERROR_BOUNDS: dict[str, float] = {
+    "along_frac": 0.3,
+    "lateral_m": 4.0,
+    "heading_deg": 5.0,
+    "pitch_deg": 2.0,
+    "roll_deg": 2.0,
+    "eye_height_m": 0.2,
+}
 
 #: the scenario camera of every case (the viewframes' renderer); camera frames come at other sizes
-CAMERA = {"width": 160, "height": 120, "fov_y_deg": 45.0, "eye_height": 2.0, "pitch_deg": 0.0,
-          "near": 1.0, "far": 5000.0}
+CAMERA = {
+    "width": 160,
+    "height": 120,
+    "fov_y_deg": 45.0,
+    "eye_height": 2.0,
+    "pitch_deg": 0.0,
+    "near": 1.0,
+    "far": 5000.0,
+}
 
 _KINDS = {  # width, depth, height (m); wall and roof colours in the camera frames
     "house": ((18.0, 12.0, 8.0), (0.86, 0.80, 0.70), (0.55, 0.22, 0.18)),
@@ -84,39 +109,130 @@ class TerrainEntry:
 #: be used to choose a parameter: tune on cases("tuning"), report on cases("heldout").
 TERRAINS: tuple[TerrainEntry, ...] = (
     # ---------------------------------------------------------------- tuning
-    TerrainEntry("t-ridged", "tuning", 1101, 10.0, {"family": "ridged", "size": 256, "relief": 150.0},
-                 30.0, 32, (320, 240), {"sun_azimuth_deg": 200.0, "sun_elevation_deg": 30.0},
-                 drives=("drive",)),
-    TerrainEntry("t-fbm-smooth", "tuning", 1202, 25.0, {"family": "fbm", "size": 200, "relief": 260.0, "hurst": 0.8},
-                 40.0, 32, (640, 480), {"palette": "dry", "sun_azimuth_deg": 60.0, "fog_m": 6000.0},
-                 {"jpeg_quality": 70}, drives=("kidnap",)),
-    TerrainEntry("t-jacksboro-nw", "tuning", 1303, 30.0,
-                 {"dem": "jacksboro", "rows": (190, 344), "cols": (0, 200), "upsample": 2, "height_scale": 0.5},
-                 40.0, 32, (200, 150), {"palette": "green", "sun_elevation_deg": 55.0, "fog_m": 3000.0},
-                 {"jpeg_quality": None, "noise": 5.0}),
-    TerrainEntry("t-contours-fbm", "tuning", 1404, 15.0, {"family": "fbm", "size": 192, "relief": 120.0, "hurst": 0.6},
-                 30.0, 32, (320, 240), {"palette": "alpine", "sun_azimuth_deg": 300.0}, contours=10.0),
+    TerrainEntry(
+        "t-ridged",
+        "tuning",
+        1101,
+        10.0,
+        {"family": "ridged", "size": 256, "relief": 150.0},
+        30.0,
+        32,
+        (320, 240),
+        {"sun_azimuth_deg": 200.0, "sun_elevation_deg": 30.0},
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "t-fbm-smooth",
+        "tuning",
+        1202,
+        25.0,
+        {"family": "fbm", "size": 200, "relief": 260.0, "hurst": 0.8},
+        40.0,
+        32,
+        (640, 480),
+        {"palette": "dry", "sun_azimuth_deg": 60.0, "fog_m": 6000.0},
+        {"jpeg_quality": 70},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "t-jacksboro-nw",
+        "tuning",
+        1303,
+        30.0,
+        {"dem": "jacksboro", "rows": (190, 344), "cols": (0, 200), "upsample": 2, "height_scale": 0.5},
+        40.0,
+        32,
+        (200, 150),
+        {"palette": "green", "sun_elevation_deg": 55.0, "fog_m": 3000.0},
+        {"jpeg_quality": None, "noise": 5.0},
+    ),
+    TerrainEntry(
+        "t-contours-fbm",
+        "tuning",
+        1404,
+        15.0,
+        {"family": "fbm", "size": 192, "relief": 120.0, "hurst": 0.6},
+        30.0,
+        32,
+        (320, 240),
+        {"palette": "alpine", "sun_azimuth_deg": 300.0},
+        contours=10.0,
+    ),
     # ---------------------------------------------------------------- held-out
-    TerrainEntry("h-mesas", "heldout", 2101, 12.0, {"family": "mesas", "size": 256, "relief": 90.0},
-                 30.0, 32, (320, 240), {"palette": "dry", "sun_azimuth_deg": 250.0, "sun_elevation_deg": 25.0},
-                 drives=("kidnap",)),
-    TerrainEntry("h-valleys", "heldout", 2202, 8.0, {"family": "valleys", "size": 256, "relief": 70.0},
-                 25.0, 32, (640, 480), {"palette": "green", "sun_azimuth_deg": 20.0, "fog_m": 2500.0},
-                 {"jpeg_quality": 60, "motion_px": 1.0}, drives=("drive",)),
-    TerrainEntry("h-fbm-rough", "heldout", 2303, 20.0, {"family": "fbm", "size": 200, "relief": 200.0, "hurst": 0.4},
-                 35.0, 32, (200, 150), {"palette": "alpine", "sun_azimuth_deg": 110.0, "sun_elevation_deg": 60.0},
-                 {"jpeg_quality": None, "noise": 5.0}),
-    TerrainEntry("h-topobathy", "heldout", 2404, 20.0,
-                 {"dem": "topobathy", "rows": (0, 40), "cols": (69, 117), "upsample": 6, "height_scale": 0.06,
-                  "sea_level": 0.0},
-                 35.0, 32, (320, 240), {"palette": "green", "sun_azimuth_deg": 160.0, "fog_m": 5000.0},
-                 drives=("kidnap",)),
-    TerrainEntry("h-jacksboro-se", "heldout", 2505, 15.0,
-                 {"dem": "jacksboro", "rows": (0, 150), "cols": (200, 403), "upsample": 2, "height_scale": 0.375},
-                 30.0, 32, (640, 480), {"palette": "dry", "sun_azimuth_deg": 330.0, "sun_elevation_deg": 35.0},
-                 {"jpeg_quality": 85}, drives=("drive",)),
-    TerrainEntry("h-contours-ridged", "heldout", 2606, 15.0, {"family": "ridged", "size": 200, "relief": 120.0},
-                 30.0, 32, (200, 150), {"palette": "green", "sun_azimuth_deg": 75.0}, contours=10.0),
+    TerrainEntry(
+        "h-mesas",
+        "heldout",
+        2101,
+        12.0,
+        {"family": "mesas", "size": 256, "relief": 90.0},
+        30.0,
+        32,
+        (320, 240),
+        {"palette": "dry", "sun_azimuth_deg": 250.0, "sun_elevation_deg": 25.0},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "h-valleys",
+        "heldout",
+        2202,
+        8.0,
+        {"family": "valleys", "size": 256, "relief": 70.0},
+        25.0,
+        32,
+        (640, 480),
+        {"palette": "green", "sun_azimuth_deg": 20.0, "fog_m": 2500.0},
+        {"jpeg_quality": 60, "motion_px": 1.0},
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "h-fbm-rough",
+        "heldout",
+        2303,
+        20.0,
+        {"family": "fbm", "size": 200, "relief": 200.0, "hurst": 0.4},
+        35.0,
+        32,
+        (200, 150),
+        {"palette": "alpine", "sun_azimuth_deg": 110.0, "sun_elevation_deg": 60.0},
+        {"jpeg_quality": None, "noise": 5.0},
+    ),
+    TerrainEntry(
+        "h-topobathy",
+        "heldout",
+        2404,
+        20.0,
+        {"dem": "topobathy", "rows": (0, 40), "cols": (69, 117), "upsample": 6, "height_scale": 0.06, "sea_level": 0.0},
+        35.0,
+        32,
+        (320, 240),
+        {"palette": "green", "sun_azimuth_deg": 160.0, "fog_m": 5000.0},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "h-jacksboro-se",
+        "heldout",
+        2505,
+        15.0,
+        {"dem": "jacksboro", "rows": (0, 150), "cols": (200, 403), "upsample": 2, "height_scale": 0.375},
+        30.0,
+        32,
+        (640, 480),
+        {"palette": "dry", "sun_azimuth_deg": 330.0, "sun_elevation_deg": 35.0},
+        {"jpeg_quality": 85},
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "h-contours-ridged",
+        "heldout",
+        2606,
+        15.0,
+        {"family": "ridged", "size": 200, "relief": 120.0},
+        30.0,
+        32,
+        (200, 150),
+        {"palette": "green", "sun_azimuth_deg": 75.0},
+        contours=10.0,
+    ),
 )
 
 
@@ -263,9 +379,14 @@ def _heights(t: TerrainEntry) -> np.ndarray:
         fn = terrains.FAMILIES[src.pop("family")]
         size = int(src.pop("size"))
         return fn(size, rng=rng, **src)
-    return terrains.dem_crop(src["dem"], rows=tuple(src["rows"]), cols=tuple(src["cols"]),
-                             upsample=int(src.get("upsample", 1)), height_scale=float(src["height_scale"]),
-                             sea_level=src.get("sea_level"))
+    return terrains.dem_crop(
+        src["dem"],
+        rows=tuple(src["rows"]),
+        cols=tuple(src["cols"]),
+        upsample=int(src.get("upsample", 1)),
+        height_scale=float(src["height_scale"]),
+        sea_level=src.get("sea_level"),
+    )
 
 
 def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
@@ -284,7 +405,12 @@ def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
             options = turn + np.radians(rng.normal(0.0, 4.0) + np.array([-18, -12, -6, 0, 6, 12, 18]))
             nxt = pts[-1] + t.spacing * np.stack([np.cos(h + options), np.sin(h + options)], 1)
             climb = np.abs(world.height_at(nxt[:, 0], nxt[:, 1]) - world.height_at(*pts[-1])) / t.spacing
-            inside = (nxt[:, 0] >= 0.15 * ex) & (nxt[:, 0] <= 0.85 * ex) & (nxt[:, 1] >= 0.15 * ey) & (nxt[:, 1] <= 0.85 * ey)
+            inside = (
+                (nxt[:, 0] >= 0.15 * ex)
+                & (nxt[:, 0] <= 0.85 * ex)
+                & (nxt[:, 1] >= 0.15 * ey)
+                & (nxt[:, 1] <= 0.85 * ey)
+            )
             score = climb + 0.4 * np.abs(options) + np.where(inside, 0.0, 1e6)
             k = int(np.argmin(score))
             if not inside[k]:
@@ -341,9 +467,18 @@ def _landmarks(t: TerrainEntry, route: list[tuple[float, float]], heights: np.nd
         else:
             continue
         counts[kind] = counts.get(kind, 0) + 1
-        out.append({"id": f"{kind[0].upper()}{counts[kind]}", "kind": kind, "x": round(float(p[0]), 2),
-                    "y": round(float(p[1]), 2), "width": w, "depth": d, "height": hgt,
-                    "yaw_deg": round(float(rng.uniform(0, 180)), 1)})
+        out.append(
+            {
+                "id": f"{kind[0].upper()}{counts[kind]}",
+                "kind": kind,
+                "x": round(float(p[0]), 2),
+                "y": round(float(p[1]), 2),
+                "width": w,
+                "depth": d,
+                "height": hgt,
+                "yaw_deg": round(float(rng.uniform(0, 180)), 1),
+            }
+        )
     return out
 
 
@@ -357,8 +492,20 @@ def _world_boxes(lms: list[dict[str, Any]], world: raycast.World) -> list[raycas
         pts = np.array([c, c + u + v, c + u - v, c - u + v, c - u - v])
         z0 = float(np.min(world.height_at(pts[:, 0], pts[:, 1])))
         _, wall, roof = _KINDS[lm["kind"]]
-        boxes.append(raycast.Box(lm["x"], lm["y"], lm["width"], lm["depth"], lm["yaw_deg"], z0 - 3.0,
-                                 z0 + lm["height"], wall, roof, lm["id"]))
+        boxes.append(
+            raycast.Box(
+                lm["x"],
+                lm["y"],
+                lm["width"],
+                lm["depth"],
+                lm["yaw_deg"],
+                z0 - 3.0,
+                z0 + lm["height"],
+                wall,
+                roof,
+                lm["id"],
+            )
+        )
     return boxes
 
 
@@ -383,10 +530,21 @@ def _sweep_poses(route, spacing: float, rng: np.random.Generator) -> list[dict[s
         lateral = rng.uniform(-b["lateral_m"], b["lateral_m"])
         p = pts[i] + frac * length * d + lateral * np.array([-d[1], d[0]])
         herr = rng.uniform(-b["heading_deg"], b["heading_deg"])
-        out.append({"xy": p, "heading": th + herr, "heading_error": herr, "lateral": lateral, "along_frac": frac,
-                    "arc": float(arc[i] + frac * length), "pitch": rng.uniform(-b["pitch_deg"], b["pitch_deg"]),
-                    "roll": rng.uniform(-b["roll_deg"], b["roll_deg"]),
-                    "eye": rng.uniform(-b["eye_height_m"], b["eye_height_m"]), "time": float(i), "event": ""})
+        out.append(
+            {
+                "xy": p,
+                "heading": th + herr,
+                "heading_error": herr,
+                "lateral": lateral,
+                "along_frac": frac,
+                "arc": float(arc[i] + frac * length),
+                "pitch": rng.uniform(-b["pitch_deg"], b["pitch_deg"]),
+                "roll": rng.uniform(-b["roll_deg"], b["roll_deg"]),
+                "eye": rng.uniform(-b["eye_height_m"], b["eye_height_m"]),
+                "time": float(i),
+                "event": "",
+            }
+        )
     return out
 
 
@@ -425,9 +583,21 @@ def _drive_poses(route, spacing: float, rng: np.random.Generator, *, frames: int
         roll = float(np.clip(0.6 * roll + rng.normal(0, 1.0), -b["roll_deg"], b["roll_deg"]))
         p, th = _at_arc(pts, arc, s)
         n = np.array([-math.sin(math.radians(th)), math.cos(math.radians(th))])
-        out.append({"xy": p + lat * n, "heading": th + herr, "heading_error": herr, "lateral": lat, "along_frac": None,
-                    "arc": float(s), "pitch": pitch, "roll": roll,
-                    "eye": float(rng.uniform(-b["eye_height_m"], b["eye_height_m"])), "time": float(j), "event": event})
+        out.append(
+            {
+                "xy": p + lat * n,
+                "heading": th + herr,
+                "heading_error": herr,
+                "lateral": lat,
+                "along_frac": None,
+                "arc": float(s),
+                "pitch": pitch,
+                "roll": roll,
+                "eye": float(rng.uniform(-b["eye_height_m"], b["eye_height_m"])),
+                "time": float(j),
+                "event": event,
+            }
+        )
     return out
 
 
@@ -436,8 +606,9 @@ def _drive_poses(route, spacing: float, rng: np.random.Generator, *, frames: int
 
 
 def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None) -> str:
-    blob = json.dumps([GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_BOUNDS], sort_keys=True,
-                      default=str)
+    blob = json.dumps(
+        [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_BOUNDS], sort_keys=True, default=str
+    )
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
@@ -485,23 +656,46 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) 
         x, y = float(p["xy"][0]), float(p["xy"][1])
         eye = CAMERA["eye_height"] + p["eye"]
         z = float(world.height_at(x, y)) + eye
-        img, horizon, visible = caster.render(x, y, z, heading_deg=p["heading"], pitch_deg=p["pitch"],
-                                              roll_deg=p["roll"], width=width, height=height,
-                                              fov_y_deg=CAMERA["fov_y_deg"], far=CAMERA["far"])
+        img, horizon, visible = caster.render(
+            x,
+            y,
+            z,
+            heading_deg=p["heading"],
+            pitch_deg=p["pitch"],
+            roll_deg=p["roll"],
+            width=width,
+            height=height,
+            fov_y_deg=CAMERA["fov_y_deg"],
+            far=CAMERA["far"],
+        )
         out = raycast.sensor_effects(img, sensor=sensor, rng=rng_img)
         name = f"frames/f{j:03d}{ext}"
         params = [cv2.IMWRITE_JPEG_QUALITY, int(sensor.jpeg_quality)] if ext == ".jpg" else []
         if not cv2.imwrite(str(folder / name), cv2.cvtColor(out, cv2.COLOR_RGB2BGR), params):
             raise OSError(f"cannot write {folder / name}")
         ri = int(np.argmin(np.hypot(pts[:, 0] - x, pts[:, 1] - y)))
-        frames.append({
-            "index": j, "image": name, "size": [width, height], "time_s": p["time"], "x": x, "y": y, "z": z,
-            "heading_deg": float(p["heading"]), "pitch_deg": float(p["pitch"]), "roll_deg": float(p["roll"]),
-            "eye_height_m": eye, "route_index": ri, "arc_m": p["arc"], "lateral_m": float(p["lateral"]),
-            "heading_error_deg": float(p["heading_error"]),
-            "along_frac": None if p["along_frac"] is None else float(p["along_frac"]), "event": p["event"],
-            "landmarks_px": {k: v for k, v in sorted(visible.items()) if v > 0},
-        })
+        frames.append(
+            {
+                "index": j,
+                "image": name,
+                "size": [width, height],
+                "time_s": p["time"],
+                "x": x,
+                "y": y,
+                "z": z,
+                "heading_deg": float(p["heading"]),
+                "pitch_deg": float(p["pitch"]),
+                "roll_deg": float(p["roll"]),
+                "eye_height_m": eye,
+                "route_index": ri,
+                "arc_m": p["arc"],
+                "lateral_m": float(p["lateral"]),
+                "heading_error_deg": float(p["heading_error"]),
+                "along_frac": None if p["along_frac"] is None else float(p["along_frac"]),
+                "event": p["event"],
+                "landmarks_px": {k: v for k, v in sorted(visible.items()) if v > 0},
+            }
+        )
         horizons.append(horizon)
     scenario = {
         "name": f"{t.name}-{kind}",
@@ -510,35 +704,65 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) 
         "landmarks": lms,
         "route": [list(p) for p in route],
         "camera": dict(CAMERA),
-        "sensor": {"frames": [{"image": f["image"], "truth": {"x": round(f["x"], 3), "y": round(f["y"], 3),
-                                                            "heading_deg": round(f["heading_deg"], 3)}}
-                              for f in frames]},
+        "sensor": {
+            "frames": [
+                {
+                    "image": f["image"],
+                    "truth": {"x": round(f["x"], 3), "y": round(f["y"], 3), "heading_deg": round(f["heading_deg"], 3)},
+                }
+                for f in frames
+            ]
+        },
     }
-    header = (f"# evaluation case {t.name}/{kind} ({t.split} split, seed {seed}): generated by bench/evalset,"
-              " do not edit\n")
+    header = (
+        f"# evaluation case {t.name}/{kind} ({t.split} split, seed {seed}): generated by bench/evalset, do not edit\n"
+    )
     (folder / "scenario.yaml").write_text(header + yaml.safe_dump(scenario, sort_keys=False))
     np.savez_compressed(folder / "labels.npz", horizons=np.asarray(horizons, np.float32))
     src = t.source.get("family") or f"{t.source['dem']} DEM crop"
-    desc = (f"{src}, {t.cell:g} m cells{', map as contours every %g m' % t.contours if t.contours else ''}; "
-            f"{len(route)} route points {t.spacing:g} m apart; {len(lms)} landmarks; {kind} of {len(frames)} frames "
-            f"at {width}x{height}")
-    meta = {"version": GENERATOR_VERSION, "hash": _spec_hash(t, kind, max_frames), "name": f"{t.name}/{kind}",
-            "split": t.split, "terrain": t.name, "kind": kind, "seed": seed, "route": route,
-            "spacing_m": t.spacing, "description": desc, "frames": frames}
+    contours = f", map as contours every {t.contours:g} m" if t.contours else ""
+    desc = (
+        f"{src}, {t.cell:g} m cells{contours}; "
+        f"{len(route)} route points {t.spacing:g} m apart; {len(lms)} landmarks; {kind} of {len(frames)} frames "
+        f"at {width}x{height}"
+    )
+    meta = {
+        "version": GENERATOR_VERSION,
+        "hash": _spec_hash(t, kind, max_frames),
+        "name": f"{t.name}/{kind}",
+        "split": t.split,
+        "terrain": t.name,
+        "kind": kind,
+        "seed": seed,
+        "route": route,
+        "spacing_m": t.spacing,
+        "description": desc,
+        "frames": frames,
+    }
     (folder / "case.json").write_text(json.dumps(meta, indent=1))
 
 
 def _load(folder: Path) -> Case:
     meta = json.loads((folder / "case.json").read_text())
     frames = tuple(
-        EvalFrame(**{**f, "image": folder / f["image"], "size": tuple(f["size"]),
-                     "landmarks_px": dict(f["landmarks_px"])})
+        EvalFrame(
+            **{**f, "image": folder / f["image"], "size": tuple(f["size"]), "landmarks_px": dict(f["landmarks_px"])}
+        )
         for f in meta["frames"]
     )
-    return Case(name=meta["name"], split=meta["split"], terrain=meta["terrain"], kind=meta["kind"],
-                seed=int(meta["seed"]), folder=folder, scenario_path=folder / "scenario.yaml",
-                route=tuple(tuple(p) for p in meta["route"]), spacing_m=float(meta["spacing_m"]),
-                frames=frames, description=meta["description"])
+    return Case(
+        name=meta["name"],
+        split=meta["split"],
+        terrain=meta["terrain"],
+        kind=meta["kind"],
+        seed=int(meta["seed"]),
+        folder=folder,
+        scenario_path=folder / "scenario.yaml",
+        route=tuple(tuple(p) for p in meta["route"]),
+        spacing_m=float(meta["spacing_m"]),
+        frames=frames,
+        description=meta["description"],
+    )
 
 
 def cases(

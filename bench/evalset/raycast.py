@@ -100,8 +100,12 @@ class World:
         c0 = np.minimum(u.astype(np.intp), cols - 2)
         r0 = np.minimum(v.astype(np.intp), rows - 2)
         fu, fv = u - c0, v - r0
-        z = (h[r0, c0] * (1 - fu) * (1 - fv) + h[r0, c0 + 1] * fu * (1 - fv)
-             + h[r0 + 1, c0] * (1 - fu) * fv + h[r0 + 1, c0 + 1] * fu * fv)
+        z = (
+            h[r0, c0] * (1 - fu) * (1 - fv)
+            + h[r0, c0 + 1] * fu * (1 - fv)
+            + h[r0 + 1, c0] * (1 - fu) * fv
+            + h[r0 + 1, c0 + 1] * fu * fv
+        )
         return float(z) if scalar else z
 
 
@@ -163,8 +167,12 @@ class RayCaster:
         tex = np.zeros(rad.shape[:2], np.float32)
         for period, amp in ((6.0 * k, 0.6), (1.5 * k, 0.4)):
             g = rng.standard_normal((int(rad.shape[0] / period) + 2, int(rad.shape[1] / period) + 2)).astype(np.float32)
-            tex += amp * cv2.resize(g, (int(g.shape[1] * period), int(g.shape[0] * period)),
-                                    interpolation=cv2.INTER_CUBIC)[: rad.shape[0], : rad.shape[1]]
+            tex += (
+                amp
+                * cv2.resize(g, (int(g.shape[1] * period), int(g.shape[0] * period)), interpolation=cv2.INTER_CUBIC)[
+                    : rad.shape[0], : rad.shape[1]
+                ]
+            )
         tex /= max(float(tex.std()), 1e-6)
         self._radiance = rad * np.clip(1.0 + look.texture * 0.5 * tex, 0.4, 1.6)[..., None]
         self._tex_per_m = k / world.cell
@@ -181,8 +189,9 @@ class RayCaster:
         glow = np.clip(cosang, 0.0, 1.0) ** 24
         return np.clip(col + 0.35 * glow[..., None], 0.0, 1.0)
 
-    def _canvas(self, x: float, y: float, z: float, heading_deg: float, *, f: float, width: int, height: int,
-                far: float) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    def _canvas(
+        self, x: float, y: float, z: float, heading_deg: float, *, f: float, width: int, height: int, far: float
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Level view (image float (H, W, 3), depth (H, W), box masks by name)."""
         world = self.world
         cx, cy = (width - 1) / 2.0, (height - 1) / 2.0
@@ -197,8 +206,9 @@ class RayCaster:
         # heights padded by a deep moat: rays leaving the DEM project far below the image
         u = (x / world.cell + s[:, None] * (dirs[:, 0] / world.cell).astype(np.float32)[None, :]).astype(np.float32)
         v = (y / world.cell + s[:, None] * (dirs[:, 1] / world.cell).astype(np.float32)[None, :]).astype(np.float32)
-        hz = cv2.remap(self._heights32, u + 1.0, v + 1.0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                       borderValue=-1e7)
+        hz = cv2.remap(
+            self._heights32, u + 1.0, v + 1.0, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1e7
+        )
         del u, v
         hz -= np.float32(z)
         hz *= (f / np.cos(a)).astype(np.float32)[None, :]
@@ -244,8 +254,14 @@ class RayCaster:
             ax_u, ax_v = np.array([ca, sa, 0.0]), np.array([-sa, ca, 0.0])
             centre = np.array([b.x, b.y, 0.5 * (b.z0 + b.z1)])
             half = np.array([b.width / 2, b.depth / 2, (b.z1 - b.z0) / 2])
-            corners = np.array([centre + i * half[0] * ax_u + j * half[1] * ax_v + k * half[2] * np.array([0, 0, 1.0])
-                                for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)])
+            corners = np.array(
+                [
+                    centre + i * half[0] * ax_u + j * half[1] * ax_v + k * half[2] * np.array([0, 0, 1.0])
+                    for i in (-1, 1)
+                    for j in (-1, 1)
+                    for k in (-1, 1)
+                ]
+            )
             cam = (corners - eye) @ rot.T
             if np.all(cam[:, 2] <= 0.5) or np.min(np.linalg.norm(corners - eye, axis=1)) > far:
                 continue
@@ -277,8 +293,9 @@ class RayCaster:
             entry = np.argmax(np.minimum(t1, t2), axis=-1)
             sign = -np.sign(np.take_along_axis(dl, entry[..., None], -1)[..., 0])
             normal = axes[entry] * sign[..., None]
-            shade = np.clip(normal @ sun, 0.0, None)[..., None] * np.asarray(self.look.sun_rgb) \
-                + (0.5 * (1 + normal[..., 2:3])) * np.asarray(self.look.sky_light_rgb)
+            shade = np.clip(normal @ sun, 0.0, None)[..., None] * np.asarray(self.look.sun_rgb) + (
+                0.5 * (1 + normal[..., 2:3])
+            ) * np.asarray(self.look.sky_light_rgb)
             base = np.where((entry == 2)[..., None], np.asarray(b.roof_rgb), np.asarray(b.wall_rgb))
             dist = tmin * np.linalg.norm(d_cam, axis=-1)
             trans = np.exp(-dist / self.look.fog_m)[..., None]
@@ -294,9 +311,21 @@ class RayCaster:
                     masks[other] &= ~mask
 
     # ------------------------------------------------------------------ output
-    def render(self, x: float, y: float, z: float, *, heading_deg: float, pitch_deg: float, roll_deg: float,
-               width: int, height: int, fov_y_deg: float, far: float = 5000.0, supersample: int | None = None
-               ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    def render(
+        self,
+        x: float,
+        y: float,
+        z: float,
+        *,
+        heading_deg: float,
+        pitch_deg: float,
+        roll_deg: float,
+        width: int,
+        height: int,
+        fov_y_deg: float,
+        far: float = 5000.0,
+        supersample: int | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
         """One frame: (image float (height, width, 3) in [0, 1] before sensor effects,
         horizon row per column (width,) float (the first non-sky row, ``height`` where none),
         visible pixels per landmark name)."""
@@ -313,7 +342,11 @@ class RayCaster:
         canvas, depth, masks = self._canvas(x, y, z, heading_deg, f=f_o, width=wc, height=hc, far=far)
         # output rays -> canvas pixels: pitch (up) then roll about the forward axis
         p, r = math.radians(pitch_deg), math.radians(roll_deg)
-        right1, up1, fwd1 = np.array([1.0, 0, 0]), np.array([0, math.cos(p), -math.sin(p)]), np.array([0, math.sin(p), math.cos(p)])
+        right1, up1, fwd1 = (
+            np.array([1.0, 0, 0]),
+            np.array([0, math.cos(p), -math.sin(p)]),
+            np.array([0, math.sin(p), math.cos(p)]),
+        )
         right2 = math.cos(r) * right1 + math.sin(r) * up1
         up2 = -math.sin(r) * right1 + math.cos(r) * up1
         cxo, cyo = (wo - 1) / 2.0, (ho - 1) / 2.0
@@ -357,7 +390,7 @@ def sensor_effects(image: np.ndarray, *, sensor: Sensor, rng: np.random.Generato
     h, w = image.shape[:2]
     img = image.astype(np.float32)
     rr, cc = np.mgrid[0:h, 0:w].astype(np.float32)
-    rad2 = ((rr - (h - 1) / 2) ** 2 + (cc - (w - 1) / 2) ** 2) / (((h / 2) ** 2 + (w / 2) ** 2))
+    rad2 = ((rr - (h - 1) / 2) ** 2 + (cc - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
     img *= (1.0 - sensor.vignette * rad2)[..., None]
     img = np.clip(img * rng.uniform(*sensor.gain), 0.0, 1.0) ** rng.uniform(*sensor.gamma)
     if sensor.blur > 0:
@@ -369,7 +402,9 @@ def sensor_effects(image: np.ndarray, *, sensor: Sensor, rng: np.random.Generato
         img = cv2.filter2D(img, -1, kernel)
     out = img * 255.0
     if sensor.shot > 0:
-        out = out + rng.standard_normal(out.shape).astype(np.float32) * np.sqrt(np.maximum(out, 0) * sensor.shot * 255.0 / 64.0)
+        out = out + rng.standard_normal(out.shape).astype(np.float32) * np.sqrt(
+            np.maximum(out, 0) * sensor.shot * 255.0 / 64.0
+        )
     if sensor.noise > 0:
         out = out + rng.normal(0.0, sensor.noise, out.shape).astype(np.float32)
     return np.clip(out + 0.5, 0, 255).astype(np.uint8)

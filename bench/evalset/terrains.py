@@ -52,8 +52,16 @@ def _noise(size: int, period: float, rng: np.random.Generator) -> np.ndarray:
     return np.clip(big[off[0] : off[0] + size, off[1] : off[1] + size].astype(np.float64), -1, 1)
 
 
-def ridged(size: int, *, relief: float, rng: np.random.Generator, base_period: float = 96.0,
-           octaves: int = 5, gain: float = 2.0, offset: float = 1.0) -> np.ndarray:
+def ridged(
+    size: int,
+    *,
+    relief: float,
+    rng: np.random.Generator,
+    base_period: float = 96.0,
+    octaves: int = 5,
+    gain: float = 2.0,
+    offset: float = 1.0,
+) -> np.ndarray:
     """Ridged multifractal (Musgrave): sum of ``(offset - |noise|)**2`` octaves, each weighted
     by the previous one's signal, so crests are sharp and valleys smooth."""
     z = np.zeros((size, size))
@@ -61,7 +69,7 @@ def ridged(size: int, *, relief: float, rng: np.random.Generator, base_period: f
     period = base_period
     for o in range(octaves):
         signal = (offset - np.abs(_noise(size, period, rng))) ** 2 * weight
-        z += signal * 0.5 ** o
+        z += signal * 0.5**o
         weight = np.clip(signal * gain, 0.0, 1.0)
         period /= 2.0
         if period < 2.0:
@@ -101,8 +109,15 @@ def _sample_dem(name: str) -> np.ndarray:
     raise ValueError(f"unknown sample DEM {name!r}")
 
 
-def dem_crop(name: str, *, rows: tuple[int, int], cols: tuple[int, int], upsample: int,
-             height_scale: float, sea_level: float | None = None) -> np.ndarray:
+def dem_crop(
+    name: str,
+    *,
+    rows: tuple[int, int],
+    cols: tuple[int, int],
+    upsample: int,
+    height_scale: float,
+    sea_level: float | None = None,
+) -> np.ndarray:
     """Window ``rows`` x ``cols`` (half-open, source cells, row 0 south) of a sample DEM,
     upsampled ``upsample`` times (bicubic), heights times ``height_scale``; heights below
     ``sea_level`` (source metres) are set to it (a flat sea)."""

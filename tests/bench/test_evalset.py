@@ -142,8 +142,9 @@ def test_raycaster_renders_requested_size(size):
     w = _tiny_world()
     rc = RayCaster(w, Look(), rng=np.random.default_rng(0))
     z = float(w.height_at(400.0, 400.0)) + 2.0
-    img, horizon, visible = rc.render(400.0, 400.0, z, heading_deg=45.0, pitch_deg=1.5, roll_deg=-1.0,
-                                      width=size[0], height=size[1], fov_y_deg=45.0)
+    img, horizon, visible = rc.render(
+        400.0, 400.0, z, heading_deg=45.0, pitch_deg=1.5, roll_deg=-1.0, width=size[0], height=size[1], fov_y_deg=45.0
+    )
     assert img.shape == (size[1], size[0], 3) and horizon.shape == (size[0],)
     assert 0.0 <= img.min() and img.max() <= 1.0 and img.std() > 0.01
     out = sensor_effects(img, sensor=Sensor(), rng=np.random.default_rng(1))
@@ -184,6 +185,7 @@ def test_raycaster_agrees_with_the_viewframe_renderer(tmp_path):
             view = emu.render(Pose(x, y, z, heading, 0.0))
             ground = view.depth > 0
             ref = np.where(ground.any(0), np.argmax(ground, 0), 120)
-            _, ours, _ = rc.render(x, y, z, heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, width=160,
-                                   height=120, fov_y_deg=45.0)
+            _, ours, _ = rc.render(
+                x, y, z, heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, width=160, height=120, fov_y_deg=45.0
+            )
             assert np.median(np.abs(ours - ref)) <= 1.0

@@ -279,3 +279,23 @@ def test_wide_vertical_search_recovers_a_pitched_query() -> None:
         assert w.best == i and w.variances[0] == pytest.approx(0.0, abs=1e-6)
         n = narrow.rank(q)
         assert dict(zip(n.viewframes.tolist(), n.variances))[i] > 10 * w.variances[0] + 1e-5
+
+
+def test_low_pass_preselection_rescues_an_offset_truth(monkeypatch: pytest.MonkeyPatch) -> None:
+    import models.associative as assoc
+
+    # 80 viewframes, queries 6 rows and 8 columns off theirs: at zero shift the truth falls out of
+    # the 32 candidates the shift search refines; its low-passed similarity keeps it in
+    rng = np.random.default_rng(21)
+    pats = [preprocess(scene(rng), size=64, blur_sigma=1.0) for _ in range(80)]
+    mem = BankedMemory(64, bank_size=1, max_shift=(8, 10))
+    mem.write_many(pats, range(80))
+    targets = list(range(0, 80, 8))
+    queries = [np.roll(pats[i], (6, -8), axis=(0, 1)) for i in targets]
+    found = [mem.rank(q).best for q in queries]
+    assert found == targets
+    monkeypatch.setattr(assoc, "PRESELECT_SIGMA", 1e-6)  # the low-pass does nothing: zero-shift candidates only
+    assoc._lowpass.cache_clear()
+    without = [mem.rank(q).best for q in queries]
+    assoc._lowpass.cache_clear()
+    assert sum(a != b for a, b in zip(without, targets)) >= 5
