@@ -89,6 +89,8 @@ def test_track_through_the_blackboard(tmp_path, small_data, processes):
     s = results["summary"]
     assert {"top1", "top1_frame_only", "median_error_m", "tracking", "lost"} <= set(s)
     assert s["tracking"] + s["lost"] == 14 and s["tracking"] >= 10
+    # the pre-run count of a drive's frames is the camera's: none reported missing, nothing degraded
+    assert s["frames_expected"] == 14 and s["missing"] == 0 and results["degraded"] == []
     # the track follows the drive: times increase, positions advance along the route
     assert s["top1"] >= 0.6 and s["median_error_m"] < 25.0
     # every track links the evidence it used: the frame's rankings and its position
