@@ -97,7 +97,7 @@ class AssociativeIndexer(KnowledgeSource):
         levels.post(
             board,
             levels.Ranking.of(ranking, frame=frame.frame, frame_time=hypothesis.timestamp, shard=self.shard,
-                              shards=self.shards),
+                              shards=self.shards, time=frame.time),
             links=(hypothesis.id,),
             credibility=float(min(1.0, max(0.0, ranking.reliability / (1.0 + ranking.reliability)))),
         )

@@ -16,23 +16,23 @@ The id of every hypothesis is built by a function here (:func:`frame_id`, :func:
 Adding a level is adding one class::
 
     @dataclass(frozen=True, slots=True)
-    class Track(Message):
-        \"\"\"The vehicle's track up to one camera frame.\"\"\"
+    class Odometry(Message):
+        \"\"\"The vehicle's odometry at one camera frame.\"\"\"
 
-        level: ClassVar[str] = "track"
-        posted_by: ClassVar[str] = "tracker"
-        id_pattern: ClassVar[str] = "tr-<frame:06d>"
+        level: ClassVar[str] = "odometry"
+        posted_by: ClassVar[str] = "odometer"
+        id_pattern: ClassVar[str] = "od-<frame:06d>"
         frame: int = field(metadata={"doc": "camera frame number"})
-        xy: list = field(metadata={"doc": "[[x, y], ...] world metres, oldest first"})
+        distance_m: float = field(metadata={"doc": "metres driven since the previous frame"})
 
         def id(self) -> str:
-            return track_id(self.frame)
+            return odometry_id(self.frame)
 
 
-    def track_id(frame: int) -> str:
-        return f"tr-{frame:06d}"
+    def odometry_id(frame: int) -> str:
+        return f"od-{frame:06d}"
 
-The class registers itself (:data:`MESSAGES`), the level name constant is ``Track.level``, and
+The class registers itself (:data:`MESSAGES`), the level name constant is ``Odometry.level``, and
 the levels table below (and in README.md, checked by ``tests/knowledge_sources/test_levels.py``)
 is generated from the classes: run ``python -m knowledge_sources.levels`` to print it.
 
@@ -58,9 +58,10 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ANSWER", "Answer", "INDEX", "Index", "MAP", "MESSAGES", "Map", "Message", "MessageError", "POSITION",
-    "Position", "POSE", "Pose", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario", "SensorFrame",
-    "TRUTH", "Truth", "VIEWFRAME", "Viewframe", "answer_id", "frame_id", "index_id", "levels_table", "map_id",
-    "message_class", "pose_id", "position_id", "post", "query_id", "ranking_id", "scenario_id", "truth_id", "viewframe_id",
+    "POSE", "Pose", "Position", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario",
+    "SensorFrame", "TRACK", "TRUTH", "Track", "Truth", "VIEWFRAME", "Viewframe", "answer_id", "frame_id",
+    "index_id", "levels_table", "map_id", "message_class", "pose_id", "position_id", "post", "query_id",
+    "ranking_id", "scenario_id", "track_id", "truth_id", "viewframe_id",
 ]
 
 class MessageError(BlackboardError):
@@ -383,6 +384,7 @@ class SensorFrame(Message):
     frame: int = field(metadata=_doc("frame number, in mission order"))
     image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
     source: str = field(metadata=_doc('the image file, or "simulated"'))
+    time: float | None = field(default=None, metadata=_doc("when the frame was taken, seconds, or null"))
 
     def id(self) -> str:
         return frame_id(self.frame)
@@ -431,16 +433,17 @@ class Ranking(Message):
     shifts: list | None = field(default=None, metadata=_doc(
         "[[heading_deg, pitch_deg], ...] the camera's best turn and tilt against each viewframe, same order, "
         "or null"))
+    time: float | None = field(default=None, metadata=_doc("the camera frame's time, seconds, or null"))
 
     def id(self) -> str:
         return ranking_id(self.frame, self.shard, self.source)
 
     @classmethod
     def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, shard: int, shards: int,
-           source: str = "associative", shifts: list | None = None) -> Ranking:
+           source: str = "associative", shifts: list | None = None, time: float | None = None) -> Ranking:
         """The message of a memory's :class:`~models.associative.Ranking`."""
         return cls(frame=frame, frame_time=frame_time, shard=shard, shards=shards, source=source, shifts=shifts,
-                   **ranking.to_dict())
+                   time=time, **ranking.to_dict())
 
     def ranking(self) -> MemoryRanking:
         """As a :class:`models.associative.Ranking`."""
@@ -528,6 +531,7 @@ class Position(Message):
     degraded: list = field(metadata=_doc("queries without an answer: [str, ...]"))
     steps: list = field(metadata=_doc("the scene analysis's steps: [{...}, ...]"))
     strategy: str = field(metadata=_doc('"associative" or "prior"'))
+    track_prior: bool = field(default=False, metadata=_doc("the candidates were conditioned on the track"))
 
     def id(self) -> str:
         return position_id(self.frame)
@@ -578,6 +582,36 @@ def pose_id(frame: int) -> str:
     return f"pose-{frame:06d}"
 
 
+@dataclass(frozen=True, slots=True)
+class Track(Message):
+    """The tracker's estimate of the vehicle's place on the route at one camera frame."""
+
+    level: ClassVar[str] = "track"
+    posted_by: ClassVar[str] = "tracker"
+    id_pattern: ClassVar[str] = "tr-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    route_point: int = field(metadata=_doc("most probable route point (viewframe index)"))
+    arc_m: float = field(metadata=_doc("arc length along the route, metres from route point 0"))
+    position: list = field(metadata=_doc("[x, y] world metres", length=2))
+    heading_deg: float = field(metadata=_doc("the route's direction there, degrees ccw from +x"))
+    confidence: float = field(metadata=_doc("posterior probability of route_point, [0, 1]"))
+    state: str = field(metadata=_doc('"tracking" or "lost"'))
+    evidence: bool = field(metadata=_doc("the frame had evidence (else: prediction only)"))
+    belief: np.ndarray = field(metadata=_doc("(N,) float32 posterior probability of each route point", ndim=1))
+    prior_next: np.ndarray = field(metadata=_doc("(N,) float32 predicted probability for the next frame", ndim=1))
+    loglik: np.ndarray | None = field(metadata=_doc("(S,) float32 the frame's evidence on the route, or null",
+                                                    ndim=1))
+    dt: float | None = field(metadata=_doc("seconds since the previous frame, or null"))
+
+    def id(self) -> str:
+        return track_id(self.frame)
+
+
+def track_id(frame: int) -> str:
+    """Hypothesis id of the track at camera frame ``frame``."""
+    return f"tr-{frame:06d}"
+
+
 SCENARIO = Scenario.level
 VIEWFRAME = Viewframe.level
 MAP = Map.level
@@ -589,6 +623,7 @@ QUERY = Query.level
 ANSWER = Answer.level
 POSITION = Position.level
 POSE = Pose.level
+TRACK = Track.level
 
 
 # -- the table ---------------------------------------------------------------------------------------

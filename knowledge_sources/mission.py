@@ -13,6 +13,8 @@ benchmark call. It starts the knowledge sources
 * ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`), fusing the rankings of the
   indexers and the skyline,
 * ``refiner`` (:class:`~knowledge_sources.refiner.PoseRefiner`) when ``refine.enabled``,
+* ``tracker`` (:class:`~knowledge_sources.tracker.Tracker`), unless tracking is off (the
+  scenario's ``tracking.enabled``, ``mapinterp run --no-track``),
 
 posts the scenario, runs until the blackboard is quiescent and turns the ``position``
 hypotheses into the results of :mod:`knowledge_sources.results`.
@@ -39,7 +41,7 @@ from blackboard.runtime import Runtime
 from blackboard.signals import signal_name
 from knowledge_sources import levels
 from knowledge_sources.errors import UsageError
-from knowledge_sources.results import add_map_coordinates, frame_record, summarize
+from knowledge_sources.results import add_map_coordinates, frame_record, summarize, with_track
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.preflight import check_scenario, frame_count
@@ -55,10 +57,13 @@ MAX_WAIT_S = 7 * 24 * 3600.0
 
 
 def agent_plan(
-    scenario: Scenario, *, strategy: str | None = None, frame_rate: float | None = None
+    scenario: Scenario, *, strategy: str | None = None, frame_rate: float | None = None, track: bool | None = None
 ) -> list[tuple[str, str, dict[str, Any]]]:
-    """The agents of a mission: ``(factory, name, options)`` triples, options being plain data."""
+    """The agents of a mission: ``(factory, name, options)`` triples, options being plain data.
+
+    ``track``: include the tracker (default: the scenario's ``tracking.enabled``)."""
     sched = scenario.scheduler
+    tracked = scenario.tracking.enabled if track is None else bool(track)
     shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
@@ -97,6 +102,7 @@ def agent_plan(
             "min_pixels": sched.min_pixels,
             "query_timeout_s": sched.query_timeout_s,
             "sources": sources,
+            "tracked": tracked,
             "backtracking": sched.backtracking,
             "questions": sched.questions,
             "floor": sched.floor,
@@ -109,6 +115,9 @@ def agent_plan(
                      {"position": ref.position, "along_m": ref.along_m, "across_m": ref.across_m, "levels": ref.levels,
                       "grid": ref.grid,
                       "edge_weight": ref.edge_weight, **match}))
+    if tracked:
+        plan.append(("knowledge_sources.tracker:Tracker", "tracker",
+                     {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels}))
     return plan
 
 
@@ -142,6 +151,7 @@ def run_mission(
     run_id: str | None = None,
     wait_remote_s: float = 60.0,
     on_wait_remote: Callable[[dict[str, list[str]]], None] | None = None,
+    track: bool | None = None,
     secret: str | None = None,
     auth: bool | None = None,
     on_hypothesis: Callable[[str, Any, float], None] | None = None,
@@ -183,6 +193,10 @@ def run_mission(
     on_wait_remote : callable(commands), optional
         Called before waiting with ``{agent: argv of its mapinterp agent command}``; default:
         logged at WARNING.
+    track : bool, optional
+        Run the tracker (default: the scenario's ``tracking.enabled``); off, the results are the
+        single-frame decisions. With ``tracking.smoothing``, the tracks are smoothed over the
+        whole drive (forward-backward) before they become the results.
     on_hypothesis : callable(level, body, timestamp), optional
         Called with every hypothesis as it is first posted (phase labels, live viewers).
 
@@ -197,6 +211,7 @@ def run_mission(
         raise ScenarioError(None, None, "the scenario must come from a file to run on the blackboard")
     check_scenario(scenario, mission=True)  # every check that can run before the run, runs now
     strategy = strategy or scenario.scheduler.strategy
+    track = scenario.tracking.enabled if track is None else bool(track)
     n_frames = frame_count(scenario)
     if timeout_s is None:
         timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
@@ -222,7 +237,7 @@ def run_mission(
         if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
             runtime.kill(kill_after[0])
 
-    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate)
+    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate, track=track)
     remote = sorted(set(remote))
     unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
     if unknown:
@@ -269,6 +284,8 @@ def run_mission(
                                   if h.level == levels.POSE)}
     truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
                                    if h.level == levels.TRUTH)}
+    tracks = {t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses
+                                   if h.level == levels.TRACK)}
     frames_seen = {levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
                    if h.level == levels.SENSOR_FRAME}
     first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
@@ -277,6 +294,7 @@ def run_mission(
     elapsed = time.perf_counter() - started
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
+    estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []
     for f in sorted(frames_seen | set(range(n_frames))):
         if f not in frames_seen:
@@ -290,7 +308,11 @@ def run_mission(
                            pose=poses.get(f))
         rec["missing"] = f not in frames_seen
         rec["interrupted"] = interrupted is not None and f not in positions
-        records.append(rec)
+        p = positions.get(f)
+        rec["track_prior"] = bool(p is not None and p.track_prior)
+        if track and f in positions and f not in estimates:
+            rec["reason"] += "; no track was posted (the single-frame decision stands)"
+        records.append(with_track(rec, estimates.get(f)))
     summary = summarize(records)
     summary["frames_expected"] = n_frames
     summary["posted"] = len(frames_seen)
@@ -309,6 +331,8 @@ def run_mission(
         "scenario": scenario.name,
         "scenario_path": str(Path(scenario.path).resolve()),
         "strategy": strategy,
+        "tracking": track,
+        "smoothing": bool(track and scenario.tracking.smoothing),
         "mode": "processes" if processes else "inprocess",
         "agents": agents,
         "frames": records,
@@ -319,6 +343,25 @@ def run_mission(
     if scenario.map_frame is not None:
         add_map_coordinates(results, scenario.map_frame)
     return results
+
+
+def _track_estimates(tracks: dict[int, levels.Track], frames: Sequence[int],
+                     scenario: Scenario) -> dict[int, dict[str, Any]]:
+    """Each frame's track as the results need it (:func:`~knowledge_sources.results.with_track`):
+    the tracker's online estimates, or with ``tracking.smoothing`` the estimates of a
+    forward-backward pass over every frame's evidence (offline)."""
+    order = [f for f in frames if f in tracks]
+    if not scenario.tracking.smoothing:
+        return {f: {"route_point": t.route_point, "position": t.position, "heading_deg": t.heading_deg,
+                    "confidence": t.confidence, "state": t.state, "arc_m": t.arc_m, "belief": t.belief}
+                for f, t in tracks.items()}
+    import numpy as np
+
+    from models.tracking import smooth
+
+    logliks = [None if tracks[f].loglik is None else np.asarray(tracks[f].loglik, np.float64) for f in order]
+    estimates = smooth(scenario.route, logliks, spec=scenario.tracking, dts=[tracks[f].dt for f in order])
+    return {f: {**e.to_dict(), "belief": e.belief} for f, e in zip(order, estimates)}
 
 
 def _announce_remote(

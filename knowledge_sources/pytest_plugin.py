@@ -46,6 +46,13 @@ def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, An
             misses.append(("top1_min", f">= {expect.top1_min:g}", "no truth poses", "-"))
         elif got < expect.top1_min:
             misses.append(("top1_min", f">= {expect.top1_min:g}", f"{got:.3f}", f"{expect.top1_min - got:.3f} short"))
+    if expect.top1_frame_only_min is not None:
+        got = s.get("top1_frame_only")
+        if got is None:
+            misses.append(("top1_frame_only_min", f">= {expect.top1_frame_only_min:g}", "no truth poses", "-"))
+        elif got < expect.top1_frame_only_min:
+            misses.append(("top1_frame_only_min", f">= {expect.top1_frame_only_min:g}", f"{got:.3f}",
+                           f"{expect.top1_frame_only_min - got:.3f} short"))
     if expect.mean_queries_max is not None and s["mean_queries"] > expect.mean_queries_max:
         misses.append(("mean_queries_max", f"<= {expect.mean_queries_max:g}", f"{s['mean_queries']:.3f}",
                        f"{s['mean_queries'] - expect.mean_queries_max:.3f} over"))

@@ -6,7 +6,11 @@ command that writes them (:mod:`knowledge_sources.commands.report`):
 * :func:`plot_positions`: the map with true and estimated positions, joined, coloured by right/wrong;
 * :func:`plot_frame`: a camera frame beside the chosen viewframe, with both preprocessed edge images;
 * :func:`plot_rankings`: each frame's five best error variances, relative to the best;
-* :func:`plot_queries`: detector questions per frame, one series per results file (strategy).
+* :func:`plot_queries`: detector questions per frame, one series per results file (strategy);
+* :func:`plot_track`: the map with the track (the tracker's estimates, joined in time order)
+  against the true path, the single-frame estimates faint beside it;
+* :func:`plot_belief`: the tracker's belief over the route points against time (frames), the
+  true route point and the track on top, lost frames marked.
 
 World coordinates are ``(x, y)`` metres, x east, y north; images are shown row 0 at the top.
 """
@@ -23,7 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-__all__ = ["plot_positions", "plot_frame", "plot_rankings", "plot_queries"]
+__all__ = ["plot_positions", "plot_frame", "plot_rankings", "plot_queries", "plot_track", "plot_belief"]
 
 
 def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses) -> Figure:
@@ -130,5 +134,72 @@ def plot_queries(runs: Sequence[dict[str, Any]]) -> Figure:
     ax.set_ylabel("detector queries")
     ax.legend()
     ax.set_title("queries per frame")
+    fig.tight_layout()
+    return fig
+
+
+def plot_track(results: dict[str, Any], *, terrain, landmarks, route, poses) -> Figure:
+    """The map with the true path (black), the track (blue, joined in frame order; open circles
+    where the tracker was lost) and the single-frame estimates (grey dots)."""
+    from models.overview import plot_map
+
+    fig, ax = plt.subplots(figsize=(8, 7))
+    plot_map(ax, terrain, landmarks, route, poses)
+    frames = [f for f in results["frames"] if f["position"] is not None]
+    truth = np.array([f["truth"][:2] for f in results["frames"] if f["truth"] is not None], dtype=float)
+    if truth.size:
+        ax.plot(truth[:, 0], truth[:, 1], "-", color="black", lw=1.2, label="true path", zorder=5)
+    single = np.array([f["frame_only"]["position"] for f in results["frames"]
+                       if (f.get("frame_only") or {}).get("position") is not None], dtype=float)
+    if single.size:
+        ax.plot(single[:, 0], single[:, 1], ".", color="0.45", ms=5, label="single frame", zorder=6)
+    if frames:
+        xy = np.array([f["position"] for f in frames], dtype=float)
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="tab:blue", lw=1.5, label="track", zorder=7)
+        lost = np.array([f.get("state") == "lost" for f in frames])
+        ax.plot(xy[~lost, 0], xy[~lost, 1], "o", color="tab:blue", ms=4, zorder=8)
+        if lost.any():
+            ax.plot(xy[lost, 0], xy[lost, 1], "o", mfc="none", color="tab:orange", ms=7, label="lost", zorder=8)
+    pts = np.asarray(route, dtype=float)
+    margin = max(150.0, 0.15 * float(np.ptp(pts, axis=0).max()))
+    ax.set_xlim(pts[:, 0].min() - margin, pts[:, 0].max() + margin)
+    ax.set_ylim(pts[:, 1].min() - margin, pts[:, 1].max() + margin)
+    ax.legend(loc="best", fontsize=8)
+    s = results["summary"]
+    top1 = "n/a" if s["top1"] is None else f"{s['top1']:.0%}"
+    single_top1 = "n/a" if s.get("top1_frame_only") is None else f"{s['top1_frame_only']:.0%}"
+    ax.set_title(f"{results['scenario']}: track top-1 {top1}, single frame {single_top1}")
+    fig.tight_layout()
+    return fig
+
+
+def plot_belief(results: dict[str, Any]) -> Figure:
+    """Belief over the route points (rows: frames, in time order; darker: more probable), with the
+    true route point (white line) and the tracked one (red dots); lost frames marked on the left."""
+    frames = results["frames"]
+    rows = [f.get("belief") for f in frames]
+    width = max((len(r) for r in rows if r), default=0)
+    fig, ax = plt.subplots(figsize=(9, 5))
+    if width == 0:
+        ax.text(0.5, 0.5, "no track in these results (run without --no-track)", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_axis_off()
+        return fig
+    belief = np.array([r if r else [np.nan] * width for r in rows], dtype=float)
+    ax.imshow(belief, aspect="auto", cmap="Greys", interpolation="nearest", vmin=0.0, vmax=max(0.2, np.nanmax(belief)),
+              extent=(-0.5, width - 0.5, len(frames) - 0.5, -0.5))
+    t = np.arange(len(frames))
+    truth = [f["truth_viewframe"] for f in frames]
+    if any(v is not None for v in truth):
+        ax.plot([np.nan if v is None else v for v in truth], t, "-", color="tab:cyan", lw=1.5, label="true route point")
+    chosen = [np.nan if f["viewframe"] is None else f["viewframe"] for f in frames]
+    ax.plot(chosen, t, ".", color="tab:red", ms=5, label="track")
+    lost = [i for i, f in enumerate(frames) if f.get("state") == "lost"]
+    if lost:
+        ax.plot(np.full(len(lost), -0.5), lost, ">", color="tab:orange", ms=6, label="lost", clip_on=False)
+    ax.set_xlabel("route point")
+    ax.set_ylabel("frame (time runs down)")
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title("tracker belief over the route")
     fig.tight_layout()
     return fig

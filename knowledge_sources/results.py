@@ -14,6 +14,16 @@
                  "median_error_m": e | null, "median_heading_error_deg": d | null,
                  "latency_ms_p50": t}}
 
+Tracking (on by default, ``mapinterp run --no-track`` turns it off): each frame's top-level
+``viewframe``, ``position``, ``heading_deg`` and ``confidence`` are the system's final answer,
+the tracker's when it ran; the single-frame decision of the scene analysis is kept beside them
+as ``frame_only: {viewframe, position, heading_deg, confidence, correct, error_m}``, and
+``state`` says whether the tracker was ``"tracking"`` or ``"lost"`` (null: no track), with
+``arc_m`` (the track's arc length along the route) and ``belief`` (posterior probability of
+each route point). The summary adds ``top1_frame_only``, ``median_error_m`` and
+``mean_error_m_frame_only``. Without tracking, the top level is the single-frame decision and
+``frame_only`` repeats it.
+
 On a georeferenced map the file also has ``"crs"`` (the map CRS, e.g. ``EPSG:32617``) and
 ``"map_frame"``, and each frame ``position_map`` / ``truth_map`` ([x, y] in the map CRS) and
 ``position_lonlat`` / ``truth_lonlat`` ([lon, lat] WGS84 degrees); ``position`` and ``truth``
@@ -45,8 +55,8 @@ if TYPE_CHECKING:
     from knowledge_sources.levels import Pose as PoseMessage
     from knowledge_sources.levels import Position, Truth
 
-__all__ = ["add_map_coordinates", "frame_record", "load_results", "nearest_viewframe", "summarize", "write_results",
-           "finite_json", "check_writable"]
+__all__ = ["add_map_coordinates", "frame_record", "load_results", "nearest_viewframe", "summarize", "with_track",
+           "write_results", "finite_json", "check_writable"]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -115,12 +125,38 @@ def frame_record(
     return record
 
 
+def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str, Any]:
+    """``record`` (a single-frame :func:`frame_record`) with its decision moved to ``frame_only``
+    and, when ``track`` (the tracker's estimate: ``route_point``, ``position``, ``heading_deg``,
+    ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer."""
+    out = dict(record)
+    out["frame_only"] = {k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct",
+                                                 "error_m")}
+    out["state"] = None
+    if track is None:
+        return out
+    truth = record["truth"]
+    vf = int(track["route_point"])
+    pos = [float(track["position"][0]), float(track["position"][1])]
+    out.update({
+        "viewframe": vf, "position": pos, "heading_deg": float(track["heading_deg"]),
+        "confidence": float(track["confidence"]), "state": str(track["state"]), "arc_m": float(track["arc_m"]),
+        "belief": [round(float(p), 5) for p in track.get("belief", [])],
+        "correct": None if record["truth_viewframe"] is None else vf == record["truth_viewframe"],
+        "error_m": None if truth is None else math.hypot(pos[0] - truth[0], pos[1] - truth[1]),
+    })
+    return out
+
+
 def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """The ``summary`` block of a results file."""
     judged = [f for f in frames if f["correct"] is not None]
     errors = [f["error_m"] for f in frames if f.get("error_m") is not None]
     headings = [f["heading_error_deg"] for f in frames if f.get("heading_error_deg") is not None]
     lat = [f["latency_ms"] for f in frames if f["latency_ms"] is not None]
+    only = [f["frame_only"] for f in frames if f.get("frame_only") is not None]
+    only_judged = [f for f in only if f["correct"] is not None]
+    only_errors = [f["error_m"] for f in only if f.get("error_m") is not None]
     return {
         "frames": len(frames),
         "localized": sum(f["viewframe"] is not None for f in frames),
@@ -132,6 +168,10 @@ def summarize(frames: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "median_heading_error_deg": float(np.median(headings)) if headings else None,
         "latency_ms_p50": float(np.percentile(lat, 50)) if lat else 0.0,
         "latency_ms_p99": float(np.percentile(lat, 99)) if lat else 0.0,
+        "top1_frame_only": (sum(bool(f["correct"]) for f in only_judged) / len(only_judged)) if only_judged else None,
+        "mean_error_m_frame_only": float(np.mean(only_errors)) if only_errors else None,
+        "tracking": sum(f.get("state") == "tracking" for f in frames),
+        "lost": sum(f.get("state") == "lost" for f in frames),
     }
 
 
@@ -152,6 +192,11 @@ def add_map_coordinates(results: dict[str, Any], frame: Any) -> dict[str, Any]:
             lon, lat = frame.to_lonlat(xy[0], xy[1])
             rec[f"{key}_map"] = [float(mx), float(my)]
             rec[f"{key}_lonlat"] = [float(lon), float(lat)]
+        only = rec.get("frame_only")
+        if isinstance(only, dict):  # the single-frame decision beside the track, in map coordinates too
+            xy = only.get("position")
+            only["position_map"] = None if xy is None else [float(v) for v in frame.to_map(xy[0], xy[1])]
+            only["position_lonlat"] = None if xy is None else [float(v) for v in frame.to_lonlat(xy[0], xy[1])]
     return results
 
 

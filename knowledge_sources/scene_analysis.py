@@ -14,6 +14,11 @@ Candidates and their weights
     ``prior`` (the seed's original): every viewframe is a candidate, with uniform weights; the
     ranking plays no part in the questions, and is used only to break ties between viewframes the
     landmark answers cannot tell apart.
+    With a ``track_prior`` (the tracker's predicted probability of each route point for this
+    frame, from the frames before it, see :mod:`knowledge_sources.tracker`), the weights are
+    ``w_k * prior_k`` over the whole ranking and the candidates are the ``candidates`` best by
+    that product: the questions are conditioned on where the vehicle can be. Without one (no
+    tracker, or the tracker is lost), the blind rule above.
 
 Posterior
     ``pi_k ∝ w_k * prod_q lik(answer_q | k)`` over the surviving candidates. How an answer about
@@ -178,6 +183,8 @@ class SceneAnalysis:
         ``soft``: answers' log-likelihood ratios are clipped to ``[-max_llr, max_llr]``.
     beta : float
         Sharpness of the ranking weights (:func:`ranking_weights`).
+    track_prior : mapping viewframe -> probability, optional
+        The tracker's prior over route points for this frame (see "Candidates and their weights").
 
     Every default is the scenario schema's (:class:`models.scenario.SchedulerSpec`).
 
@@ -193,6 +200,7 @@ class SceneAnalysis:
     reliability: float = _DEFAULTS.reliability
     priors: Mapping[str, float] | None = None
     beta: float = _DEFAULTS.beta
+    track_prior: Mapping[int, float] | None = None
     backtracking: Backtracking = _DEFAULTS.backtracking
     questions: QuestionOrder = _DEFAULTS.questions
     floor: float = _DEFAULTS.floor
@@ -229,7 +237,18 @@ class SceneAnalysis:
             raise ValueError("max_llr must be > 0")
         ranked = [int(k) for k, _ in self.ranking]
         self._rank = {k: i for i, k in enumerate(ranked)}
-        if self.strategy == "associative":
+        if self.track_prior is not None:
+            tp = self.track_prior
+            w = ranking_weights([v for _, v in self.ranking], beta=self.beta) if self.strategy == "associative" \
+                else np.ones(len(ranked))
+            prod = {k: float(w[i]) * float(tp.get(k, 0.0)) for i, k in enumerate(ranked)}
+            keep = sorted(prod, key=lambda k: (-prod[k], self._rank[k]))
+            if self.strategy == "associative":
+                keep = keep[: self.candidates]
+            self._weights = {k: prod[k] for k in keep if prod[k] > 0}
+            if not self._weights:  # a prior that excludes every ranked viewframe: ignore it
+                self._weights = {k: float(w[i]) for i, k in enumerate(ranked[: self.candidates])}
+        elif self.strategy == "associative":
             w = ranking_weights([v for _, v in self.ranking], beta=self.beta)
             self._weights = {k: float(w[i]) for i, k in enumerate(ranked[: self.candidates])}
         else:

@@ -7,6 +7,15 @@ there): each question becomes a ``query`` hypothesis addressed to the detector a
 landmark's kind, with a deadline; each ``answer`` advances the analysis; a query that times out
 (detector dead or late) counts as no answer, and the frame's result says it was degraded. When
 the analysis decides, the scheduler posts the ``position`` hypothesis.
+
+Closing the loop with the tracker (:mod:`knowledge_sources.tracker`, option ``tracked``): the
+analysis of frame t starts once the ``track`` of frame t - 1 is on the blackboard (frames may
+come faster than the tracker follows; their rankings wait, and the decisions do not depend on
+timing). When that track says ``tracking``, the frame's candidates and P(L|A) are conditioned on
+its prediction for frame t (``prior_next``); when it says ``lost``, the frame is analysed blind,
+from the ranking alone. The track prior for frame t thus comes from frames < t only; the
+``position`` says which (``track_prior``). If the tracker dies, the frames after it wait for
+ever: the run ends without their positions and the results name the dead agent.
 """
 
 from __future__ import annotations
@@ -49,6 +58,7 @@ class _Frame:
     links: list[str] = field(default_factory=list)
     degraded: list[str] = field(default_factory=list)
     ranking: list[tuple[int, float]] = field(default_factory=list)
+    track_prior: bool = False
     done: bool = False
 
 
@@ -63,9 +73,11 @@ class Scheduler(KnowledgeSource):
     (``{source: weight}``: the ranking sources a frame waits for, all their shards, before its
     analysis starts, and their weights in the fusion of :mod:`knowledge_sources.fusion`; default
     the associative memory alone).
+    each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
+    ``tracked``: a tracker runs, frames are conditioned on its tracks (see the module docstring).
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER)
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
     exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
 
@@ -81,6 +93,7 @@ class Scheduler(KnowledgeSource):
         min_pixels: int = _DEFAULTS.min_pixels,
         query_timeout_s: float = _DEFAULTS.query_timeout_s,
         sources: dict[str, float] | None = None,
+        tracked: bool = False,
         backtracking: str = _DEFAULTS.backtracking,
         questions: str = _DEFAULTS.questions,
         floor: float = _DEFAULTS.floor,
@@ -112,12 +125,16 @@ class Scheduler(KnowledgeSource):
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
         self._frames: dict[int, _Frame] = {}
+        self.tracked = bool(tracked)
+        self._tracks: dict[int, Any] = {}  # frame t -> prior for frame t + 1 from track t (None: lost)
+        self._parked: dict[int, _Frame] = {}  # frame t - 1 -> frame t, ranked, waiting for track t - 1
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
-        # answers first: they finish frames already under way (focus of attention)
-        return {levels.ANSWER: 3.0, levels.MAP: 2.0}.get(event.hypothesis.level, 1.0)
+        # answers first: they finish frames already under way (focus of attention); then tracks,
+        # which release the frame waiting for them
+        return {levels.ANSWER: 3.0, levels.TRACK: 2.5, levels.MAP: 2.0}.get(event.hypothesis.level, 1.0)
 
     # -- events ----------------------------------------------------------------------------
     def act(self, event: Event, board: Board) -> None:
@@ -128,6 +145,12 @@ class Scheduler(KnowledgeSource):
             self._on_ranking(h, board)
         elif h.level == levels.ANSWER:
             self._on_answer(h, board)
+        elif h.level == levels.TRACK:
+            track = levels.Track.from_hypothesis(h)
+            self._tracks[track.frame] = track.prior_next if track.state == "tracking" else None
+            parked = self._parked.pop(track.frame, None)
+            if parked is not None:
+                self._start(parked, board)
 
     def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
         if hypothesis.level != levels.QUERY:
@@ -160,9 +183,6 @@ class Scheduler(KnowledgeSource):
         return self._map
 
     def _on_ranking(self, h: Hypothesis, board: Board) -> None:
-        from knowledge_sources.fusion import fuse_rankings
-        from models.associative import merge_rankings
-
         rk = levels.Ranking.from_hypothesis(h)
         st = self._frames.setdefault(rk.frame, _Frame(rk.frame, rk.frame_time))
         if st.analysis is not None or rk.source not in self.sources:
@@ -173,6 +193,17 @@ class Scheduler(KnowledgeSource):
         got = {src: sum(1 for s, _ in st.rankings if s == src) for src in self.sources}
         if any(src not in st.shards or got[src] < st.shards[src] for src in self.sources):
             return
+        if self.tracked and st.frame > 0 and st.frame - 1 not in self._tracks:
+            self._parked[st.frame - 1] = st
+            return
+        self._start(st, board)
+
+    def _start(self, st: _Frame, board: Board) -> None:
+        """Merge each source's shards, fuse the sources and start the frame's scene analysis
+        (conditioned on the track)."""
+        from knowledge_sources.fusion import fuse_rankings
+        from models.associative import merge_rankings
+
         mp = self._ensure_map(board)
         per_source = {}
         for src in self.sources:
@@ -180,6 +211,8 @@ class Scheduler(KnowledgeSource):
             merged = merge_rankings([p.ranking() for p in parts])
             per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
         st.ranking = fuse_rankings(per_source, weights=self.sources)
+        prior = self._tracks.pop(st.frame - 1, None)
+        st.track_prior = prior is not None
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,
@@ -189,6 +222,7 @@ class Scheduler(KnowledgeSource):
             reliability=self.reliability,
             beta=self.beta,
             priors=mp.priors,
+            track_prior=None if prior is None else {k: float(p) for k, p in enumerate(prior)},
             backtracking=self.backtracking,
             questions=self.questions,
             floor=self.floor,
@@ -257,6 +291,7 @@ class Scheduler(KnowledgeSource):
                 degraded=list(st.degraded),
                 steps=[dict(s) for s in d.steps],
                 strategy=self.strategy,
+                track_prior=st.track_prior,
             ),
             links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
             credibility=float(min(1.0, max(0.0, d.confidence))),

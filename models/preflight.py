@@ -39,6 +39,10 @@ def frame_count(scenario: Scenario) -> int:
     sim = sensor.simulate
     if sim is None:
         return 0
+    if sim.drive is not None:  # a drive's length depends on its speeds and stops: the camera's seed
+        from models.sensor import drive_poses
+
+        return len(drive_poses(scenario.route, sim.drive, rng=sim.seed if sim.seed is not None else scenario.seed))
     return len(range(0, len(scenario.route), sim.stride)) * sim.per_point
 
 

@@ -70,12 +70,14 @@ __all__ = [
     "CameraSpec",
     "TruthSpec",
     "FrameSpec",
+    "DriveSpec",
     "SimulateSpec",
     "SensorSpec",
     "MemorySpec",
     "SchedulerSpec",
     "SkylineSpec",
     "RefineSpec",
+    "TrackingSpec",
     "ExpectSpec",
     "Scenario",
     "load_scenario",
@@ -97,6 +99,8 @@ MAX_SEED = 2**32 - 1
 #: at most this many route points and camera frames in one scenario
 MAX_ROUTE_POINTS = 1_000_000
 MAX_FRAMES = 1_000_000
+MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
+MAX_SPEED_MPS = 1000.0
 #: smallest camera image on file accepted, pixels per side (the camera's own lower bound)
 MIN_IMAGE_PX = 8
 
@@ -202,10 +206,12 @@ class TruthSpec(_Spec):
 
 
 class FrameSpec(_Spec):
-    """A camera image taken during the mission; ``image`` must exist."""
+    """A camera image taken during the mission; ``image`` must exist. ``time``: seconds (any
+    origin), increasing along ``sensor.frames``, which are in time order."""
 
     image: Path
     truth: TruthSpec | None = None
+    time: float | None = Field(default=None, ge=-MAX_TIME_S, le=MAX_TIME_S)
 
     @field_validator("image")
     @classmethod
@@ -213,8 +219,43 @@ class FrameSpec(_Spec):
         return _resolve_path(value, info)
 
 
+class DriveSpec(_Spec):
+    """A simulated drive: frames in time order along the route (see :func:`models.sensor.drive_poses`).
+
+    Example: ``drive: {interval_s: 2.0, speed_mps: [8, 20], p_stop: 0.05, kidnap_at: 12}``.
+
+    Every ``interval_s`` seconds one frame; the speed wanders in ``speed_mps`` (a random walk,
+    ``speed_change`` of the range per frame); with probability ``p_stop`` a frame starts a stop
+    of 1 to ``stop_frames`` frames. The camera is off the route by Gaussian ``lateral_m``
+    (perpendicular) and off its direction by ``heading_deg``, both slowly varying. With
+    ``kidnap_at``, that frame jumps to arc fraction ``kidnap_to`` of the route (default: drawn at
+    least a quarter of the route away). The drive ends at the last route point or after
+    ``frames`` frames.
+    """
+
+    interval_s: float = Field(default=2.0, gt=0, le=3600)
+    speed_mps: tuple[float, float] = (8.0, 20.0)
+    speed_change: float = Field(default=0.2, ge=0, le=1)
+    p_stop: float = Field(default=0.05, ge=0, lt=1)
+    stop_frames: int = Field(default=3, ge=1, le=MAX_FRAMES)
+    lateral_m: float = Field(default=1.5, ge=0, le=1000)
+    heading_deg: float = Field(default=3.0, ge=0, le=180)
+    start: float = Field(default=0.0, ge=0, lt=1)
+    kidnap_at: int | None = Field(default=None, ge=1, le=MAX_FRAMES)
+    kidnap_to: float | None = Field(default=None, ge=0, lt=1)
+    frames: int | None = Field(default=None, ge=1, le=MAX_FRAMES)
+
+    @field_validator("speed_mps")
+    @classmethod
+    def _speeds(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= value[0] <= value[1] <= MAX_SPEED_MPS or value[1] <= 0:
+            raise ValueError(f"must be [min, max] with 0 <= min <= max <= {MAX_SPEED_MPS:g} and max > 0")
+        return value
+
+
 class SimulateSpec(_Spec):
-    """Simulated camera frames near the route points (see the end-to-end issue)."""
+    """Simulated camera frames near the route points (see the end-to-end issue), or along a
+    ``drive`` (then ``per_point``, ``stride``, ``jitter_*`` and ``advance`` do not apply)."""
 
     per_point: int = Field(default=1, ge=1, le=1000)
     stride: int = Field(default=1, ge=1, le=MAX_ROUTE_POINTS)  # frames at every stride-th route point only
@@ -229,6 +270,7 @@ class SimulateSpec(_Spec):
     blur: float = Field(default=0.7, ge=0, le=50)  # pixels
     texture: float = Field(default=0.3, ge=0, le=4)
     seed: int | None = Field(default=None, ge=0, le=MAX_SEED)
+    drive: DriveSpec | None = None
 
 
 class SensorSpec(_Spec):
@@ -241,6 +283,16 @@ class SensorSpec(_Spec):
     def _exactly_one(self) -> SensorSpec:
         if (self.frames is None) == (self.simulate is None):
             raise ValueError("needs exactly one of frames, simulate")
+        if self.frames:
+            given = [f.time for f in self.frames]
+            if any(t is not None for t in given):
+                times = [t for t in given if t is not None]
+                if len(times) != len(given):
+                    raise ValueError("frames: give a time for every frame or for none")
+                for i, (a, b) in enumerate(zip(times, times[1:]), start=1):
+                    if b <= a:
+                        raise ValueError(f"frames[{i}].time: must be > the previous frame's ({a:g}): "
+                                         "frames are in time order")
         return self
 
 
@@ -386,13 +438,66 @@ class RefineSpec(_Spec):
     levels: int = Field(default=2, ge=1, le=8)
     grid: int = Field(default=5, ge=3, le=11)
     edge_weight: float = Field(default=2.0, ge=0, le=1e3)
+class TrackingSpec(_Spec):
+    """Tracking along the route (:mod:`models.tracking`): a grid filter over arc length.
+
+    Example: ``tracking: {enabled: true, smoothing: false, cell_m: 2.0}``.
+
+    Grid: ``cell_m`` metres of route per cell; the grid runs on past the last route point by
+    ``tail`` of the last leg. Motion per frame: forward by up to ``cruise_points`` mean route
+    spacings (or ``max_speed_mps`` * dt when frames carry a ``time`` and that is more), with
+    probability ``p_skip`` by up to ``max_skip_points`` spacings (dropped frames), a stop with
+    probability ``p_stop``, a reversal of up to ``reverse_m`` with probability ``p_reverse``; a
+    jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
+    ranking's variances as a likelihood, ``log(eps_f + exp(gain - z / temperature))`` with ``z`` the
+    variance above the best in robust spreads, the floor ``eps_f = eps + margin_scale / margin``
+    higher when the ranking's margin is low, each route point's term spread along the route by a
+    Gaussian of ``spread`` mean route spacings (the ranking's own along-route error);
+    ``temperature``, ``gain``, ``eps``, ``margin_scale`` and ``spread`` were fitted on
+    tuning drives (bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
+    detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
+    (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
+    ``smoothing``: offline forward-backward over the whole drive (frames from files).
+    """
+
+    enabled: bool = True
+    smoothing: bool = False
+    cell_m: float = Field(default=2.0, gt=0, le=MAX_SIZE_M)
+    tail: float = Field(default=0.5, ge=0, le=100)
+    max_speed_mps: float = Field(default=30.0, gt=0, le=MAX_SPEED_MPS)
+    cruise_points: float = Field(default=2.0, gt=0, le=MAX_ROUTE_POINTS)
+    max_skip_points: float = Field(default=6.0, gt=0, le=MAX_ROUTE_POINTS)
+    p_skip: float = Field(default=0.15, ge=0, le=1)
+    p_stop: float = Field(default=0.1, ge=0, lt=1)
+    p_reverse: float = Field(default=0.02, ge=0, lt=1)
+    reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)
+    p_kidnap: float = Field(default=0.02, ge=0, lt=1)
+    temperature: float = Field(default=1.11, gt=0, le=1000)
+    gain: float = Field(default=0.0, ge=-100, le=100)
+    eps: float = Field(default=1e-4, ge=0, le=1)
+    margin_scale: float = Field(default=0.0, ge=0, le=1000)
+    spread: float = Field(default=0.45, ge=0, le=1000)
+    reliability: float = Field(default=0.8, gt=0.5, lt=1)
+    enter: float = Field(default=0.5, gt=0, le=1)
+    exit: float = Field(default=0.25, ge=0, le=1)
+
+    @model_validator(mode="after")
+    def _hysteresis(self) -> TrackingSpec:
+        if self.exit > self.enter:
+            raise ValueError(f"exit must be <= enter ({self.enter})")
+        if self.p_stop + self.p_reverse >= 1:
+            raise ValueError("p_stop + p_reverse must be < 1")
+        return self
 
 
 class ExpectSpec(_Spec):
-    """Expected outcome of running the scenario (checked by the pytest plugin)."""
+    """Expected outcome of running the scenario (checked by the pytest plugin). ``top1_min`` and
+    ``mean_error_m_max`` judge the final answer (the track when tracking is on);
+    ``top1_frame_only_min`` the single-frame decisions beside it."""
 
     strategy: Literal["associative", "prior"] | None = None
     top1_min: float | None = Field(default=None, ge=0, le=1)
+    top1_frame_only_min: float | None = Field(default=None, ge=0, le=1)
     mean_queries_max: float | None = Field(default=None, gt=0, le=1e6)
     mean_error_m_max: float | None = Field(default=None, gt=0, le=MAX_COORD_M)
     fewer_queries_than_prior: bool = False
@@ -414,6 +519,7 @@ class Scenario(_Spec):
     scheduler: SchedulerSpec = SchedulerSpec()
     skyline: SkylineSpec = SkylineSpec()
     refine: RefineSpec = RefineSpec()
+    tracking: TrackingSpec = TrackingSpec()
     expect: ExpectSpec | None = None
 
     _path: Path | None = PrivateAttr(default=None)

@@ -23,10 +23,12 @@ import cv2
 import numpy as np
 
 from models.errors import InputError, ScenarioError
-from models.scenario import MIN_IMAGE_PX, Scenario, SimulateSpec
+from models.scenario import MIN_IMAGE_PX, DriveSpec, Scenario, SimulateSpec
 
 __all__ = [
     "SensorFrame",
+    "DrivePose",
+    "drive_poses",
     "load_frame_image",
     "frames_from_files",
     "degrade",
@@ -50,12 +52,88 @@ class SensorFrame:
         The true pose when known (world metres, degrees); never used to localize.
     source : str
         The image file, or ``"simulated"``.
+    time : float or None
+        Seconds (any origin) when the frame was taken, when known; increasing with ``index``.
     """
 
     index: int
     image: np.ndarray
     truth: tuple[float, float, float] | None
     source: str
+    time: float | None = None
+
+
+@dataclass(frozen=True)
+class DrivePose:
+    """One frame's pose on a simulated drive: ``time`` (s), ``x``, ``y`` (m), ``heading_deg``,
+    ``arc_m`` (arc length of its foot point on the route), ``kidnapped`` (the frame of a jump)."""
+
+    time: float
+    x: float
+    y: float
+    heading_deg: float
+    arc_m: float
+    kidnapped: bool = False
+
+
+def drive_poses(
+    route: Sequence[Sequence[float]], spec: DriveSpec, *, rng: np.random.Generator | int | None = None
+) -> list[DrivePose]:
+    """Poses of a drive along ``route`` (N, 2), in time order (see :class:`~models.scenario.DriveSpec`).
+
+    The vehicle starts at arc fraction ``spec.start`` and moves forward by ``speed * interval_s``
+    per frame, the speed a bounded random walk in ``spec.speed_mps``, with stops; its position
+    is the route polyline point at its arc length, moved perpendicular by the lateral offset,
+    and its heading the route's direction plus the heading error (both AR(1) processes, so they
+    vary slowly). Between route points, as a real drive is.
+    """
+    rng = np.random.default_rng(rng)
+    pts = np.asarray(route, dtype=np.float64)
+    legs = np.hypot(*np.diff(pts, axis=0).T)
+    arc = np.concatenate([[0.0], np.cumsum(legs)])
+    total = float(arc[-1])
+    lo, hi = spec.speed_mps
+    speed = rng.uniform(lo, hi)
+    s = spec.start * total
+    lateral = rng.normal(0.0, spec.lateral_m)
+    head_err = rng.normal(0.0, spec.heading_deg)
+    stop_left = 0
+    out: list[DrivePose] = []
+    t = 0.0
+    rho = 0.8  # AR(1) persistence of the lateral and heading errors
+    while True:
+        kidnapped = spec.kidnap_at is not None and len(out) == spec.kidnap_at
+        if kidnapped:
+            if spec.kidnap_to is not None:
+                s = spec.kidnap_to * total
+            else:
+                away = rng.uniform(0.25, 0.75) * total
+                s = (s + away) % total
+        seg = int(np.clip(np.searchsorted(arc, s, side="right") - 1, 0, len(pts) - 2))
+        d = (pts[seg + 1] - pts[seg]) / legs[seg]
+        foot = pts[seg] + (s - arc[seg]) * d
+        normal = np.array([-d[1], d[0]])
+        x, y = foot + lateral * normal
+        heading = math.degrees(math.atan2(d[1], d[0])) + head_err
+        out.append(DrivePose(t, float(x), float(y), float(heading), float(s), kidnapped))
+        if spec.frames is not None and len(out) >= spec.frames:
+            break
+        # the next frame
+        t += spec.interval_s
+        if stop_left > 0:
+            stop_left -= 1
+        elif rng.random() < spec.p_stop:
+            stop_left = int(rng.integers(1, spec.stop_frames + 1)) - 1
+        else:
+            speed = float(np.clip(speed + spec.speed_change * (hi - lo) * rng.normal(), lo, hi))
+            s += speed * spec.interval_s
+        if s > total:
+            if spec.frames is None:
+                break
+            s = total
+        lateral = rho * lateral + math.sqrt(1 - rho ** 2) * rng.normal(0.0, spec.lateral_m)
+        head_err = rho * head_err + math.sqrt(1 - rho ** 2) * rng.normal(0.0, spec.heading_deg)
+    return out
 
 
 def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray:
@@ -98,7 +176,7 @@ def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
         except InputError as err:  # name the scenario and the field too (as the pre-run check does)
             raise ScenarioError(scenario.path, f"sensor.frames[{i}].image", str(err)) from None
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
-        frames.append(SensorFrame(i, image, truth, str(spec.image)))
+        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time))
     return frames
 
 
@@ -175,6 +253,9 @@ def simulate_frames(
     by Gaussian jitter of ``spec.jitter_m`` metres per axis, with the heading off by Gaussian
     ``spec.jitter_deg`` degrees; the emulator renders it under varied lighting, then
     :func:`degrade` applies the photometric differences. ``truth`` holds the pose.
+
+    With ``spec.drive``, the frames are a drive instead (:func:`drive_poses`), in time order
+    with their ``time``.
     """
     spec = spec or (scenario.sensor.simulate if scenario.sensor else None)
     if spec is None:
@@ -182,6 +263,12 @@ def simulate_frames(
     if rng is None:
         rng = spec.seed if spec.seed is not None else scenario.seed
     rng = np.random.default_rng(rng)
+    if spec.drive is not None:
+        route = [(p.x, p.y) for p in poses]
+        drive = [_render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
+                 for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))]
+        log.info("simulated a drive of %d camera frames for scenario %s", len(drive), scenario.name)
+        return drive
     frames: list[SensorFrame] = []
     n = len(poses)
     for i, pose in enumerate(poses):
@@ -197,13 +284,19 @@ def simulate_frames(
             u = rng.uniform(0.0, spec.advance) if spec.advance > 0 else 0.0
             x, y = np.array([pose.x, pose.y]) + u * leg + rng.normal(0.0, spec.jitter_m, 2)
             heading = pose.heading_deg + rng.normal(0.0, spec.jitter_deg)
-            true_pose = emulator.pose_at(float(x), float(y), float(heading))
-            intensity = 1.0 + spec.lighting * rng.uniform(-1, 1)
-            az = rng.uniform(0, 2 * math.pi)
-            el = math.radians(35.0 + 20.0 * spec.lighting * rng.uniform(-1, 1))
-            direction = (math.cos(az) * math.cos(el), math.sin(az) * math.cos(el), -math.sin(el))
-            view = emulator.render(true_pose, light_intensity=intensity, light_direction=direction)
-            image = degrade(view.image, depth=view.depth, spec=spec, rng=rng)
-            frames.append(SensorFrame(len(frames), image, (float(x), float(y), float(heading)), "simulated"))
+            frames.append(_render_frame(emulator, len(frames), float(x), float(y), float(heading), spec, rng))
     log.info("simulated %d camera frames for scenario %s", len(frames), scenario.name)
     return frames
+
+
+def _render_frame(emulator, index: int, x: float, y: float, heading: float, spec: SimulateSpec,
+                  rng: np.random.Generator, time: float | None = None) -> SensorFrame:
+    """Render the camera at ``(x, y, heading)`` under drawn lighting and degrade it."""
+    true_pose = emulator.pose_at(x, y, heading)
+    intensity = 1.0 + spec.lighting * rng.uniform(-1, 1)
+    az = rng.uniform(0, 2 * math.pi)
+    el = math.radians(35.0 + 20.0 * spec.lighting * rng.uniform(-1, 1))
+    direction = (math.cos(az) * math.cos(el), math.sin(az) * math.cos(el), -math.sin(el))
+    view = emulator.render(true_pose, light_intensity=intensity, light_direction=direction)
+    image = degrade(view.image, depth=view.depth, spec=spec, rng=rng)
+    return SensorFrame(index, image, (x, y, heading), "simulated", time)

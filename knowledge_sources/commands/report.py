@@ -2,7 +2,8 @@
 
 Writes ``index.html`` (:mod:`knowledge_sources.html_report`: opens from disk; the results side by
 side, the map, the frames wrong-first, each frame's images with the landmark answers drawn),
-``positions.png`` (map, true and estimated positions), ``rankings.png``,
+``positions.png`` (map, true and estimated positions), ``track.png`` (the track over
+the map) and ``belief.png`` (the tracker's belief over the route against time), ``rankings.png``,
 ``queries.png`` (one series per results file, e.g. associative and prior on the same frames),
 ``frames/frame_NNN.png`` (camera frame beside the chosen viewframe and their edge images) for the
 first results file, and ``report.md`` linking them with the summary. On a georeferenced map it
@@ -39,7 +40,14 @@ def main(args: argparse.Namespace) -> int:
 
     from knowledge_sources.html_report import frame_order, write_html_report
     from knowledge_sources.replay import replay
-    from knowledge_sources.report import plot_frame, plot_positions, plot_queries, plot_rankings
+    from knowledge_sources.report import (
+        plot_belief,
+        plot_frame,
+        plot_positions,
+        plot_queries,
+        plot_rankings,
+        plot_track,
+    )
     from knowledge_sources.results import load_results
     from models.errors import InputError
     from models.scenario import load_scenario
@@ -77,7 +85,7 @@ def main(args: argparse.Namespace) -> int:
             plt.close(fig)
             return name
 
-        bar.update(task, description="plotting", total=3 + len(detailed), completed=0)
+        bar.update(task, description="plotting", total=5 + len(detailed), completed=0)
         written = [
             save(
                 plot_positions(
@@ -89,10 +97,22 @@ def main(args: argparse.Namespace) -> int:
                 ),
                 "positions.png",
             ),
+            save(
+                plot_track(
+                    main_run,
+                    terrain=env.terrain,
+                    landmarks=env.landmarks,
+                    route=scenario.route,
+                    poses=[v.pose for v in viewframes],
+                ),
+                "track.png",
+            ),
+            save(plot_belief(main_run), "belief.png"),
             save(plot_rankings(main_run), "rankings.png"),
             save(plot_queries(runs), "queries.png"),
         ]
-        bar.update(task, completed=3)
+        n_figures = len(written)
+        bar.update(task, completed=n_figures)
         written_geojson: list[str] = []
         if scenario.map_frame is not None:
             import json
@@ -120,7 +140,7 @@ def main(args: argparse.Namespace) -> int:
             runs,
             names,
             scene,
-            figures=written[:3],
+            figures=written[:n_figures],
             extra_links=[
                 (n, f"{n}: route, landmarks, true and estimated positions (lon/lat, opens in QGIS)")
                 for n in written_geojson

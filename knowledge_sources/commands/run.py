@@ -41,6 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--strategy", choices=["associative", "prior"], default=None,
                         help="scheduler strategy (default: the scenario's, normally associative)")
     parser.add_argument("--processes", action="store_true", help="run each agent in its own OS process")
+    parser.add_argument("--no-track", action="store_true",
+                        help="no tracker: every frame localized alone (default: the scenario's tracking.enabled, "
+                             "normally on)")
     parser.add_argument("--rate", type=bounded_number(0, MAX_RATE_HZ, "Hz"), default=None, metavar="HZ",
                         help="the camera posts frames at this rate, as a real one would (default: all at once)")
     parser.add_argument("--timeout", type=bounded_number(0, MAX_WAIT_S, "s"), default=None, metavar="SECONDS",
@@ -71,7 +74,10 @@ def render_summary(results: dict[str, Any]) -> Any:
     from rich.table import Table
 
     table = Table(title=f"{results['scenario']} — strategy {results['strategy']} ({results.get('mode', '')})")
-    for col in ("frame", "viewframe", "truth", "ok", "conf", "queries", "backtracks", "ms"):
+    tracked = bool(results.get("tracking"))
+    cols = ("frame", "viewframe", "truth", "ok", "conf", *(("single", "state") if tracked else ()),
+            "queries", "backtracks", "ms")
+    for col in cols:
         table.add_column(col, justify="right")
     for f in results["frames"]:
         ok = {True: "[green]yes[/]", False: "[red]no[/]", None: "-"}[f["correct"]]
@@ -81,6 +87,7 @@ def render_summary(results: dict[str, Any]) -> Any:
             "-" if f["truth_viewframe"] is None else str(f["truth_viewframe"]),
             ok,
             f"{f['confidence']:.2f}",
+            *((_single(f), f.get("state") or "-") if tracked else ()),
             str(f["queries"]),
             str(f["backtracks"]),
             "-" if f["latency_ms"] is None else f"{f['latency_ms']:.0f}",
@@ -91,7 +98,17 @@ def render_summary(results: dict[str, Any]) -> Any:
     table.caption = (f"frames {s['frames']}, localized {s['localized']}, top-1 {top1}, mean error {err}, "
                      f"mean queries {s['mean_queries']:.2f}, latency p50 {s['latency_ms_p50']:.0f} ms, "
                      f"{s.get('frames_per_s') or 0:.1f} frames/s")
+    if tracked and s.get("top1_frame_only") is not None:
+        table.caption += f"; tracked (single frame alone: top-1 {s['top1_frame_only']:.1%})"
     return table
+
+
+def _single(frame: dict[str, Any]) -> str:
+    """The single-frame decision of a tracked frame: its viewframe, marked when right."""
+    only = frame.get("frame_only") or {}
+    vf = only.get("viewframe")
+    mark = {True: "[green]", False: "[red]", None: ""}[only.get("correct")]
+    return "-" if vf is None else f"{mark}{vf}[/]" if mark else str(vf)
 
 
 def _print_remote(commands: dict[str, list[str]], wait_s: float) -> None:
@@ -162,7 +179,7 @@ def main(args: argparse.Namespace) -> int:
                               remote=args.remote, run_id=args.run_id, wait_remote_s=args.wait_remote,
                               secret=args.secret, auth=args.auth,
                               on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
-                              on_hypothesis=on_hypothesis)
+                              on_hypothesis=on_hypothesis, track=False if args.no_track else None)
         # still under the handlers: a second Ctrl-C while the results are written exits at once
         if args.out is not None:
             write_results(args.out, results)

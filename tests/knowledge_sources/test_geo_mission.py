@@ -84,14 +84,18 @@ def test_lonlat_geotiff_gives_the_npy_results(three):
     for fa, fc in zip(a["frames"], c["frames"]):
         lon, lat = to_ll.transform(X0 + fa["truth"][0], Y0 + fa["truth"][1])
         assert fc["truth_lonlat"] == pytest.approx([lon, lat], abs=1e-6)  # the same simulated poses
-        if not fa["correct"]:
+        # the single-frame decision is a viewframe's pose, the same on both maps; the track's
+        # continuous position depends on the rankings' variances, which the resampling changes a little
+        sa, sc = fa["frame_only"], fc["frame_only"]
+        if not sa["correct"]:
             continue
-        assert fc["viewframe"] == fa["viewframe"]
+        assert sc["viewframe"] == sa["viewframe"]
         # the same place on the Earth: lon/lat of the npy run's UTM position, within centimetres
-        lon, lat = to_ll.transform(X0 + fa["position"][0], Y0 + fa["position"][1])
-        assert fc["position_lonlat"] == pytest.approx([lon, lat], abs=1e-6)
-        assert fc["position_map"] == fc["position_lonlat"]
-        assert fc["error_m"] == pytest.approx(fa["error_m"], abs=0.05)
+        lon, lat = to_ll.transform(X0 + sa["position"][0], Y0 + sa["position"][1])
+        assert sc["position_lonlat"] == pytest.approx([lon, lat], abs=1e-6)
+        assert sc["position_map"] == sc["position_lonlat"]
+        assert sc["error_m"] == pytest.approx(sa["error_m"], abs=0.05)
+        assert fc["position_lonlat"] is not None and fc["position_map"] == fc["position_lonlat"]
 
 
 def test_report_writes_geojson_that_gdal_reads(three, tmp_path):

@@ -46,6 +46,9 @@ SAMPLES: list[levels.Message] = [
     levels.Pose(frame=4, position="pos-000004", viewframe=2, x=1.5, y=2.5, heading_deg=91.0, pitch_deg=0.5,
                 sigma_along_m=2.0, sigma_across_m=1.0, sigma_heading_deg=0.2, score=0.4, start_score=0.8, renders=40,
                 route_position=[1.0, 2.0], route_heading_deg=90.0),
+    levels.Track(frame=4, route_point=2, arc_m=81.5, position=[80.0, 3.0], heading_deg=0.0, confidence=0.7,
+                 state="tracking", evidence=True, belief=np.array([0.1, 0.2, 0.7], np.float32),
+                 prior_next=np.array([0.05, 0.15, 0.8], np.float32), loglik=np.zeros(9, np.float32), dt=None),
 ]
 
 

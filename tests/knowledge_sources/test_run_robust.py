@@ -29,8 +29,10 @@ pytest_plugins = ["pytester"]
 
 #: the small scenario made unlocalizable: a wall in every view, and detectors that answer
 #: "absent" to everything, so under the hard rule every candidate is discarded (the run itself
-#: is healthy; the soft default would keep the best candidate)
+#: is healthy; the soft default would keep the best candidate), and no tracker (its track, from
+#: the rankings alone, would localize every frame)
 NOTHING_LOCALIZED = {
+    "tracking": {"enabled": False},
     "scheduler": {"backtracking": "hard", "detector_threshold": 1.0, "absent_threshold": 1.0, "candidates": 8,
                   "min_pixels": 1, "query_timeout_s": 3.0},
     "landmarks": [{"id": "W1", "kind": "wall", "x": 700, "y": 560, "width": 300, "depth": 20, "height": 150,

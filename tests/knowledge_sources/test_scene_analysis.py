@@ -157,6 +157,26 @@ def test_every_question_counts_as_a_query_even_unanswered():
     assert sa.decision.queries == len(sa.decision.steps) >= 2
 
 
+def test_track_prior_conditions_candidates_and_questions():
+    # a flat ranking that prefers viewframe 0; the track says the vehicle is at 5 (or 4)
+    ranking = _ranking(0, sharp=False)
+    prior = {k: 0.01 for k in range(8)}
+    prior.update({4: 0.3, 5: 0.6})
+    blind = SceneAnalysis(ranking, VISIBLE, candidates=3, accept=0.6, reliability=0.8)
+    tracked = SceneAnalysis(ranking, VISIBLE, candidates=3, accept=0.6, reliability=0.8, track_prior=prior)
+    assert 5 in tracked.posterior() and 5 not in blind.posterior()
+    d_tracked, asked = _run(tracked, 5)
+    assert d_tracked.viewframe == 5
+    assert {q.landmark for q in asked} & {"H2", "H3"}  # questions about the tracked place
+    d_blind, _ = _run(blind, 5)
+    assert d_blind.viewframe != 5  # blind, the right place is not even a candidate
+
+
+def test_no_track_prior_is_the_blind_rule():
+    ranking = _ranking(2)
+    a = SceneAnalysis(ranking, VISIBLE, candidates=4)
+    b = SceneAnalysis(ranking, VISIBLE, candidates=4, track_prior=None)
+    assert a.posterior() == b.posterior()
 # -- hard backtracking is the seed paper's rule, exactly ------------------------------------------
 
 def _random_case(rng: np.random.Generator) -> tuple[list[tuple[int, float]], dict[int, set[str]], dict]:

@@ -173,3 +173,36 @@ def test_the_prior_strategy_asks_in_prior_order() -> None:
 def test_unknown_strategy() -> None:
     with pytest.raises(ValueError, match="strategy"):
         Scheduler("scheduler", strategy="guess")
+
+
+def _track(bb: MemoryBlackboard, frame: int, state: str, prior_next: list[float]) -> None:
+    import numpy as np
+
+    levels.post(bb.board("user"), levels.Track(
+        frame=frame, route_point=1, arc_m=10.0, position=[10.0, 0.0], heading_deg=0.0, confidence=0.9, state=state,
+        evidence=True, belief=np.asarray(prior_next, np.float32), prior_next=np.asarray(prior_next, np.float32),
+        loglik=None, dt=None))
+
+
+def test_tracked_frames_wait_for_the_previous_track_and_are_conditioned_on_it() -> None:
+    bb = _board(tracked=True, candidates=1)
+    _rank(bb, 1, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})  # blind, the one candidate would be 2
+    bb.run(timeouts=False)
+    assert _queries(bb) == []  # frame 1 waits for the track of frame 0
+    _track(bb, 0, "tracking", [0.01, 0.97, 0.01, 0.01])  # the track says: next at route point 1
+    bb.run(timeouts=False)
+    ((qid, q),) = _queries(bb)
+    assert q.viewframe == 1 and q.landmark == "T1"  # the one candidate is the tracked place, not the ranking's best
+    _answer(bb, q, qid, True)
+    bb.run()
+    p = levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0])
+    assert p.viewframe == 1 and p.track_prior
+
+
+def test_a_lost_track_releases_the_frame_blind() -> None:
+    bb = _board(tracked=True, candidates=1)
+    _track(bb, 0, "lost", [0.01, 0.97, 0.01, 0.01])
+    _rank(bb, 1, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})
+    bb.run(timeouts=False)
+    ((_, q),) = _queries(bb)
+    assert q.viewframe == 2  # the ranking's best: the lost track's prior is not used

@@ -155,3 +155,68 @@ def test_sensor_frames_from_files_with_truth(tmp_path):
     assert [f.index for f in frames] == [0, 1]
     assert frames[0].truth == (1.0, 2.0, 3.0) and frames[1].truth is None
     assert frames[1].image.shape == (120, 160, 3) and frames[1].image.mean() == 101
+
+
+# -- drives ------------------------------------------------------------------------------------
+
+from models.scenario import DriveSpec  # noqa: E402
+from models.sensor import drive_poses  # noqa: E402
+
+DRIVE_ROUTE = [(0.0, 0.0), (40.0, 0.0), (80.0, 10.0), (120.0, 40.0), (160.0, 40.0), (200.0, 60.0), (240.0, 60.0)]
+
+
+def _distance_to_route(x: float, y: float, route) -> float:
+    pts = np.asarray(route, float)
+    best = math.inf
+    for a, b in zip(pts, pts[1:]):
+        d = b - a
+        u = float(np.clip(np.dot([x, y] - a, d) / np.dot(d, d), 0, 1))
+        best = min(best, float(np.hypot(*(a + u * d - [x, y]))))
+    return best
+
+
+def test_drive_times_increase_and_poses_lie_between_route_points():
+    spec = DriveSpec(interval_s=1.0, speed_mps=(4.0, 12.0), p_stop=0.2, lateral_m=1.0, heading_deg=2.0)
+    poses = drive_poses(DRIVE_ROUTE, spec, rng=3)
+    times = [p.time for p in poses]
+    assert all(b > a for a, b in zip(times, times[1:]))
+    arcs = [p.arc_m for p in poses]
+    assert all(b >= a for a, b in zip(arcs, arcs[1:]))  # forward or stopped, never back
+    assert any(b == a for a, b in zip(arcs, arcs[1:]))  # with p_stop 0.2 it stops somewhere
+    steps = np.diff(arcs)
+    assert steps.max() <= 12.0 + 1e-9
+    # off the route by the lateral error only (4 sigma), and mostly between route points
+    assert max(_distance_to_route(p.x, p.y, DRIVE_ROUTE) for p in poses) < 4.0
+    nearest = [min(np.hypot(p.x - x, p.y - y) for x, y in DRIVE_ROUTE) for p in poses]
+    assert np.median(nearest) > 3.0
+    assert len(poses) > 20
+
+
+def test_drive_kidnapping_jumps_far():
+    spec = DriveSpec(interval_s=1.0, speed_mps=(5.0, 5.0), p_stop=0.0, kidnap_at=5, frames=12)
+    poses = drive_poses(DRIVE_ROUTE, spec, rng=1)
+    assert len(poses) == 12
+    assert [p.kidnapped for p in poses].index(True) == 5
+    total = 40 + math.hypot(40, 10) + math.hypot(40, 30) + 40 + math.hypot(40, 20) + 40
+    assert abs(poses[5].arc_m - poses[4].arc_m) >= 0.25 * total - 5.0 - 1e-6
+
+
+def test_drive_frames_are_rendered_with_their_times(tmp_path):
+    sc = _scenario(tmp_path, {"simulate": {"drive": {"interval_s": 0.5, "speed_mps": [20, 30], "p_stop": 0, "frames": 4}}})
+    with World(sc) as world:
+        frames = world.sensor_frames
+    assert [f.time for f in frames] == [0.0, 0.5, 1.0, 1.5]
+    assert all(f.image.shape == (120, 160, 3) for f in frames)
+    xs = [f.truth[0] for f in frames]
+    assert all(b > a for a, b in zip(xs, xs[1:]))  # this route heads east
+
+
+def test_frame_files_carry_times_in_order(tmp_path):
+    img = np.zeros((120, 160, 3), np.uint8)
+    for name in ("a.png", "b.png"):
+        cv2.imwrite(str(tmp_path / name), img)
+    sc = _scenario(tmp_path, {"frames": [{"image": "a.png", "time": 1.0}, {"image": "b.png", "time": 2.5}]})
+    assert [f.time for f in World(sc).sensor_frames] == [1.0, 2.5]
+    from models.errors import ScenarioError
+    with pytest.raises(ScenarioError, match=r"frames\[1\].time"):
+        _scenario(tmp_path, {"frames": [{"image": "a.png", "time": 3.0}, {"image": "b.png", "time": 2.5}]})

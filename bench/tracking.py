@@ -1,0 +1,319 @@
+"""Tracking benchmark: tracked against single-frame localization, side by side in one run.
+
+Drives: the cases of the evaluation set (bench/evalset: sweeps with a frame at every route
+point, drives with stops and gaps of several route points, drives with a kidnapping; camera
+frames from another renderer than the viewframes', at other sizes, with larger pose errors),
+split ``heldout`` (the default: for reporting, never used to choose a parameter) or ``tuning``;
+or ``--split sim``: simulated drives of the bundled terrains with bench/tracking_calibrate.py's
+tuning seeds. Each drive's frames are ranked by the real associative memory
+(bench/tracking_data.py), then
+
+* single-frame: the ranking's best route point per frame (the blind decision);
+* tracked: models.tracking.RouteFilter over the same rankings, online (and smoothed offline).
+
+Reported per drive and pooled: top-1 after a warm-up of 3 frames and within those 3 (a frame is
+right when its route point is the one nearest the true position), position error median and
+mean of the continuous estimate, frames to recover after a kidnapping (first frame from the jump
+on which the tracked route point is right again), the tracker's cost per frame on a route of
+10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
+tracker on one drive (``mapinterp run`` and ``--no-track``).
+
+    python bench/tracking.py [--split heldout|tuning|sim] [--runs] [--json-only]
+
+Prints JSON, then a table.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import os  # noqa: E402
+
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # BLAS on one thread: idle BLAS threads spinning skew the tracker's timing
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import math  # noqa: E402
+import pickle  # noqa: E402
+import platform  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from knowledge_sources.mission import run_mission  # noqa: E402  (before bench/ is on the path: bench/blackboard.py)
+from models.scenario import TrackingSpec, load_scenario  # noqa: E402
+from models.tracking import RouteFilter, smooth  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+WARM_UP = 3
+
+
+def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list[int]:
+    """Frames whose true route point jumped from the previous frame's by more than the motion
+    model allows (backwards by more than one point, or forwards by more than ``max_skip + 1``)."""
+    out = []
+    for t in range(1, len(true_point)):
+        d = int(true_point[t]) - int(true_point[t - 1])
+        if d < -1 or d > max_skip + 1:
+            out.append(t)
+    return out
+
+
+def track_drive(d: dict, spec: TrackingSpec) -> dict:
+    """Run the online filter (and the smoother) over one ranked drive; per-frame results."""
+    f = RouteFilter(d["route"], spec=spec)
+    n = len(d["route"])
+    times = d["times"]
+    logliks, dts, online, costs = [], [], [], []
+    for t, v in enumerate(d["variances"]):
+        dt = None
+        if t > 0 and np.isfinite(times[t]) and np.isfinite(times[t - 1]):
+            dt = float(times[t] - times[t - 1])
+        t0 = time.perf_counter()
+        ll = f.route_loglik(np.arange(n), v)
+        online.append(f.step(ll, dt=dt))
+        costs.append((time.perf_counter() - t0) * 1e3)
+        logliks.append(ll)
+        dts.append(dt)
+    smoothed = smooth(d["route"], logliks, spec=spec, dts=dts)
+    return {"online": online, "smoothed": smoothed, "cost_ms": costs}
+
+
+def score(d: dict, tracked: dict, spec: TrackingSpec) -> dict:
+    truth, tp = d["truth"], d["true_point"]
+    single = np.array([int(np.nanargmin(v)) for v in d["variances"]])
+    out: dict = {"name": d["name"], "frames": int(len(tp))}
+    for mode, ests in (("tracked", tracked["online"]), ("smoothed", tracked["smoothed"])):
+        pts = np.array([e.route_point for e in ests])
+        err = np.array([math.hypot(e.x - x, e.y - y) for e, (x, y, _) in zip(ests, truth)])
+        right = pts == tp
+        out[mode] = {"right": right.tolist(), "error_m": err.tolist(), "lost": [e.state == "lost" for e in ests]}
+    out["single"] = {
+        "right": (single == tp).tolist(),
+        "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)],
+    }
+    kid = d["kidnaps"] if d.get("kidnaps") is not None else kidnap_frames_from_truth(tp, max_skip=spec.max_skip_points)
+    rec = []
+    for k in kid:
+        right = out["tracked"]["right"][k:]
+        rec.append(next((i for i, r in enumerate(right) if r), None))
+    out["kidnaps"] = kid
+    out["recover_frames"] = rec
+    out["cost_ms"] = tracked["cost_ms"]
+    return out
+
+
+def pooled(results: list[dict]) -> dict:
+    def frac(mode: str, sel) -> float | None:
+        vals = [r for res in results for t, r in enumerate(res[mode]["right"]) if sel(res, t)]
+        return float(np.mean(vals)) if vals else None
+
+    def after(res, t):
+        return t >= WARM_UP
+
+    def within(res, t):
+        return t < WARM_UP
+
+    def after_no_kidnap(res, t):
+        return t >= WARM_UP and not any(k <= t < k + 5 for k in res["kidnaps"])
+
+    out = {}
+    for mode in ("single", "tracked", "smoothed"):
+        errs = [e for res in results for t, e in enumerate(res[mode]["error_m"]) if t >= WARM_UP]
+        out[mode] = {
+            "top1_after_warmup": frac(mode, after),
+            "top1_within_warmup": frac(mode, within),
+            "top1_after_warmup_outside_kidnaps": frac(mode, after_no_kidnap),
+            "error_m_median": float(np.median(errs)) if errs else None,
+            "error_m_mean": float(np.mean(errs)) if errs else None,
+        }
+    rec = [r for res in results for r in res["recover_frames"]]
+    out["recover_frames"] = rec
+    out["recover_frames_max"] = None if not rec or None in rec else int(max(rec))
+    return out
+
+
+def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
+    """Median cost of one online step (prediction, likelihood from a ranking, update, estimate)
+    on a straight route of 10,000 cells, 40 m between route points: wall time, and the CPU time of
+    this thread (on a loaded machine the wall time includes waiting for a core)."""
+    points = int(10_000 * spec.cell_m / 40.0) + 1
+    route = np.c_[np.arange(points) * 40.0, np.zeros(points)]
+    f = RouteFilter(route, spec=spec)
+    rng = np.random.default_rng(0)
+    variances = [rng.random(points) for _ in range(8)]
+    viewframes = np.arange(points)
+    f.step(f.route_loglik(viewframes, variances[0]))
+    per: dict[str, list[float]] = {"step_ms": [], "predict_ms": [], "step_cpu_ms": []}
+    for i in range(repeats):
+        t0, c0 = time.perf_counter(), time.thread_time()
+        f.step(f.route_loglik(viewframes, variances[i % 8]), dt=None)
+        per["step_ms"].append((time.perf_counter() - t0) * 1e3)
+        per["step_cpu_ms"].append((time.thread_time() - c0) * 1e3)
+        t0 = time.perf_counter()
+        f.motion.predict(f.belief, None)
+        per["predict_ms"].append((time.perf_counter() - t0) * 1e3)
+    return {"cells": f.grid.cells, "route_points": points, **{k + "_p50": float(np.median(v)) for k, v in per.items()}}
+
+
+def whole_runs(path: Path) -> dict:
+    """frames/s of one drive through the blackboard with and without the tracker (same run of this script)."""
+    out = {}
+    for label, track in (("tracking", True), ("no_track", False)):
+        res = run_mission(path, track=track)
+        s = res["summary"]
+        out[label] = {
+            "frames_per_s": s.get("frames_per_s"),
+            "top1": s.get("top1"),
+            "top1_frame_only": s.get("top1_frame_only"),
+            "mean_queries": s.get("mean_queries"),
+        }
+    return out
+
+
+def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, Path]], str]:
+    """Ranked drives of a split: ``(drive, tracking spec, scenario path)`` each, and a label."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from tracking_data import ranked_drive
+
+    out = []
+    if split == "sim":
+        from tracking_calibrate import TUNING_DRIVE, TUNING_SEEDS
+        from tracking_data import with_drive
+
+        for name in ("hills", "jacksboro", "contours"):
+            for seed in TUNING_SEEDS:
+                sc = with_drive(
+                    load_scenario(ROOT / "scenarios" / f"{name}.yaml"),
+                    TUNING_DRIVE,
+                    seed=seed,
+                    path=tmp / f"{name}-{seed}.yaml",
+                )
+                d = ranked_drive(sc)
+                d["kind"] = "sim-drive"
+                out.append((d, sc.tracking, sc.path))
+                print(f"{d['name']}: {len(d['true_point'])} frames", file=sys.stderr)
+        return out, f"simulated TUNING drives (seeds {list(TUNING_SEEDS)}), not held out"
+    from bench.evalset import cases
+
+    for case in cases(split):
+        sc = load_scenario(case.scenario_path)
+        d = ranked_drive(sc)
+        d["name"] = case.name
+        d["kind"] = case.kind
+        d["times"] = np.array([f.time_s for f in case.frames], float)
+        d["kidnaps"] = [f.index for f in case.frames if f.event == "kidnap"]
+        out.append((d, sc.tracking, case.scenario_path))
+        print(f"{case.name}: {len(d['true_point'])} frames", file=sys.stderr)
+    return out, f"evaluation set, split {split}" + (
+        " (held out: never used to choose a parameter)" if split == "heldout" else " (parameters may be chosen here)"
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument(
+        "--split",
+        choices=["heldout", "tuning", "sim"],
+        default="heldout",
+        help="evaluation-set split, or simulated tuning drives (default heldout)",
+    )
+    ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
+    ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
+    ap.add_argument("--cache", type=Path, help="keep the ranked drives here (pickle) and reuse them")
+    ap.add_argument("--json-only", action="store_true")
+    args = ap.parse_args()
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+    spec = TrackingSpec()
+    started = time.time()
+    load = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.cache is not None and args.cache.is_file():
+            ranked, what = pickle.loads(args.cache.read_bytes())
+        else:
+            ranked, what = ranked_cases(args.split, Path(tmp))
+            if args.cache is not None:
+                args.cache.write_bytes(pickle.dumps((ranked, what)))
+        results = []
+        for d, _, path in ranked:
+            tracking = load_scenario(path).tracking  # not the cached one: the defaults may have changed since
+            if args.no_times:
+                d["times"] = np.full(len(d["true_point"]), np.nan)
+            r = score(d, track_drive(d, tracking), tracking)
+            r["kind"] = d["kind"]
+            results.append(r)
+        runs = whole_runs(ranked[0][2]) if args.runs else None
+    out = {
+        "data": what,
+        "machine": platform.platform(),
+        "load_avg_start": load,
+        "load_avg_end": os.getloadavg()[0],
+        "started": started,
+        "times_used": not args.no_times,
+        "warm_up": WARM_UP,
+        "pooled": pooled(results),
+        "cost_10000_cells": cost_10000(spec),
+        "whole_runs": runs,
+        "drives": [
+            {
+                "name": r["name"],
+                "frames": r["frames"],
+                "kidnaps": r["kidnaps"],
+                "recover_frames": r["recover_frames"],
+                **{m: pooled([r])[m] for m in ("single", "tracked", "smoothed")},
+            }
+            for r in results
+        ],
+    }
+    out["pooled_by_kind"] = {
+        k: pooled([r for r in results if r["kind"] == k]) for k in sorted({r["kind"] for r in results})
+    }
+    print(json.dumps(out, indent=1))
+    if args.json_only:
+        return
+    print()
+    print(
+        f"data: {what}; {sum(r['frames'] for r in results)} frames in {len(results)} drives; "
+        f"load {load:.1f} -> {out['load_avg_end']:.1f}"
+    )
+
+    def pct(x):
+        return "" if x is None else f"{100 * x:.1f}%"
+
+    def m(x):
+        return "" if x is None else f"{x:.1f}"
+
+    print(f"{'drive':<22} {'mode':<9} {'top1>3':>7} {'top1<3':>7} {'med m':>6} {'mean m':>7} {'recover':>8}")
+    by_kind = out["pooled_by_kind"]
+    rows = [*out["drives"], *({"name": f"ALL {k}", **v} for k, v in by_kind.items()), {"name": "ALL", **out["pooled"]}]
+    for r in rows:
+        for mode in ("single", "tracked", "smoothed"):
+            p = r[mode]
+            if p["top1_after_warmup"] is None and p["top1_within_warmup"] is None:
+                continue
+            rec = ",".join("-" if x is None else str(x) for x in r["recover_frames"]) if mode == "tracked" else ""
+            print(
+                f"{r['name'][:22]:<22} {mode:<9} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
+                f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}"
+            )
+    c = out["cost_10000_cells"]
+    print(
+        f"tracker cost, {c['cells']} cells: step p50 {c['step_ms_p50']:.3f} ms wall, {c['step_cpu_ms_p50']:.3f} ms CPU; "
+        f"prediction p50 {c['predict_ms_p50']:.3f} ms"
+    )
+    if runs:
+        for k, v in runs.items():
+            print(
+                f"whole run ({k}): {v['frames_per_s']:.1f} frames/s, top-1 {pct(v['top1'])}, "
+                f"frame-only {pct(v['top1_frame_only'])}"
+            )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,195 @@
+"""The route filter on synthetic rankings: the variances a ranking would give for a known path."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from models.scenario import TrackingSpec
+from models.tracking import MotionModel, RouteFilter, RouteGrid, ranking_scores, smooth
+
+SPACING = 40.0
+
+
+def _route(n: int = 30) -> np.ndarray:
+    """An L-shaped route: east, then north, 40 m between points."""
+    east = [(i * SPACING, 0.0) for i in range(n // 2)]
+    north = [(east[-1][0], (j + 1) * SPACING) for j in range(n - n // 2)]
+    return np.array(east + north)
+
+
+def _variances(true_s: float, grid: RouteGrid, rng: np.random.Generator, *, wrong: int | None = None) -> np.ndarray:
+    """Variances of a ranking for a camera at arc ``true_s``: low near it, noisy elsewhere; with
+    ``wrong``, a confident wrong best at that route point (the true one still low-ish)."""
+    d = np.abs(grid.arc - true_s) / SPACING
+    v = 1.0 + 0.3 * rng.standard_normal(grid.points) * 0.3 - 0.8 * np.exp(-(d**2))
+    if wrong is not None:
+        v[wrong] = v.min() - 0.3
+    return v
+
+
+def _true_point(grid: RouteGrid, s: float) -> int:
+    """The route point nearest the true position at arc ``s`` (the results' criterion)."""
+    return int(grid.region[int(np.clip(s / grid.cell_m, 0, grid.cells - 1))])
+
+
+def _loglik(f: RouteFilter, v: np.ndarray) -> np.ndarray:
+    return f.route_loglik(np.arange(v.size), v)
+
+
+def test_grid_cells_between_route_points():
+    grid = RouteGrid.build(_route(), cell_m=2.0, tail=0.5)
+    assert grid.cells == pytest.approx((grid.arc[-1] + 20.0) / 2.0, abs=1)
+    # a cell in the middle of the first leg lies between points 0 and 1, halfway, at y = 0
+    c = int(np.argmin(np.abs(grid.centres - 20.0)))
+    assert (grid.lo[c], grid.hi[c]) == (0, 1) and grid.frac[c] == pytest.approx(0.5, abs=0.05)
+    assert grid.xy[c, 1] == 0.0 and grid.heading_deg[c] == 0.0
+    # on the northward leg the heading is 90 degrees
+    assert grid.heading_deg[-1] == pytest.approx(90.0)
+    assert grid.region[c] in (0, 1)
+
+
+def test_known_path_is_recovered():
+    rng = np.random.default_rng(1)
+    f = RouteFilter(_route(), spec=TrackingSpec())
+    true_s = 5.0
+    errors, points = [], []
+    for _ in range(25):
+        true_s += rng.uniform(10.0, 45.0)
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng)))
+        errors.append(abs(est.arc_m - true_s))
+        points.append(est.route_point == _true_point(f.grid, true_s))
+    assert np.median(errors[3:]) < 10.0
+    assert np.mean(points[3:]) >= 0.9
+    assert est.state == "tracking"
+
+
+def test_a_confidently_wrong_frame_does_not_break_the_track():
+    rng = np.random.default_rng(2)
+    spec = TrackingSpec()
+    f = RouteFilter(_route(), spec=spec)
+    true_s, ok = 0.0, []
+    for t in range(20):
+        true_s += 30.0
+        wrong = 25 if t == 8 else None  # a frame whose best is 10 points away
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng, wrong=wrong)))
+        if t >= 3:
+            ok.append(abs(est.arc_m - true_s) < SPACING)
+    assert all(ok)
+
+
+def test_kidnapping_is_recovered():
+    rng = np.random.default_rng(3)
+    f = RouteFilter(_route(40), spec=TrackingSpec())
+    true_s = 0.0
+    for _ in range(10):
+        true_s += 30.0
+        f.step(_loglik(f, _variances(true_s, f.grid, rng)))
+    assert abs(f.step(_loglik(f, _variances(true_s + 30, f.grid, rng))).arc_m - (true_s + 30)) < 20
+    true_s = 1200.0  # the jump: 900 m further on, far beyond the motion model's reach
+    recovered = None
+    for t in range(10):
+        true_s += 30.0
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng)))
+        if recovered is None and abs(est.arc_m - true_s) < SPACING / 2:
+            recovered = t + 1
+    assert recovered is not None and recovered <= 5
+
+
+def test_a_stop_holds_the_position():
+    rng = np.random.default_rng(4)
+    f = RouteFilter(_route(), spec=TrackingSpec())
+    true_s = 200.0
+    for _ in range(6):
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng)), dt=1.0)
+    for _ in range(10):  # stopped: the same place, frame after frame; no drift accumulates
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng)), dt=1.0)
+        assert est.route_point == 5  # 200 m is route point 5
+        assert abs(est.arc_m - true_s) < SPACING / 2  # the forward-only prior pulls ahead a little
+        assert est.state == "tracking"
+
+
+def test_a_frame_without_evidence_keeps_the_belief():
+    rng = np.random.default_rng(5)
+    spec = TrackingSpec()
+    f = RouteFilter(_route(), spec=spec)
+    true_s = 0.0
+    for _ in range(6):
+        true_s += 30.0
+        f.step(_loglik(f, _variances(true_s, f.grid, rng)), dt=1.0)
+    before = f.belief.copy()
+    predicted = f.motion.predict(before, 1.0)
+    est = f.step(None, dt=1.0)
+    assert not est.evidence
+    np.testing.assert_allclose(f.belief, predicted)  # propagated only
+    # the mass moved forward, not sideways: the mean arc length advances by less than the reach
+    mean_before = float(before @ f.grid.centres)
+    mean_after = float(f.belief @ f.grid.centres)
+    assert 0.0 < mean_after - mean_before < f.motion.reach_m(1.0)
+
+
+def test_smoothing_fixes_the_warm_up_and_is_no_worse():
+    rng = np.random.default_rng(6)
+    spec = TrackingSpec()
+    route = _route()
+    f = RouteFilter(route, spec=spec)
+    truth, lls = [], []
+    s = 10.0
+    for t in range(20):
+        s += rng.uniform(20.0, 40.0)
+        truth.append(s)
+        wrong = 20 if t == 0 else None  # a confidently wrong first frame, far away
+        lls.append(_loglik(f, _variances(s, f.grid, rng, wrong=wrong)))
+    online = [f.step(ll) for ll in lls]
+    smoothed = smooth(route, lls, spec=spec)
+    err_on = np.array([abs(e.arc_m - s) for e, s in zip(online, truth)])
+    err_sm = np.array([abs(e.arc_m - s) for e, s in zip(smoothed, truth)])
+    assert err_sm[0] < SPACING / 2
+    assert err_sm.mean() <= err_on.mean() + 1.0
+
+
+def test_adjoint_is_the_transpose_of_predict():
+    grid = RouteGrid.build(_route(8), cell_m=5.0)
+    spec = TrackingSpec()
+    motion = MotionModel.from_spec(spec, grid)
+    n = grid.cells
+    eye = np.eye(n)
+    for dt in (None, 0.5):
+        P = np.stack([motion.predict(eye[j], dt) for j in range(n)], axis=1)  # column j: from cell j
+        g = np.random.default_rng(0).random(n)
+        np.testing.assert_allclose(motion.adjoint(g, dt), P.T @ g, rtol=1e-9, atol=1e-12)
+
+
+def test_low_margin_rankings_are_trusted_less():
+    spec = TrackingSpec(margin_scale=2.0)
+    f = RouteFilter(_route(), spec=spec)
+    v = np.linspace(1.0, 2.0, f.grid.points)
+    sharp = v.copy()
+    sharp[10] = 0.0
+    ambiguous = sharp.copy()
+    ambiguous[25] = 0.01  # a far-away competitor as good as the best
+    _, m_sharp = ranking_scores(sharp)
+    _, m_amb = ranking_scores(ambiguous)
+    assert m_amb < m_sharp
+    assert f.observation.floor(m_amb) > f.observation.floor(m_sharp)
+
+
+def test_cost_per_frame_for_10000_cells():
+    spec = TrackingSpec()
+    points = int(10_000 * spec.cell_m / SPACING) + 1
+    route = np.c_[np.arange(points) * SPACING, np.zeros(points)]
+    f = RouteFilter(route, spec=spec)
+    assert 9_500 <= f.grid.cells <= 10_500
+    rng = np.random.default_rng(7)
+    lls = [f.route_loglik(np.arange(points), rng.random(points)) for _ in range(5)]
+    f.step(lls[0])
+    t0 = time.thread_time()  # CPU time of this thread: waiting for a core on a loaded machine not counted
+    for i in range(50):
+        f.step(lls[i % 5], dt=None)
+    per_frame_ms = (time.thread_time() - t0) / 50 * 1e3
+    # the goal is 1 ms (bench/tracking.py measures it); here a loose bound
+    assert per_frame_ms < 10.0, per_frame_ms
+    assert math.isfinite(f.belief.sum())
