@@ -35,14 +35,15 @@ def test_skyline_rankings_are_fused_and_positions_refined(small_data, tmp_path, 
         assert f"rk-{frame:06d}-skyline" in p["links"] and f"rk-{frame:06d}-0" in p["links"]
     # one pose per localized frame, linked to its position and its camera frame
     poses = [r for r in posts if r.get("level") == "pose"]
-    localized = [f for f in results["frames"] if f["viewframe"] is not None]
+    # the refinement is the single-frame decision's (frame_only; the track is the final answer)
+    localized = [f for f in results["frames"] if f["frame_only"]["viewframe"] is not None]
     assert len(poses) == len(localized) > 0
     for r in poses:
         frame = int(r["id"].split("-")[1])
         assert r["links"][:2] == [f"pos-{frame:06d}", f"sf-{frame:06d}"]
     for f in localized:
         assert f["pose"] is not None and f["route_position"] is not None and f["pose"]["renders"] > 10
-        assert math.dist(f["position"], f["route_position"]) < 25
+        assert math.dist(f["frame_only"]["position"], f["route_position"]) < 25
     # the small scenario's frames are close to their route points: refinement keeps them close
     assert results["summary"]["median_error_m"] < 6.0
     assert results["summary"]["median_heading_error_deg"] < 1.5
@@ -58,8 +59,9 @@ def test_disabled_skyline_and_refiner_leave_todays_pipeline(small_data, tmp_path
     results = run_mission(path)
     for f in results["frames"]:
         assert f["pose"] is None
-        if f["viewframe"] is not None:
-            assert f["position"] == pytest.approx(small_data["route"][f["viewframe"]])
+        only = f["frame_only"]  # the single-frame decision: its route point's position, unrefined
+        if only["viewframe"] is not None:
+            assert only["position"] == pytest.approx(small_data["route"][only["viewframe"]])
 
 
 def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_path):
