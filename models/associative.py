@@ -108,8 +108,9 @@ SHIFT_SEARCH_TOP = 32
 PRESELECT_SIGMA = 8.0
 
 _MAD_TO_STD = 1.4826
-#: dtype a bank keeps its memory spectrum rfft2(M) in (``bench/scale.py`` measures complex64)
-SPECTRUM_DTYPE = np.complex128
+#: dtype a bank keeps its memory spectrum rfft2(M) in: complex64 ranks as complex128 does
+#: (``bench/coarse.py``; BENCHMARKS.md "Scale") at half the bytes
+SPECTRUM_DTYPE = np.complex64
 
 
 @lru_cache(maxsize=8)
