@@ -13,8 +13,9 @@ fields) and, per array field of :class:`~models.viewframes.Viewframe`, one ``<fi
 stacking that field of every viewframe (shape (V, ...), loaded memory-mapped copy-on-write, so
 only the pages read are resident and writes stay private). Fields are serialised generically
 from the dataclass: arrays as ``.npy``, dataclasses by their fields, objects with
-``to_dict``/``from_dict`` through those, plain values as JSON; a field added to ``Viewframe``
-later is stored without changes here. An entry is written to a temporary folder next to its
+``to_dict``/``from_dict`` through those, plain values as JSON; an optional array field (None
+for some viewframes, such as ``background``) is stacked with its absent rows marked; a field
+added to ``Viewframe`` later is stored without changes here. An entry is written to a temporary folder next to its
 place and renamed into place in one step: concurrent runs never see a partial entry, and when
 two write the same entry at once, one rename wins and the other run's copy is dropped.
 
@@ -51,7 +52,7 @@ RENDERER_MODULES = ("camera_emulator", "environment", "landmarks", "symbolic", "
 #: the environment variable naming the cache folder (``off`` disables the cache)
 CACHE_ENV = "MAPINTERP_CACHE"
 _OFF = {"off", "0", "no", "false", "none"}
-_FORMAT = 1
+_FORMAT = 2
 
 
 def default_cache_root() -> Path | None:
@@ -199,7 +200,8 @@ class ViewframeCache:
             stacked = np.load(folder / f"{name}.npy", mmap_mode="c", allow_pickle=False)
             if stacked.shape[0] != n:
                 raise ValueError(f"{name}.npy holds {stacked.shape[0]} viewframes, expected {n}")
-            columns[name] = [np.asarray(stacked[i]) for i in range(n)]
+            absent = meta.get("absent", {}).get(name) or [False] * n
+            columns[name] = [None if absent[i] else np.asarray(stacked[i]) for i in range(n)]
         for name in meta["ragged"]:
             columns[name] = [None if not ok else np.load(folder / f"{name}.{i}.npy", allow_pickle=False)
                              for i, ok in enumerate(meta["ragged"][name])]
@@ -233,16 +235,24 @@ class ViewframeCache:
         return final
 
     def _write(self, folder: Path, viewframes: Sequence[Viewframe]) -> None:
-        meta: dict[str, Any] = {"format": _FORMAT, "count": len(viewframes), "arrays": [], "ragged": {}, "values": {}}
+        meta: dict[str, Any] = {"format": _FORMAT, "count": len(viewframes), "arrays": [], "absent": {}, "ragged": {},
+                                "values": {}}
         for f in dataclasses.fields(Viewframe):
             values = [getattr(vf, f.name) for vf in viewframes]
             arrays = [v for v in values if isinstance(v, np.ndarray)]
-            if values and len(arrays) == len(values):
-                if len({(a.shape, a.dtype.str) for a in arrays}) == 1:
-                    np.save(folder / f"{f.name}.npy", np.stack(arrays), allow_pickle=False)
-                    meta["arrays"].append(f.name)
-                    continue
-            if arrays:  # arrays of several shapes, or some None
+            alike = len({(a.shape, a.dtype.str) for a in arrays}) == 1
+            if arrays and alike and all(isinstance(v, np.ndarray) or v is None for v in values):
+                # one stacked file; an optional field's None rows are zeros, marked absent
+                stacked = np.zeros((len(values), *arrays[0].shape), dtype=arrays[0].dtype)
+                for i, v in enumerate(values):
+                    if v is not None:
+                        stacked[i] = v
+                np.save(folder / f"{f.name}.npy", stacked, allow_pickle=False)
+                meta["arrays"].append(f.name)
+                if len(arrays) < len(values):
+                    meta["absent"][f.name] = [v is None for v in values]
+                continue
+            if arrays:  # arrays of several shapes
                 meta["ragged"][f.name] = [isinstance(v, np.ndarray) for v in values]
                 for i, v in enumerate(values):
                     if isinstance(v, np.ndarray):

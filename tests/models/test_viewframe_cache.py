@@ -43,6 +43,13 @@ def _same(a, b):
         np.testing.assert_array_equal(x.mask, y.mask)
         assert x.image.dtype == y.image.dtype and x.mask.dtype == y.mask.dtype
         assert x.description == y.description
+        for name in vars(x):  # every other field too, e.g. optional arrays added later
+            a, b = getattr(x, name), getattr(y, name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                assert a is not None and b is not None, name
+                np.testing.assert_array_equal(a, b)
+            elif name not in ("description", "pose"):
+                assert a == b, name
 
 
 def test_a_second_world_reads_the_viewframes_without_rendering(tmp_path):
@@ -75,6 +82,22 @@ def test_any_change_of_the_map_is_a_miss(change):
     with World(base, cache=None) as a, World(changed, cache=None) as b:
         assert cache_key(base, a.environment.terrain) == cache_key(scenario_from_dict(_data()), a.environment.terrain)
         assert cache_key(base, a.environment.terrain) != cache_key(changed, b.environment.terrain)
+
+
+def test_optional_array_fields_round_trip(tmp_path):
+    import dataclasses
+
+    rendered = World(scenario_from_dict(_data()), cache=None).viewframes
+    optional = [f.name for f in dataclasses.fields(rendered[0]) if f.default is None]
+    if not optional:
+        pytest.skip("Viewframe has no optional field")
+    name = optional[0]
+    mixed = [dataclasses.replace(vf, **{name: None if i % 2 else vf.image.copy()}) for i, vf in enumerate(rendered)]
+    cache = ViewframeCache(tmp_path)
+    cache.store("k" * 64, mixed)
+    back = cache.load("k" * 64)
+    assert [getattr(vf, name) is None for vf in back] == [i % 2 == 1 for i in range(len(mixed))]
+    _same(mixed, back)
 
 
 def test_a_new_renderer_version_is_a_miss(tmp_path, monkeypatch):
