@@ -7,6 +7,11 @@ The truth is the route point nearest the frame's true position (as ``mapinterp r
 top-1). Prints JSON, then a table.
 
     python bench/coarse.py [--size 500] [--frames 60] [--json-only]
+    python bench/coarse.py --evalset heldout     # the held-out sweeps of bench/evalset instead
+
+With ``--evalset SPLIT`` it runs on the sweeps of ``bench.evalset`` (other terrains, camera
+frames from another renderer, other sizes, larger pose errors), one route per terrain; the
+truth is the frame's ``route_index``.
 """
 
 from __future__ import annotations
@@ -30,12 +35,65 @@ import numpy as np  # noqa: E402
 KS = (10, 25, 50, 100, 200)
 
 
+def evalset(split: str, ks: tuple[int, ...] = (1, 3, 5, 10)) -> dict:
+    """Coarse recall on the sweeps of ``bench.evalset`` (see the module docstring)."""
+    import cv2
+
+    from bench.evalset import cases
+    from models.coarse import CoarseIndex
+    from models.index import ViewframeIndex
+    from models.world import World
+
+    out: dict = {"split": split, "ks": list(ks), "cases": {}}
+    total = {"frames": 0, "full_top1": 0, **{f"truth@{k}": 0 for k in ks}, **{f"best@{k}": 0 for k in ks}}
+    for case in cases(split, kinds=["sweep"]):
+        with World.from_scenario(case.scenario_path) as world:
+            viewframes = world.viewframes
+            memory = world.scenario.memory
+        images, ids = [vf.image for vf in viewframes], [vf.index for vf in viewframes]
+        full, coarse = ViewframeIndex(memory), CoarseIndex()
+        full.add(images, ids)
+        coarse.add(images, ids)
+        row = {"viewframes": len(ids), "frames": 0, "full_top1": 0, **{f"truth@{k}": 0 for k in ks},
+               **{f"best@{k}": 0 for k in ks}}
+        for f in case.frames:
+            image = cv2.cvtColor(cv2.imread(str(f.image)), cv2.COLOR_BGR2RGB)
+            best = full.rank(image).best
+            cand = coarse.candidates(image, k=max(ks)).tolist()
+            row["frames"] += 1
+            row["full_top1"] += best == f.route_index
+            for k in ks:
+                row[f"truth@{k}"] += f.route_index in cand[:k]
+                row[f"best@{k}"] += best in cand[:k]
+        out["cases"][case.name] = row
+        for key in total:
+            total[key] += row[key]
+    out["total"] = total
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=500, help="route length (viewframes)")
     parser.add_argument("--frames", type=int, default=60, help="simulated camera frames")
+    parser.add_argument("--evalset", default=None, metavar="SPLIT", help="the sweeps of bench.evalset instead")
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
+    if args.evalset:
+        load0 = os.getloadavg()
+        res = evalset(args.evalset)
+        res["load_avg"] = [load0, os.getloadavg()]
+        print(json.dumps(res, indent=1))
+        if not args.json_only:
+            ks = res["ks"]
+            print(f"\n{'case':<28} {'vf':>4} {'frames':>6} {'full top-1':>10} "
+                  + " ".join(f"{'truth@' + str(k):>9}" for k in ks) + " " + " ".join(f"{'best@' + str(k):>8}" for k in ks))
+            for name, r in [*res["cases"].items(), ("total", res["total"])]:
+                n = r["frames"]
+                print(f"{name:<28} {r.get('viewframes', ''):>4} {n:>6} {r['full_top1'] / n:>10.1%} "
+                      + " ".join(f"{r['truth@' + str(k)] / n:>9.1%}" for k in ks) + " "
+                      + " ".join(f"{r['best@' + str(k)] / n:>8.1%}" for k in ks))
+        return 0
     from models.coarse import CoarseIndex
     from models.index import ViewframeIndex
     from models.world import World
