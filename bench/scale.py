@@ -79,12 +79,12 @@ def components(path: Path, cache_dir: Path) -> dict:
     r0 = rss_mb()
     world = World.from_scenario(path, cache=None)
     t0 = time.perf_counter()
-    world.environment
+    _ = world.environment
     r1 = rss_mb()
-    world.emulator
+    _ = world.emulator
     r2 = rss_mb()
     viewframes = world.viewframes
-    world.priors
+    _ = world.priors
     render_s = time.perf_counter() - t0
     r3 = rss_mb()
     n = len(viewframes)

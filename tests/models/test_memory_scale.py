@@ -47,7 +47,7 @@ def test_resident_memory_per_viewframe_is_bounded():
         "memory": {"size": 32},
     })
     world = World(scenario, cache=None)
-    world.environment, world.emulator, world.poses  # the fixed costs: terrain, meshes, renderer
+    _ = world.environment, world.emulator, world.poses  # the fixed costs: terrain, meshes, renderer
     world.emulator.render(world.poses[0])
     gc.collect()
     before = _rss_kb()

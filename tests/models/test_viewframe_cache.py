@@ -103,11 +103,11 @@ def test_optional_array_fields_round_trip(tmp_path):
 def test_a_new_renderer_version_is_a_miss(tmp_path, monkeypatch):
     cache = ViewframeCache(tmp_path)
     scenario = scenario_from_dict(_data())
-    World(scenario, cache=cache).viewframes
+    _ = World(scenario, cache=cache).viewframes
     assert World(scenario, cache=cache).viewframes and cache.hits == 1
     monkeypatch.setattr(viewframe_cache, "RENDERER_VERSION", viewframe_cache.RENDERER_VERSION + 1)
     with World(scenario, cache=cache) as world:
-        world.viewframes
+        _ = world.viewframes
         assert world._emulator is not None and cache.hits == 1 and cache.misses == 2
     assert len(list(tmp_path.iterdir())) == 2
 
