@@ -111,7 +111,7 @@ class BlackboardNode:
         self.run_budget_bytes = RUN_BUDGET_BYTES
         self._trace = RunTrace(trace_path)
         self.stats = self._trace.stats
-        self._store = Store()
+        self._store = Store(encode=self._message)
         self._barrier = Barrier()
         self._members = Membership()
         self.agents: dict[str, AgentState] = self._members.agents
@@ -334,6 +334,10 @@ class BlackboardNode:
         self._trace.reject(str(sample.key_expr), "forged node message: only the node speaks on this key "
                                                  "(agents ignore it)", size=len(sample.payload))
 
+    def _message(self, hyp: Hypothesis, op: str, sender: str) -> bytes:
+        """The message of ``op`` by ``sender`` that carries ``hyp`` (the store's re-encoding)."""
+        return encode({"op": op, "hyp": hyp.to_record(), "sender": sender}, max_bytes=self._max)
+
     def _on_local_post(self, hyp: Hypothesis) -> None:
         key = self.keys.hypothesis(hyp.level, hyp.id)
         record = hyp.to_record()
@@ -358,7 +362,9 @@ class BlackboardNode:
         if problem is not None:
             self._trace.reject(key, problem, agent=hyp.source, level=hyp.level, id=hyp.id)
             return
-        self._store.put(hyp, data)
+        # a large payload is held once: the store may drop the bytes and encode the hypothesis again
+        # for a read (not for the node's own or private posts, whose bytes carry a sealed body)
+        self._store.put(hyp, data, sender=None if local or hyp.level in PRIVATE_LEVELS else sender)
         self._stored_bytes += len(data)
         self.stats["post"] += 1
         self._trace.hypothesis(TraceKind.POST, hyp)
@@ -542,7 +548,7 @@ class BlackboardNode:
             return
         key = self.keys.hypothesis(hyp.level, hyp.id)
         if op == "update":
-            self._store.put(new, data)
+            self._store.put(new, data, op=op, sender=NODE_SENDER)
         else:
             self._store.remove(hyp.id)
             self._deadlines.pop(hyp.id)

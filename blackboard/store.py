@@ -2,8 +2,11 @@
 requester has seen.
 
 :class:`Store` holds the current version of every hypothesis with the encoded message that carried
-it (a read is answered with those bytes, not re-encoded). It is written by the node's worker
-thread only; readers in other threads (the runtime) take its lock.
+it (a read is answered with those bytes, not re-encoded). A large message (a viewframe's image
+and mask) is not kept twice: given an ``encode`` function, the store keeps only the decoded
+hypothesis of a message of :data:`KEEP_BYTES_BELOW` bytes or more, and encodes it again when a
+read asks for it (reads of large hypotheses are rare: late joiners and on-demand fetches). It is
+written by the node's worker thread only; readers in other threads (the runtime) take its lock.
 
 :class:`Barrier` holds requests (reads, updates, retractions) until the node has received the
 posts their requester had sent, and those it had seen from other senders: an agent that updates a
@@ -27,15 +30,23 @@ if TYPE_CHECKING:
     from blackboard.hypothesis import Hypothesis
     from blackboard.keys import RunKeys
 
-__all__ = ["Barrier", "Store"]
+__all__ = ["Barrier", "KEEP_BYTES_BELOW", "Store"]
+
+#: messages of this many bytes or more are not kept encoded when the store can encode them again
+KEEP_BYTES_BELOW = 16384
 
 
 class Store:
     """Hypotheses by id, each with its encoded message; versions are assigned by the node
-    (:meth:`Hypothesis.evolve`), this keeps the current one."""
+    (:meth:`Hypothesis.evolve`), this keeps the current one.
 
-    def __init__(self) -> None:
-        self._entries: dict[str, tuple[Hypothesis, bytes]] = {}
+    ``encode(hyp, op, sender)`` (optional) makes the message again for a hypothesis whose bytes
+    were not kept (see the module docstring); without it every message is kept.
+    """
+
+    def __init__(self, encode: Callable[[Hypothesis, str, str], bytes] | None = None) -> None:
+        self._entries: dict[str, tuple[Hypothesis, bytes | tuple[str, str]]] = {}
+        self._encode = encode
         self._lock = threading.Lock()
 
     def __contains__(self, hypothesis_id: object) -> bool:
@@ -49,10 +60,25 @@ class Store:
         entry = self._entries.get(hypothesis_id) if isinstance(hypothesis_id, str) else None
         return None if entry is None else entry[0]
 
-    def put(self, hyp: Hypothesis, data: bytes) -> None:
-        """Store a new hypothesis, or the next version of one."""
+    def put(self, hyp: Hypothesis, data: bytes, *, op: str = "post", sender: str | None = None) -> None:
+        """Store a new hypothesis, or the next version of one; ``data`` is the message (``op``,
+        ``sender``) that carried it (kept, or dropped when large and ``sender`` is given)."""
+        kept: bytes | tuple[str, str] = data
+        if self._encode is not None and sender is not None and len(data) >= KEEP_BYTES_BELOW:
+            kept = (op, sender)
         with self._lock:
-            self._entries[hyp.id] = (hyp, data)
+            self._entries[hyp.id] = (hyp, kept)
+
+    def kept_bytes(self) -> int:
+        """Bytes of encoded messages held (the large ones are not, see the module docstring)."""
+        with self._lock:
+            return sum(len(d) for _, d in self._entries.values() if isinstance(d, bytes))
+
+    def _data(self, hyp: Hypothesis, kept: bytes | tuple[str, str]) -> bytes:
+        if isinstance(kept, bytes):
+            return kept
+        assert self._encode is not None  # only then are bytes dropped
+        return self._encode(hyp, *kept)
 
     def remove(self, hypothesis_id: str) -> None:
         with self._lock:
@@ -71,11 +97,12 @@ class Store:
         if pattern is not None:
             level, hyp_id = pattern
             with self._lock:
-                return [(h, d) for h, d in self._entries.values()
+                return [(h, self._data(h, d)) for h, d in self._entries.values()
                         if level in ("*", h.level) and hyp_id in ("*", h.id)]
         selector = zenoh.KeyExpr(str(key_expr))
         with self._lock:
-            return [(h, d) for h, d in self._entries.values() if selector.intersects(keys.hypothesis(h.level, h.id))]
+            return [(h, self._data(h, d)) for h, d in self._entries.values()
+                    if selector.intersects(keys.hypothesis(h.level, h.id))]
 
 
 @dataclass

@@ -3,13 +3,16 @@
 Each record is a map with at least ``seq`` (node order), ``t`` (``time.time()``), ``kind``
 (a :class:`TraceKind` value) and, where they apply, ``agent``, ``level``, ``id``, ``version``,
 ``links``, ``source``, ``credibility``, ``body`` (large arrays and byte strings summarised by
-:func:`summarise`), ``reason``, ``message``. :func:`read_trace` reads up to the last complete
+:func:`summarise`: a trace never holds a large array's bytes, only its shape, dtype, range and a
+digest that names the bytes, so a viewframe costs the trace about a hundred bytes), ``reason``,
+``message``. :func:`read_trace` reads up to the last complete
 record, so the trace of a crashed run still reads.
 """
 
 from __future__ import annotations
 
 import enum
+import hashlib
 import logging
 import threading
 import time
@@ -54,8 +57,9 @@ class TraceKind(str, enum.Enum):
 
 
 def summarise(value: Any, *, depth: int = 0) -> Any:
-    """``value`` with large numpy arrays replaced by ``{"__array__": {shape, dtype, min, max}}``
-    and long bytes/str by ``{"__bytes__": length}`` / truncated text; msgpack-able."""
+    """``value`` with large numpy arrays replaced by ``{"__array__": {shape, dtype, min, max,
+    digest}}`` (``digest``: BLAKE2b-64 hex of the C-order bytes, the same for equal arrays) and long
+    bytes/str by ``{"__bytes__": length}`` / truncated text; msgpack-able."""
     if depth > 32:
         return "<deeper than 32>"
     if isinstance(value, dict):
@@ -69,6 +73,8 @@ def summarise(value: Any, *, depth: int = 0) -> Any:
         if value.size and value.dtype.kind in "biuf":
             summary["min"] = float(np.min(value))
             summary["max"] = float(np.max(value))
+        if value.dtype.kind != "O":
+            summary["digest"] = hashlib.blake2b(np.ascontiguousarray(value).data, digest_size=8).hexdigest()
         return {"__array__": summary}
     if isinstance(value, (bytes, bytearray, memoryview)):
         return bytes(value) if len(value) <= BYTES_INLINE_LIMIT else {"__bytes__": len(value)}

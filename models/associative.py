@@ -108,6 +108,20 @@ SHIFT_SEARCH_TOP = 32
 PRESELECT_SIGMA = 8.0
 
 _MAD_TO_STD = 1.4826
+#: dtype a bank keeps its memory spectrum rfft2(M) in: complex64 ranks as complex128 does
+#: (``bench/coarse.py``; BENCHMARKS.md "Scale") at half the bytes
+SPECTRUM_DTYPE = np.complex64
+
+
+@lru_cache(maxsize=8)
+def _parseval_weights(n: int) -> NDArray[np.float64]:
+    """Parseval weights of the (N, N // 2 + 1) half spectrum, read-only, shared by all banks of size N."""
+    w = np.full((n, n // 2 + 1), 2.0 / (n * n))
+    w[:, 0] /= 2.0
+    if n % 2 == 0:
+        w[:, n // 2] /= 2.0
+    w.setflags(write=False)
+    return w
 
 
 def reliability(variances: ArrayLike) -> float:
@@ -325,11 +339,8 @@ class HolographicMemory:
         self.key_method = key_method
         self.max_shift = _check_shift(max_shift)
         n = self.size
-        self._spectrum = np.zeros((n, n // 2 + 1), dtype=np.complex128)
-        self._weights = np.full((n, n // 2 + 1), 2.0 / (n * n))  # Parseval weights of the half spectrum
-        self._weights[:, 0] /= 2.0
-        if n % 2 == 0:
-            self._weights[:, n // 2] /= 2.0
+        self._spectrum = np.zeros((n, n // 2 + 1), dtype=SPECTRUM_DTYPE)
+        self._weights = _parseval_weights(n)  # Parseval weights of the half spectrum (shared)
         # w * rfft2(P_h), interleaved float32; a capacity buffer whose first _count rows are used
         self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
         self._viewframes = np.zeros(0, dtype=np.int64)
@@ -354,8 +365,8 @@ class HolographicMemory:
         return np.fft.irfft2(spec, s=(n, n)).reshape(self._count, n * n).astype(np.float32)
 
     @property
-    def spectrum(self) -> NDArray[np.complex128]:
-        """The memory ``rfft2(M)``, shape (N, N // 2 + 1) (a view; do not modify)."""
+    def spectrum(self) -> NDArray[np.complexfloating]:
+        """The memory ``rfft2(M)``, shape (N, N // 2 + 1), :data:`SPECTRUM_DTYPE` (a view; do not modify)."""
         return self._spectrum
 
     @property
@@ -390,7 +401,7 @@ class HolographicMemory:
     def _grow(self, extra: int) -> None:
         need = self._count + extra
         if need > self._fprotos.shape[0]:
-            cap = max(need, 2 * self._fprotos.shape[0], 16)
+            cap = max(need, 2 * self._fprotos.shape[0])
             protos = np.empty((cap, self._fprotos.shape[1]), dtype=np.float32)
             protos[: self._count] = self._fprotos[: self._count]
             viewframes = np.empty(cap, dtype=np.int64)
@@ -499,7 +510,7 @@ class HolographicMemory:
         if np.unique(viewframes).size != viewframes.size:
             raise AssociativeMemoryError("memory state: duplicate viewframes")
         mem._fprotos, mem._viewframes, mem._count = np.ascontiguousarray(protos), viewframes.copy(), viewframes.size
-        mem._spectrum = spec[..., 0] + 1j * spec[..., 1]
+        mem._spectrum = (spec[..., 0] + 1j * spec[..., 1]).astype(SPECTRUM_DTYPE)
         return mem
 
 

@@ -10,7 +10,9 @@ so there is one way from a scenario file to its viewframes and its camera frames
         frames = world.sensor_frames       # read from sensor.frames, or simulated
 
 Each part is built on first use and kept: camera frames read from files need no renderer, and
-a world that only simulates frames renders no viewframes. The camera emulator holds an
+a world that only simulates frames renders no viewframes. Viewframes come from the viewframe
+cache when it holds them (:mod:`models.viewframe_cache`; then no renderer is opened for them) and
+are stored there after rendering. The camera emulator holds an
 offscreen renderer: close the world (or use it as a context manager) to release it. World
 coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emulator`.
 """
@@ -29,6 +31,7 @@ from models.scenario import Scenario, load_scenario
 from models.sensor import SensorFrame, frames_from_files, simulate_frames
 from models.symbolic import landmark_priors
 from models.terrain import Terrain
+from models.viewframe_cache import ViewframeCache, cache_key
 from models.viewframes import Viewframe, render_viewframes, route_poses
 
 __all__ = ["World"]
@@ -46,6 +49,9 @@ class World:
         An already loaded terrain (default: the scenario's, loaded on first use).
     progress : callable(done, total), optional
         Called after each viewframe is rendered (progress bars).
+    cache : ViewframeCache, None or "env"
+        Where rendered viewframes are kept between runs; None: no cache; "env" (default): the
+        cache the environment names (:meth:`ViewframeCache.from_env`).
     **lod
         ``tile_cells``, ``levels``, ``lod_factor``, ``refine`` of :class:`EnvironmentModel`.
     """
@@ -56,12 +62,16 @@ class World:
         *,
         terrain: Terrain | None = None,
         progress: Callable[[int, int], None] | None = None,
+        cache: ViewframeCache | str | None = "env",
         **lod: Any,
     ) -> None:
         self.scenario = scenario
         self._progress = progress
         self._terrain = terrain
         self._lod = lod
+        if isinstance(cache, str) and cache != "env":
+            raise ValueError(f'cache must be a ViewframeCache, None or "env", not {cache!r}')
+        self.cache: ViewframeCache | None = ViewframeCache.from_env() if isinstance(cache, str) else cache
         self._emulator: CameraEmulator | None = None
 
     @classmethod
@@ -89,11 +99,22 @@ class World:
 
     @cached_property
     def viewframes(self) -> list[Viewframe]:
-        """The viewframe at every route point, rendered and symbolically described."""
+        """The viewframe at every route point, rendered and symbolically described (or read from
+        the viewframe cache)."""
+        key = None
+        if self.cache is not None:
+            key = cache_key(self.scenario, self.environment.terrain, lod=self._lod)
+            cached = self.cache.load(key)
+            if cached is not None:
+                if self._progress is not None:
+                    self._progress(len(cached), len(cached))
+                return cached
         frames = render_viewframes(
             self.emulator, self.poses, skyline_step_deg=self.scenario.skyline.step_deg, progress=self._progress
         )
         log.info("rendered %d viewframes of %s", len(frames), self.scenario.name)
+        if self.cache is not None and key is not None:
+            self.cache.store(key, frames)
         return frames
 
     @cached_property

@@ -20,7 +20,7 @@ from knowledge_sources.mission import MAX_RATE_HZ, MAX_WAIT_S
 
 HELP = "localize the vehicle: run the agent ensemble on a scenario over the blackboard"
 
-__all__ = ["HELP", "EXIT_DEGRADED", "add_arguments", "main", "render_summary"]
+__all__ = ["HELP", "EXIT_DEGRADED", "add_arguments", "apply_cache_arguments", "main", "render_summary"]
 
 
 #: progress-bar phase shown when the first hypothesis of a level is posted, before frames are localized
@@ -66,7 +66,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--listen is not a loopback address)")
     parser.add_argument("--wait-remote", type=bounded_number(0, MAX_WAIT_S, "s"), default=60.0, metavar="SECONDS",
                         help="how long to wait for the --remote agents to join (default 60)")
+    cache = parser.add_mutually_exclusive_group()
+    cache.add_argument("--no-cache", action="store_true",
+                       help="render every viewframe, neither reading nor filling the viewframe cache")
+    cache.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
+                       help="the viewframe cache folder (default: $MAPINTERP_CACHE, else ~/.cache/mapinterp)")
     add_zenoh_arguments(parser)
+
+
+def apply_cache_arguments(args: argparse.Namespace) -> None:
+    """``--no-cache`` / ``--cache-dir`` as ``$MAPINTERP_CACHE``, which this process's worlds and
+    the agent processes it starts read (:mod:`models.viewframe_cache`)."""
+    import os
+
+    from models.viewframe_cache import CACHE_ENV
+
+    if getattr(args, "no_cache", False):
+        os.environ[CACHE_ENV] = "off"
+    elif getattr(args, "cache_dir", None) is not None:
+        os.environ[CACHE_ENV] = str(args.cache_dir.expanduser().resolve())
 
 
 def render_summary(results: dict[str, Any]) -> Any:
@@ -144,6 +162,7 @@ def main(args: argparse.Namespace) -> int:
         check_writable(args.out, "--out")
     if args.trace is not None:
         check_writable(args.trace, "--trace")
+    apply_cache_arguments(args)
     scenario = load_scenario(args.scenario)
     console = Console(stderr=True)
     show = not args.no_progress and sys.stderr.isatty()

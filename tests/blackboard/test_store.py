@@ -79,3 +79,30 @@ def test_barrier_holds_until_the_posts_seen_have_arrived() -> None:
 def test_after_takes_the_larger_count_and_ignores_junk() -> None:
     assert Barrier.after("me", 3, {"me": 5, "other": 2, 7: 1, "x": "y"}) == {"me": 5, "other": 2}
     assert Barrier.after("me", 3, ["not", "a", "map"]) == {"me": 3}
+
+
+def test_a_large_message_is_held_once_and_encoded_again_for_a_read() -> None:
+    import numpy as np
+
+    from blackboard.codec import decode, encode
+    from blackboard.store import KEEP_BYTES_BELOW
+
+    def message(hyp: Hypothesis, op: str, sender: str) -> bytes:
+        return encode({"op": op, "hyp": hyp.to_record(), "sender": sender})
+
+    image = np.random.default_rng(2).integers(0, 255, (120, 160, 3), dtype=np.uint8)
+    big = Hypothesis("vf-1", "viewframe", "renderer", 1.0, (), 1, 1.0, {"image": image})
+    small = _hyp("a", "x-1", 2.0)
+    big_data, small_data = message(big, "post", "renderer"), message(small, "post", "src")
+    assert len(big_data) >= KEEP_BYTES_BELOW > len(small_data)
+    store = Store(encode=message)
+    store.put(big, big_data, sender="renderer")
+    store.put(small, small_data, sender="src")
+    assert store.kept_bytes() == len(small_data)  # the image is held once: in the hypothesis
+    (_, again), = store.select(KEYS, KEYS.hypothesis("viewframe", "vf-1"))
+    assert again == big_data  # the read gets the very message that was posted
+    np.testing.assert_array_equal(Hypothesis.from_record(decode(again)["hyp"]).body["image"], image)
+    assert store.select(KEYS, KEYS.hypothesis("a", "x-1"))[0][1] is small_data
+    keep_all = Store()
+    keep_all.put(big, big_data, sender="renderer")
+    assert keep_all.kept_bytes() == len(big_data)

@@ -55,9 +55,9 @@ def test_fft_write_and_read_equal_the_direct_sums() -> None:
         mem.write(p, i)
     keys = [make_key(p, seed=4).astype(np.float64) for p in pats]
     m_direct = sum(_conv(k, p.astype(np.float64)) for k, p in zip(keys, pats))
-    assert np.allclose(np.fft.irfft2(mem.spectrum, s=(n, n)), m_direct, atol=1e-9)
+    assert np.allclose(np.fft.irfft2(mem.spectrum, s=(n, n)), m_direct, atol=1e-5)  # the spectrum is complex64 (SPECTRUM_DTYPE)
     q = pats[1]
-    assert np.allclose(mem.recall(q), _corr(keys[1], m_direct), atol=1e-6)
+    assert np.allclose(mem.recall(q), _corr(keys[1], m_direct), atol=1e-5)
 
 
 def test_storage_order_does_not_matter() -> None:
@@ -67,11 +67,11 @@ def test_storage_order_does_not_matter() -> None:
     order = [4, 1, 5, 0, 3, 2]
     for i in order:
         b.write(pats[i], i)
-    assert np.allclose(a.spectrum, b.spectrum, atol=1e-12)
+    assert np.allclose(a.spectrum, b.spectrum, atol=1e-5)
     for q in pats:
         ra, rb = a.rank(q), b.rank(q)
         assert ra.viewframes.tolist() == rb.viewframes.tolist()
-        assert np.allclose(ra.variances, rb.variances, atol=1e-12)
+        assert np.allclose(ra.variances, rb.variances, atol=1e-10)
 
 
 @pytest.mark.parametrize("n", [16, 32])

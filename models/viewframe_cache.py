@@ -1,0 +1,264 @@
+"""The viewframe cache: rendered viewframes and their symbolic descriptions kept on disk, so a
+second run of the same map skips rendering.
+
+An entry is keyed by a SHA-256 of everything that determines a route's viewframes (:func:`cache_key`):
+the terrain heights and cell size, the placed landmarks' specs, the route, the camera, the scenario
+seed, the level-of-detail options, the :class:`~models.viewframes.Viewframe` field names, the
+:data:`RENDERER_VERSION` constant and a digest of the source of the modules that render and
+describe (:data:`RENDERER_MODULES`). Any change of one of them is a miss; entries are never
+modified, only added.
+
+An entry is a folder ``<root>/<key>/`` holding ``meta.json`` (per viewframe: the non-array
+fields) and, per array field of :class:`~models.viewframes.Viewframe`, one ``<field>.npy``
+stacking that field of every viewframe (shape (V, ...), loaded memory-mapped copy-on-write, so
+only the pages read are resident and writes stay private). Fields are serialised generically
+from the dataclass: arrays as ``.npy``, dataclasses by their fields, objects with
+``to_dict``/``from_dict`` through those, plain values as JSON; an optional array field (None
+for some viewframes, such as ``background``) is stacked with its absent rows marked; a field
+added to ``Viewframe`` later is stored without changes here. An entry is written to a temporary folder next to its
+place and renamed into place in one step: concurrent runs never see a partial entry, and when
+two write the same entry at once, one rename wins and the other run's copy is dropped.
+
+The cache folder is, in this order: the ``root`` given, ``$MAPINTERP_CACHE``,
+``$XDG_CACHE_HOME/mapinterp``, ``~/.cache/mapinterp``. ``MAPINTERP_CACHE=off`` turns it off.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+import typing
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.viewframes import Viewframe
+
+__all__ = ["RENDERER_VERSION", "RENDERER_MODULES", "CACHE_ENV", "ViewframeCache", "cache_key", "default_cache_root"]
+
+log = logging.getLogger(__name__)
+
+#: bump when rendering or describing changes in a way the source digest would not show
+RENDERER_VERSION = 1
+#: the modules whose source decides what a viewframe looks like (their digest is part of the key)
+RENDERER_MODULES = ("camera_emulator", "environment", "landmarks", "symbolic", "terrain", "viewframes")
+#: the environment variable naming the cache folder (``off`` disables the cache)
+CACHE_ENV = "MAPINTERP_CACHE"
+_OFF = {"off", "0", "no", "false", "none"}
+_FORMAT = 2
+
+
+def default_cache_root() -> Path | None:
+    """The cache folder from the environment (see the module docstring); None when turned off."""
+    value = os.environ.get(CACHE_ENV)
+    if value is not None and value.strip().lower() in _OFF:
+        return None
+    if value:
+        return Path(value).expanduser()
+    xdg = os.environ.get("XDG_CACHE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".cache") / "mapinterp"
+
+
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for name in RENDERER_MODULES:
+        path = here / f"{name}.py"
+        h.update(name.encode())
+        h.update(path.read_bytes() if path.exists() else b"-")
+    return h.hexdigest()
+
+
+def cache_key(scenario: Any, terrain: Any, *, lod: Mapping[str, Any] | None = None,
+              renderer_version: int | None = None) -> str:
+    """The hex SHA-256 key of a scenario's viewframes (see the module docstring).
+
+    ``scenario`` is a :class:`~models.scenario.Scenario`, ``terrain`` its loaded
+    :class:`~models.terrain.Terrain` (its heights are hashed, so a changed DEM file is a miss).
+    """
+    h = hashlib.sha256()
+    spec = {
+        "format": _FORMAT,
+        "renderer_version": RENDERER_VERSION if renderer_version is None else int(renderer_version),
+        "seed": scenario.seed,
+        "landmarks": [lm.model_dump(mode="json") for lm in scenario.landmarks],
+        "route": [list(map(float, p)) for p in scenario.route],
+        "camera": scenario.camera.model_dump(mode="json"),
+        "skyline_step_deg": float(scenario.skyline.step_deg),  # viewframes carry their skyline at this step
+        "lod": {str(k): v for k, v in sorted((lod or {}).items())},
+        "fields": [f.name for f in dataclasses.fields(Viewframe)],
+        "cell_size": float(terrain.cell_size),
+        "terrain_shape": list(terrain.heights.shape),
+    }
+    h.update(json.dumps(spec, sort_keys=True, default=repr).encode())
+    h.update(np.ascontiguousarray(terrain.heights, dtype=np.float64).tobytes())
+    h.update(_source_digest().encode())
+    return h.hexdigest()
+
+
+def _field_types() -> dict[str, Any]:
+    return typing.get_type_hints(Viewframe)
+
+
+def _encode(value: Any) -> Any:
+    """A non-array field value as JSON data."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _encode(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if hasattr(value, "to_dict"):
+        return value.to_dict()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, (list, tuple)):
+        return [_encode(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _encode(v) for k, v in value.items()}
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    raise TypeError(f"cannot store a {type(value).__name__} in the viewframe cache")
+
+
+def _decode(data: Any, kind: Any) -> Any:
+    """Inverse of :func:`_encode` for a field declared as ``kind``."""
+    if data is None:
+        return None
+    origin = typing.get_origin(kind)
+    if origin is typing.Union or str(origin) == "<class 'types.UnionType'>":
+        options = [a for a in typing.get_args(kind) if a is not type(None)]
+        kind = options[0] if len(options) == 1 else Any
+    if isinstance(kind, type):
+        if dataclasses.is_dataclass(kind):
+            hints = typing.get_type_hints(kind)
+            return kind(**{k: _decode(v, hints.get(k, Any)) for k, v in data.items()})
+        if hasattr(kind, "from_dict"):
+            return kind.from_dict(data)
+        if kind is tuple:
+            return tuple(data)
+    return data
+
+
+class ViewframeCache:
+    """Viewframes on disk under ``root`` (see the module docstring).
+
+    Example::
+
+        cache = ViewframeCache.from_env()          # None when MAPINTERP_CACHE=off
+        key = cache_key(scenario, terrain)
+        viewframes = cache.load(key)               # None on a miss
+        if viewframes is None:
+            viewframes = render(...)
+            cache.store(key, viewframes)
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root).expanduser()
+        self.hits = 0
+        self.misses = 0
+
+    @classmethod
+    def from_env(cls) -> ViewframeCache | None:
+        """The cache in :func:`default_cache_root`, or None when turned off."""
+        root = default_cache_root()
+        return None if root is None else cls(root)
+
+    def path(self, key: str) -> Path:
+        return self.root / key
+
+    def __contains__(self, key: str) -> bool:
+        return (self.path(key) / "meta.json").is_file()
+
+    def load(self, key: str) -> list[Viewframe] | None:
+        """The viewframes stored under ``key``, or None (a miss; an unreadable entry is a miss too,
+        logged)."""
+        folder = self.path(key)
+        if not (folder / "meta.json").is_file():
+            self.misses += 1
+            return None
+        try:
+            viewframes = self._read(folder)
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            log.warning("viewframe cache %s: unreadable entry, rendering again: %s", folder, err)
+            self.misses += 1
+            return None
+        self.hits += 1
+        log.info("viewframe cache: %d viewframes from %s", len(viewframes), folder)
+        return viewframes
+
+    def _read(self, folder: Path) -> list[Viewframe]:
+        meta = json.loads((folder / "meta.json").read_text())
+        if meta.get("format") != _FORMAT:
+            raise ValueError(f"format {meta.get('format')!r}, expected {_FORMAT}")
+        n = int(meta["count"])
+        types = _field_types()
+        columns: dict[str, Any] = {}
+        for name in meta["arrays"]:
+            stacked = np.load(folder / f"{name}.npy", mmap_mode="c", allow_pickle=False)
+            if stacked.shape[0] != n:
+                raise ValueError(f"{name}.npy holds {stacked.shape[0]} viewframes, expected {n}")
+            absent = meta.get("absent", {}).get(name) or [False] * n
+            columns[name] = [None if absent[i] else np.asarray(stacked[i]) for i in range(n)]
+        for name in meta["ragged"]:
+            columns[name] = [None if not ok else np.load(folder / f"{name}.{i}.npy", allow_pickle=False)
+                             for i, ok in enumerate(meta["ragged"][name])]
+        for name, values in meta["values"].items():
+            columns[name] = [_decode(v, types.get(name, Any)) for v in values]
+        missing = {f.name for f in dataclasses.fields(Viewframe)} - set(columns)
+        if missing:
+            raise ValueError(f"entry lacks the fields {sorted(missing)}")
+        return [Viewframe(**{name: col[i] for name, col in columns.items()}) for i in range(n)]
+
+    def store(self, key: str, viewframes: Sequence[Viewframe]) -> Path:
+        """Write ``viewframes`` under ``key`` (atomically; a no-op when the entry exists)."""
+        final = self.path(key)
+        if key in self:
+            return final
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=self.root))
+        try:
+            self._write(tmp, viewframes)
+            try:
+                os.rename(tmp, final)
+            except OSError:
+                if key not in self:  # not a concurrent writer that won: a real failure
+                    raise
+                log.debug("viewframe cache: %s was written concurrently; keeping that one", final)
+        except OSError as err:
+            log.warning("viewframe cache %s: cannot store (%s); the run goes on without it", final, err)
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+        return final
+
+    def _write(self, folder: Path, viewframes: Sequence[Viewframe]) -> None:
+        meta: dict[str, Any] = {"format": _FORMAT, "count": len(viewframes), "arrays": [], "absent": {}, "ragged": {},
+                                "values": {}}
+        for f in dataclasses.fields(Viewframe):
+            values = [getattr(vf, f.name) for vf in viewframes]
+            arrays = [v for v in values if isinstance(v, np.ndarray)]
+            alike = len({(a.shape, a.dtype.str) for a in arrays}) == 1
+            if arrays and alike and all(isinstance(v, np.ndarray) or v is None for v in values):
+                # one stacked file; an optional field's None rows are zeros, marked absent
+                stacked = np.zeros((len(values), *arrays[0].shape), dtype=arrays[0].dtype)
+                for i, v in enumerate(values):
+                    if v is not None:
+                        stacked[i] = v
+                np.save(folder / f"{f.name}.npy", stacked, allow_pickle=False)
+                meta["arrays"].append(f.name)
+                if len(arrays) < len(values):
+                    meta["absent"][f.name] = [v is None for v in values]
+                continue
+            if arrays:  # arrays of several shapes
+                meta["ragged"][f.name] = [isinstance(v, np.ndarray) for v in values]
+                for i, v in enumerate(values):
+                    if isinstance(v, np.ndarray):
+                        np.save(folder / f"{f.name}.{i}.npy", v, allow_pickle=False)
+                continue
+            meta["values"][f.name] = [_encode(v) for v in values]
+        # meta.json last: an entry without it is never read
+        (folder / "meta.json").write_text(json.dumps(meta))

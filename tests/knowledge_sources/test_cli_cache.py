@@ -1,0 +1,31 @@
+"""``mapinterp run --cache-dir`` and ``--no-cache``: a second run of the same map reads its
+viewframes from the cache folder given; ``--no-cache`` neither reads nor fills one."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from knowledge_sources.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+def test_cache_dir_is_filled_then_read_and_no_cache_writes_nothing(small, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("MAPINTERP_CACHE", str(tmp_path / "env-cache"))  # restored after the test
+    cache = tmp_path / "cache"
+    first, second = tmp_path / "first.json", tmp_path / "second.json"
+    assert main(["run", str(small), "--cache-dir", str(cache), "--out", str(first), "--no-progress"]) == 0
+    entries = [p for p in cache.iterdir()]
+    assert len(entries) == 1 and (entries[0] / "meta.json").is_file()
+    stamp = (entries[0] / "meta.json").stat().st_mtime_ns
+    assert main(["run", str(small), "--cache-dir", str(cache), "--out", str(second), "--no-progress"]) == 0
+    assert [p for p in cache.iterdir()] == entries and (entries[0] / "meta.json").stat().st_mtime_ns == stamp
+    a, b = json.loads(first.read_text()), json.loads(second.read_text())
+    assert [f["viewframe"] for f in a["frames"]] == [f["viewframe"] for f in b["frames"]]  # same map, same answers
+    assert not (tmp_path / "env-cache").exists()
+
+    assert main(["run", str(small), "--no-cache", "--no-progress"]) == 0
+    assert not (tmp_path / "env-cache").exists() and [p for p in cache.iterdir()] == entries
+    capsys.readouterr()

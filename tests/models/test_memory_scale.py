@@ -1,0 +1,88 @@
+"""Memory per viewframe is bounded: a route of 1,000 viewframes, rendered, described, stored in a
+viewframe index and encoded as the blackboard's viewframe messages (what the node store keeps),
+grows a fresh process's resident memory by no more than a fixed bound per viewframe (a fresh
+process: in the test run's own, memory freed by earlier tests would hide the growth)."""
+
+from __future__ import annotations
+
+import gc
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from blackboard.codec import encode
+from knowledge_sources import levels
+from models.index import ViewframeIndex
+from models.scenario import scenario_from_dict
+from models.world import World
+
+N_VIEWFRAMES = 1000
+#: the bound on resident memory growth per viewframe (camera 48 x 32, memory size 32): the
+#: payload is about 17 KB of arrays, 14 KB of index and 13 KB of encoded message per viewframe
+BOUND_KB = 96
+
+
+def _rss_kb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1024.0
+
+
+def _route(n: int) -> list[list[float]]:
+    per_row = 50
+    return [[100.0 + (i % per_row if (i // per_row) % 2 == 0 else per_row - 1 - i % per_row) * 20.0,
+             100.0 + (i // per_row) * 60.0 + 5.0 * math.sin(i / 5.0)] for i in range(n)]
+
+
+def measure() -> dict:
+    """Build the route in this process; resident growth and payload per viewframe (KB)."""
+    scenario = scenario_from_dict({
+        "name": "memory",
+        "seed": 3,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 144, "relief": 60.0, "seed": 5}},
+        "landmarks": [{"id": f"H{j}", "kind": "house", "x": 120.0 + 40.0 * (j % 25), "y": 130.0 + 120.0 * (j // 25),
+                       "width": 16, "depth": 10, "height": 8} for j in range(100)],
+        "route": _route(N_VIEWFRAMES),
+        "camera": {"width": 48, "height": 32, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 3000.0},
+        "memory": {"size": 32},
+    })
+    world = World(scenario, cache=None)
+    _ = world.environment, world.emulator, world.poses  # the fixed costs: terrain, meshes, renderer
+    world.emulator.render(world.poses[0])
+    gc.collect()
+    before = _rss_kb()
+    viewframes = world.viewframes
+    index = ViewframeIndex(scenario.memory)
+    index.add((vf.image for vf in viewframes), (vf.index for vf in viewframes))
+    index.rank(viewframes[7].image)  # builds the packed ranking matrix
+    store = {}
+    for vf in viewframes:
+        p = vf.pose
+        msg = levels.Viewframe(index=vf.index, pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+                               image=np.ascontiguousarray(vf.image), mask=vf.mask.astype(np.int16),
+                               description=vf.description.to_dict())
+        store[vf.index] = encode(msg.to_body())
+    gc.collect()
+    growth_kb = (_rss_kb() - before) / N_VIEWFRAMES
+    world.close()
+    payload_kb = (sum(vf.image.nbytes + vf.depth.nbytes + vf.mask.nbytes for vf in viewframes)
+                  + sum(len(b) for b in store.values())) / 1024.0 / N_VIEWFRAMES
+    return {"growth_kb": growth_kb, "payload_kb": payload_kb, "stored": len(index)}
+
+
+@pytest.mark.slow
+def test_resident_memory_per_viewframe_is_bounded():
+    code = f"import json, runpy; print(json.dumps(runpy.run_path({str(Path(__file__))!r})['measure']()))"
+    env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
+    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], env=env,
+                          capture_output=True, text=True, timeout=1800)
+    assert done.returncode == 0, done.stderr[-3000:]
+    m = json.loads(done.stdout.strip().splitlines()[-1])
+    assert m["stored"] == N_VIEWFRAMES
+    assert m["payload_kb"] < m["growth_kb"]  # the measure sees the payload: it is not all elsewhere
+    assert m["growth_kb"] < BOUND_KB, f"{m['growth_kb']:.1f} KB of resident memory per viewframe (bound {BOUND_KB} KB)"

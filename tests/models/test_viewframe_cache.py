@@ -1,0 +1,168 @@
+"""The viewframe cache: a second world of the same map reads its viewframes from disk without a
+renderer; any change of what determines them is a miss; concurrent runs share it safely."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from models import viewframe_cache
+from models.scenario import scenario_from_dict
+from models.viewframe_cache import ViewframeCache, cache_key, default_cache_root
+from models.world import World
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _data(**extra):
+    data = {
+        "name": "cached",
+        "seed": 4,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
+        "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
+        "route": [[200, 300], [240, 310], [280, 305], [300, 300]],
+        "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
+    }
+    data.update(extra)
+    return data
+
+
+def _same(a, b):
+    assert len(a) == len(b)
+    for x, y in zip(a, b):
+        assert x.index == y.index and x.pose == y.pose
+        np.testing.assert_array_equal(x.image, y.image)
+        np.testing.assert_array_equal(x.depth, y.depth)
+        np.testing.assert_array_equal(x.mask, y.mask)
+        assert x.image.dtype == y.image.dtype and x.mask.dtype == y.mask.dtype
+        assert x.description == y.description
+        for name in vars(x):  # every other field too, e.g. optional arrays added later
+            a, b = getattr(x, name), getattr(y, name)
+            if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+                assert a is not None and b is not None, name
+                np.testing.assert_array_equal(a, b)
+            elif name not in ("description", "pose"):
+                assert a == b, name
+
+
+def test_a_second_world_reads_the_viewframes_without_rendering(tmp_path):
+    cache = ViewframeCache(tmp_path)
+    scenario = scenario_from_dict(_data())
+    with World(scenario, cache=cache) as first:
+        rendered = first.viewframes
+        assert first._emulator is not None and cache.misses == 1 and cache.hits == 0
+    entries = [p for p in tmp_path.iterdir()]
+    assert len(entries) == 1 and (entries[0] / "meta.json").is_file()  # no temporary folder left
+    with World(scenario_from_dict(_data()), cache=cache) as second:
+        cached = second.viewframes
+        assert second._emulator is None  # no renderer opened
+        assert cache.hits == 1
+        assert second.priors == first.priors
+    _same(rendered, cached)
+    cached[0].image[0, 0] = 7  # copy-on-write: writable, and the entry is unchanged
+    _same(rendered, World(scenario_from_dict(_data()), cache=cache).viewframes)
+
+
+@pytest.mark.parametrize("change", [
+    {"landmarks": [{"id": "H1", "kind": "house", "x": 262.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}]},
+    {"camera": {"width": 64, "height": 48, "fov_y_deg": 50, "eye_height": 2.0, "near": 1.0, "far": 2000.0}},
+    {"route": [[200, 300], [240, 310], [280, 305], [301, 300]]},
+    {"terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 41.0, "seed": 2}}},
+], ids=["landmark", "camera", "route", "terrain"])
+def test_any_change_of_the_map_is_a_miss(change):
+    base = scenario_from_dict(_data())
+    changed = scenario_from_dict(_data(**change))
+    with World(base, cache=None) as a, World(changed, cache=None) as b:
+        assert cache_key(base, a.environment.terrain) == cache_key(scenario_from_dict(_data()), a.environment.terrain)
+        assert cache_key(base, a.environment.terrain) != cache_key(changed, b.environment.terrain)
+
+
+def test_optional_array_fields_round_trip(tmp_path):
+    import dataclasses
+
+    rendered = World(scenario_from_dict(_data()), cache=None).viewframes
+    optional = [f.name for f in dataclasses.fields(rendered[0]) if f.default is None]
+    if not optional:
+        pytest.skip("Viewframe has no optional field")
+    name = optional[0]
+    mixed = [dataclasses.replace(vf, **{name: None if i % 2 else vf.image.copy()}) for i, vf in enumerate(rendered)]
+    cache = ViewframeCache(tmp_path)
+    cache.store("k" * 64, mixed)
+    back = cache.load("k" * 64)
+    assert [getattr(vf, name) is None for vf in back] == [i % 2 == 1 for i in range(len(mixed))]
+    _same(mixed, back)
+
+
+def test_a_new_renderer_version_is_a_miss(tmp_path, monkeypatch):
+    cache = ViewframeCache(tmp_path)
+    scenario = scenario_from_dict(_data())
+    _ = World(scenario, cache=cache).viewframes
+    assert World(scenario, cache=cache).viewframes and cache.hits == 1
+    monkeypatch.setattr(viewframe_cache, "RENDERER_VERSION", viewframe_cache.RENDERER_VERSION + 1)
+    with World(scenario, cache=cache) as world:
+        _ = world.viewframes
+        assert world._emulator is not None and cache.hits == 1 and cache.misses == 2
+    assert len(list(tmp_path.iterdir())) == 2
+
+
+def test_an_unreadable_entry_is_a_miss_and_rendered_again(tmp_path):
+    cache = ViewframeCache(tmp_path)
+    scenario = scenario_from_dict(_data())
+    rendered = World(scenario, cache=cache).viewframes
+    (entry,) = tmp_path.iterdir()
+    (entry / "image.npy").write_bytes(b"garbage")
+    with World(scenario, cache=cache) as world:
+        _same(rendered, world.viewframes)
+        assert world._emulator is not None
+
+
+def test_the_cache_folder_comes_from_the_environment(monkeypatch, tmp_path):
+    monkeypatch.setenv("MAPINTERP_CACHE", str(tmp_path / "c"))
+    assert default_cache_root() == tmp_path / "c"
+    assert World(scenario_from_dict(_data())).cache.root == tmp_path / "c"
+    monkeypatch.setenv("MAPINTERP_CACHE", "off")
+    assert default_cache_root() is None and World(scenario_from_dict(_data())).cache is None
+    monkeypatch.delenv("MAPINTERP_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert default_cache_root() == tmp_path / "xdg" / "mapinterp"
+
+
+_CHILD = """
+import hashlib, json, sys
+from models.world import World
+with World.from_scenario(sys.argv[1]) as world:
+    vfs = world.viewframes
+    h = hashlib.sha256()
+    for vf in vfs:
+        h.update(vf.image.tobytes()); h.update(vf.mask.tobytes()); h.update(vf.depth.tobytes())
+    print(json.dumps({"digest": h.hexdigest(), "rendered": world._emulator is not None, "n": len(vfs)}))
+"""
+
+
+def test_two_processes_share_a_cache_at_once(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(_data()))
+    cache = tmp_path / "cache"
+    env = {**os.environ, "MAPINTERP_CACHE": str(cache), "PYOPENGL_PLATFORM": "egl"}
+    procs = [subprocess.Popen([sys.executable, "-c", _CHILD, str(path)], cwd=ROOT, env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    outs = []
+    for p in procs:
+        out, err = p.communicate(timeout=300)
+        assert p.returncode == 0, err
+        outs.append(json.loads(out.strip().splitlines()[-1]))
+    assert outs[0]["digest"] == outs[1]["digest"] and outs[0]["n"] == 4
+    entries = list(cache.iterdir())
+    assert len(entries) == 1 and not entries[0].name.startswith(".")  # one entry, no temporary left
+    third = subprocess.run([sys.executable, "-c", _CHILD, str(path)], cwd=ROOT, env=env,
+                           capture_output=True, text=True, timeout=300)
+    assert third.returncode == 0, third.stderr
+    result = json.loads(third.stdout.strip().splitlines()[-1])
+    assert result["digest"] == outs[0]["digest"] and result["rendered"] is False
