@@ -121,7 +121,11 @@ class OrbBowIndex:
         return np.argmin(d, axis=1)
 
     def _hist(self, bits: NDArray[np.float32]) -> NDArray[np.float32]:
-        h = np.bincount(self._words(bits), minlength=self.words).astype(np.float32) if len(bits) else np.zeros(self.words, np.float32)
+        h = (
+            np.bincount(self._words(bits), minlength=self.words).astype(np.float32)
+            if len(bits)
+            else np.zeros(self.words, np.float32)
+        )
         return h
 
     def store(self, images: Sequence[NDArray], labels: Sequence[int]) -> None:

@@ -142,15 +142,19 @@ def _bare(mode: str, n: int, size: int, gap_s: float) -> dict[str, Any]:
             worker.start()
             started.wait(30)
         else:
-            child = subprocess.Popen([sys.executable, __file__, "--bare-consumer", endpoint, key, str(n), str(out)],
-                                     stdout=subprocess.PIPE, text=True)
+            child = subprocess.Popen(
+                [sys.executable, __file__, "--bare-consumer", endpoint, key, str(n), str(out)],
+                stdout=subprocess.PIPE,
+                text=True,
+            )
             assert child.stdout is not None and child.stdout.readline().strip() == "ready"
         producer = open_session(zenoh_config(ZenohOptions(), mode="client", connect=[endpoint]))
         time.sleep(0.2)  # the subscriber's declaration reaches the producer through the router
         pad = bytes(max(0, size - 8))
         for _ in range(n):
-            producer.put(key, time.monotonic_ns().to_bytes(8, "little") + pad,
-                         congestion_control=zenoh.CongestionControl.BLOCK)
+            producer.put(
+                key, time.monotonic_ns().to_bytes(8, "little") + pad, congestion_control=zenoh.CongestionControl.BLOCK
+            )
             if gap_s:
                 time.sleep(gap_s)
         if mode == "inprocess":
@@ -169,8 +173,11 @@ def _stats(results: dict[str, Any], n: int) -> dict[str, float]:
     if len(delays) != n:
         raise RuntimeError(f"received {len(delays)} of {n}")
     span_s = (results["last_recv"] - results["first_t"]) / 1e9
-    return {"p50_ms": float(np.percentile(delays, 50)), "p99_ms": float(np.percentile(delays, 99)),
-            "per_s": n / span_s if span_s > 0 else float("inf")}
+    return {
+        "p50_ms": float(np.percentile(delays, 50)),
+        "p99_ms": float(np.percentile(delays, 99)),
+        "per_s": n / span_s if span_s > 0 else float("inf"),
+    }
 
 
 def run(*, quick: bool = False) -> list[dict[str, Any]]:
@@ -184,8 +191,12 @@ def run(*, quick: bool = False) -> list[dict[str, Any]]:
             for name, fn in (("ours", _ours), ("bare", _bare)):
                 lat = _stats(fn(mode, n_lat, size, gap), n_lat)
                 thr = _stats(fn(mode, n_thr, size, 0.0), n_thr)
-                row[name] = {"p50_ms": lat["p50_ms"], "p99_ms": lat["p99_ms"], "per_s": thr["per_s"],
-                             "burst_p50_ms": thr["p50_ms"]}
+                row[name] = {
+                    "p50_ms": lat["p50_ms"],
+                    "p99_ms": lat["p99_ms"],
+                    "per_s": thr["per_s"],
+                    "burst_p50_ms": thr["p50_ms"],
+                }
             row["latency_ratio_p50"] = row["ours"]["p50_ms"] / row["bare"]["p50_ms"]
             row["throughput_ratio"] = row["bare"]["per_s"] / row["ours"]["per_s"]
             rows.append(row)
@@ -194,14 +205,18 @@ def run(*, quick: bool = False) -> list[dict[str, Any]]:
 
 
 def _table(rows: list[dict[str, Any]]) -> str:
-    head = (f"{'mode':<10} {'size':>6} | {'ours p50':>9} {'p99':>8} {'hyp/s':>8} | {'bare p50':>9} {'p99':>8} "
-            f"{'msg/s':>8} | {'lat x':>6} {'thr x':>6}")
+    head = (
+        f"{'mode':<10} {'size':>6} | {'ours p50':>9} {'p99':>8} {'hyp/s':>8} | {'bare p50':>9} {'p99':>8} "
+        f"{'msg/s':>8} | {'lat x':>6} {'thr x':>6}"
+    )
     lines = [head, "-" * len(head)]
     for r in rows:
         o, b = r["ours"], r["bare"]
-        lines.append(f"{r['mode']:<10} {r['size_bytes'] // 1024:>4}KB | {o['p50_ms']:>7.3f}ms {o['p99_ms']:>6.3f}ms "
-                     f"{o['per_s']:>8.0f} | {b['p50_ms']:>7.3f}ms {b['p99_ms']:>6.3f}ms {b['per_s']:>8.0f} | "
-                     f"{r['latency_ratio_p50']:>6.2f} {r['throughput_ratio']:>6.2f}")
+        lines.append(
+            f"{r['mode']:<10} {r['size_bytes'] // 1024:>4}KB | {o['p50_ms']:>7.3f}ms {o['p99_ms']:>6.3f}ms "
+            f"{o['per_s']:>8.0f} | {b['p50_ms']:>7.3f}ms {b['p99_ms']:>6.3f}ms {b['per_s']:>8.0f} | "
+            f"{r['latency_ratio_p50']:>6.2f} {r['throughput_ratio']:>6.2f}"
+        )
     lines.append("lat x = ours p50 / bare p50; thr x = bare msg/s / ours hyp/s (overhead ratios, 1.0 = none)")
     return "\n".join(lines)
 
@@ -220,11 +235,16 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     load_before = os.getloadavg()[0]
     rows = run(quick=args.quick)
-    report = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                          "zenoh": getattr(zenoh, "__version__", "?"),
-                          # the machine is shared: its load says how far absolute numbers can be trusted
-                          "load_1min_before_after": [round(load_before, 2), round(os.getloadavg()[0], 2)]},
-              "rows": rows}
+    report = {
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "zenoh": getattr(zenoh, "__version__", "?"),
+            # the machine is shared: its load says how far absolute numbers can be trusted
+            "load_1min_before_after": [round(load_before, 2), round(os.getloadavg()[0], 2)],
+        },
+        "rows": rows,
+    }
     print(json.dumps(report, indent=2))
     if not args.json_only:
         print(_table(rows))

@@ -54,8 +54,13 @@ def evalset(split: str, ks: tuple[int, ...] = (1, 3, 5, 10)) -> dict:
         full, coarse = ViewframeIndex(memory), CoarseIndex()
         full.add(images, ids)
         coarse.add(images, ids)
-        row = {"viewframes": len(ids), "frames": 0, "full_top1": 0, **{f"truth@{k}": 0 for k in ks},
-               **{f"best@{k}": 0 for k in ks}}
+        row = {
+            "viewframes": len(ids),
+            "frames": 0,
+            "full_top1": 0,
+            **{f"truth@{k}": 0 for k in ks},
+            **{f"best@{k}": 0 for k in ks},
+        }
         for f in case.frames:
             image = cv2.cvtColor(cv2.imread(str(f.image)), cv2.COLOR_BGR2RGB)
             best = full.rank(image).best
@@ -86,13 +91,20 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(res, indent=1))
         if not args.json_only:
             ks = res["ks"]
-            print(f"\n{'case':<28} {'vf':>4} {'frames':>6} {'full top-1':>10} "
-                  + " ".join(f"{'truth@' + str(k):>9}" for k in ks) + " " + " ".join(f"{'best@' + str(k):>8}" for k in ks))
+            print(
+                f"\n{'case':<28} {'vf':>4} {'frames':>6} {'full top-1':>10} "
+                + " ".join(f"{'truth@' + str(k):>9}" for k in ks)
+                + " "
+                + " ".join(f"{'best@' + str(k):>8}" for k in ks)
+            )
             for name, r in [*res["cases"].items(), ("total", res["total"])]:
                 n = r["frames"]
-                print(f"{name:<28} {r.get('viewframes', ''):>4} {n:>6} {r['full_top1'] / n:>10.1%} "
-                      + " ".join(f"{r['truth@' + str(k)] / n:>9.1%}" for k in ks) + " "
-                      + " ".join(f"{r['best@' + str(k)] / n:>8.1%}" for k in ks))
+                print(
+                    f"{name:<28} {r.get('viewframes', ''):>4} {n:>6} {r['full_top1'] / n:>10.1%} "
+                    + " ".join(f"{r['truth@' + str(k)] / n:>9.1%}" for k in ks)
+                    + " "
+                    + " ".join(f"{r['best@' + str(k)] / n:>8.1%}" for k in ks)
+                )
         return 0
     from models.coarse import CoarseIndex
     from models.index import ViewframeIndex
@@ -144,28 +156,43 @@ def main(argv: list[str] | None = None) -> int:
         a, b = full.rank(f.image), other.rank(f.image)
         agree += a.best == b.best
         va = dict(zip(a.viewframes.tolist(), a.variances.tolist()))
-        worst = max(worst, max(abs(va[v] - x) / max(va[v], 1e-30) for v, x in zip(b.viewframes.tolist(), b.variances.tolist())))
+        worst = max(
+            worst, max(abs(va[v] - x) / max(va[v], 1e-30) for v, x in zip(b.viewframes.tolist(), b.variances.tolist()))
+        )
     n = len(frames)
-    spectrum = {"dtypes": [np.dtype(saved).name, np.dtype(other.memory.banks[0].spectrum.dtype).name],
-                "top1_agreement": agree / n, "max_relative_variance_change": worst,
-                "bank_bytes_per_viewframe": [sum(b.spectrum.nbytes for b in m.memory.banks) / len(m)
-                                             for m in (full, other)]}
-    out = {"spectrum": spectrum, "viewframes": len(viewframes), "frames": n, "load_avg": [load0, os.getloadavg()],
-           "full_top1": full_top1 / n, "full_rank_ms": 1000 * t_full / n, "coarse_ms": 1000 * t_coarse / n,
-           "coarse_bytes_per_viewframe": coarse.nbytes / len(coarse),
-           "recall_truth": {str(k): hits_truth[k] / n for k in KS},
-           "recall_full_best": {str(k): hits_best[k] / n for k in KS}}
+    spectrum = {
+        "dtypes": [np.dtype(saved).name, np.dtype(other.memory.banks[0].spectrum.dtype).name],
+        "top1_agreement": agree / n,
+        "max_relative_variance_change": worst,
+        "bank_bytes_per_viewframe": [sum(b.spectrum.nbytes for b in m.memory.banks) / len(m) for m in (full, other)],
+    }
+    out = {
+        "spectrum": spectrum,
+        "viewframes": len(viewframes),
+        "frames": n,
+        "load_avg": [load0, os.getloadavg()],
+        "full_top1": full_top1 / n,
+        "full_rank_ms": 1000 * t_full / n,
+        "coarse_ms": 1000 * t_coarse / n,
+        "coarse_bytes_per_viewframe": coarse.nbytes / len(coarse),
+        "recall_truth": {str(k): hits_truth[k] / n for k in KS},
+        "recall_full_best": {str(k): hits_best[k] / n for k in KS},
+    }
     print(json.dumps(out, indent=1))
     if not args.json_only:
-        print(f"\n{len(viewframes)} viewframes, {n} frames; full ranking top-1 {out['full_top1']:.1%}, "
-              f"{out['full_rank_ms']:.1f} ms/frame; coarse {out['coarse_ms']:.1f} ms/frame")
+        print(
+            f"\n{len(viewframes)} viewframes, {n} frames; full ranking top-1 {out['full_top1']:.1%}, "
+            f"{out['full_rank_ms']:.1f} ms/frame; coarse {out['coarse_ms']:.1f} ms/frame"
+        )
         print(f"{'k':>6} {'truth in top-k':>16} {'full best in top-k':>20}")
         for k in KS:
             print(f"{k:>6} {hits_truth[k] / n:>16.1%} {hits_best[k] / n:>20.1%}")
-        print(f"spectrum {spectrum['dtypes'][0]} vs {spectrum['dtypes'][1]}: top-1 agreement "
-              f"{spectrum['top1_agreement']:.1%}, largest relative variance change "
-              f"{spectrum['max_relative_variance_change']:.2e}, spectrum bytes/viewframe "
-              f"{spectrum['bank_bytes_per_viewframe'][0]:.0f} vs {spectrum['bank_bytes_per_viewframe'][1]:.0f}")
+        print(
+            f"spectrum {spectrum['dtypes'][0]} vs {spectrum['dtypes'][1]}: top-1 agreement "
+            f"{spectrum['top1_agreement']:.1%}, largest relative variance change "
+            f"{spectrum['max_relative_variance_change']:.2e}, spectrum bytes/viewframe "
+            f"{spectrum['bank_bytes_per_viewframe'][0]:.0f} vs {spectrum['bank_bytes_per_viewframe'][1]:.0f}"
+        )
     return 0
 
 

@@ -169,10 +169,21 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     diffs = compare(reference, current)
     spread = max_variance_difference(reference, current)
-    print(json.dumps({"reference": str(args.compare), "current": current, "differences": diffs,
-                      "table_max_relative_variance_difference": spread}, indent=1))
-    print(f"{'scenario':<12}{'frames':>8}{'same viewframe':>16}{'same queries':>14}{'table var. rel. diff':>22}",
-          file=sys.stderr)
+    print(
+        json.dumps(
+            {
+                "reference": str(args.compare),
+                "current": current,
+                "differences": diffs,
+                "table_max_relative_variance_difference": spread,
+            },
+            indent=1,
+        )
+    )
+    print(
+        f"{'scenario':<12}{'frames':>8}{'same viewframe':>16}{'same queries':>14}{'table var. rel. diff':>22}",
+        file=sys.stderr,
+    )
     for name, cur in current["scenarios"].items():
         ref = reference["scenarios"].get(name, {"frames": []})
         pairs = list(zip(ref["frames"], cur["frames"]))

@@ -47,9 +47,17 @@ def _roll(image: np.ndarray, deg: float, *, nearest: bool) -> np.ndarray:
     return cv2.warpAffine(image, m, (w, h), flags=flags, borderMode=cv2.BORDER_REPLICATE)
 
 
-def posed_frames(cam: CameraEmulator, poses: list[Pose], *, rng: np.random.Generator, spec: SimulateSpec,
-                 heading_deg: float = 5.0, pitch_deg: float = 2.0, roll_deg: float = 2.0,
-                 per_point: int = 1) -> list[dict]:
+def posed_frames(
+    cam: CameraEmulator,
+    poses: list[Pose],
+    *,
+    rng: np.random.Generator,
+    spec: SimulateSpec,
+    heading_deg: float = 5.0,
+    pitch_deg: float = 2.0,
+    roll_deg: float = 2.0,
+    per_point: int = 1,
+) -> list[dict]:
     """Camera frames near every route point with pose errors drawn uniformly within
     ``±heading_deg``, ``±pitch_deg`` and ``±roll_deg`` (roll applied as an image rotation), the
     position advanced along the leg and jittered as ``spec`` says, photometry degraded by
@@ -70,19 +78,32 @@ def posed_frames(cam: CameraEmulator, poses: list[Pose], *, rng: np.random.Gener
             light = (math.cos(az) * math.cos(el), math.sin(az) * math.cos(el), -math.sin(el))
             view = cam.render(pose, light_intensity=1.0 + spec.lighting * rng.uniform(-1, 1), light_direction=light)
             image = degrade(view.image, depth=view.depth, spec=spec, rng=rng)
-            out.append({"image": _roll(image, roll, nearest=False), "mask": _roll(view.mask, roll, nearest=True),
-                        "pose": pose})
+            out.append(
+                {"image": _roll(image, roll, nearest=False), "mask": _roll(view.mask, roll, nearest=True), "pose": pose}
+            )
     return out
 
 
-def scenario_questions(scenario: Scenario, *, seed: int, candidates: int = 8, min_pixels: int = 60,
-                       align_px: tuple[int, int], **pose_errors) -> dict:
+def scenario_questions(
+    scenario: Scenario,
+    *,
+    seed: int,
+    candidates: int = 8,
+    min_pixels: int = 60,
+    align_px: tuple[int, int],
+    **pose_errors,
+) -> dict:
     """Render the viewframes and posed frames of ``scenario`` (frames drawn with ``seed``, by the
     viewframes' own renderer) and list the questions (module docstring); see :func:`questions`."""
     with World(scenario) as world:
         vfs = world.viewframes
-        frames = posed_frames(world.emulator, world.poses, rng=np.random.default_rng(seed),
-                              spec=scenario.sensor.simulate or SimulateSpec(), **pose_errors)
+        frames = posed_frames(
+            world.emulator,
+            world.poses,
+            rng=np.random.default_rng(seed),
+            spec=scenario.sensor.simulate or SimulateSpec(),
+            **pose_errors,
+        )
         env = world.environment
     return questions(scenario, env, vfs, frames, candidates=candidates, min_pixels=min_pixels, align_px=align_px)
 
@@ -102,16 +123,16 @@ def case_questions(case, *, candidates: int = 8, min_pixels: int = 60, align_px:
     return questions(scenario, env, vfs, frames, candidates=candidates, min_pixels=min_pixels, align_px=align_px)
 
 
-def questions(scenario: Scenario, env, vfs, frames: list[dict], *, candidates: int, min_pixels: int,
-              align_px: tuple[int, int]) -> dict:
+def questions(
+    scenario: Scenario, env, vfs, frames: list[dict], *, candidates: int, min_pixels: int, align_px: tuple[int, int]
+) -> dict:
     """The labelled questions about ``frames`` (``image``, ``mask`` at the true pose, ``pose``)
     against the viewframes ``vfs``. Returns ``{"viewframes", "frames", "questions", "ambiguous",
     "rankings", "truth", "landmarks"}`` (``truth``: each frame's nearest route point, the results'
     criterion of a correct frame)."""
     index = ViewframeIndex(scenario.memory)
     index.add([v.image for v in vfs], [v.index for v in vfs])
-    truth = [int(np.argmin([math.hypot(v.pose.x - f["pose"].x, v.pose.y - f["pose"].y) for v in vfs]))
-             for f in frames]
+    truth = [int(np.argmin([math.hypot(v.pose.x - f["pose"].x, v.pose.y - f["pose"].y) for v in vfs])) for f in frames]
     out, ambiguous, rankings = [], 0, []
     sr, sc = align_px
     for fi, fr in enumerate(frames):
@@ -135,10 +156,28 @@ def questions(scenario: Scenario, env, vfs, frames: list[dict], *, candidates: i
                 if label is None:
                     ambiguous += 1
                     continue
-                out.append({"frame": fi, "viewframe": k, "landmark": lm.id, "index": int(li), "kind": lm.kind,
-                            "pixels": px, "label": label, "label_kind": label_kind, "nearest": truth[fi]})
-    return {"viewframes": vfs, "frames": frames, "questions": out, "ambiguous": ambiguous,
-            "rankings": rankings, "truth": truth, "landmarks": env.landmarks}
+                out.append(
+                    {
+                        "frame": fi,
+                        "viewframe": k,
+                        "landmark": lm.id,
+                        "index": int(li),
+                        "kind": lm.kind,
+                        "pixels": px,
+                        "label": label,
+                        "label_kind": label_kind,
+                        "nearest": truth[fi],
+                    }
+                )
+    return {
+        "viewframes": vfs,
+        "frames": frames,
+        "questions": out,
+        "ambiguous": ambiguous,
+        "rankings": rankings,
+        "truth": truth,
+        "landmarks": env.landmarks,
+    }
 
 
 def _label(near: int, pixels: int) -> int | None:
@@ -182,6 +221,6 @@ def roc_auc(scores, labels) -> float | None:
         j = i
         while j + 1 < len(s) and sorted_s[j + 1] == sorted_s[i]:
             j += 1
-        ranks[order[i:j + 1]] = (i + j) / 2 + 1
+        ranks[order[i : j + 1]] = (i + j) / 2 + 1
         i = j + 1
     return float((ranks[y == 1].sum() - len(pos) * (len(pos) + 1) / 2) / (len(pos) * len(neg)))

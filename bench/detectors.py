@@ -42,8 +42,9 @@ GOAL = 0.97
 def registry_for(scenario):
     s = scenario.scheduler
     ap = align_pixels(height=scenario.camera.height, fov_y_deg=scenario.camera.fov_y_deg, tolerance_deg=s.align_deg)
-    return default_registry(threshold=s.detector_threshold, absent_threshold=s.absent_threshold,
-                            calibration=s.calibration, align_px=ap), ap
+    return default_registry(
+        threshold=s.detector_threshold, absent_threshold=s.absent_threshold, calibration=s.calibration, align_px=ap
+    ), ap
 
 
 def answers(data: dict, registry) -> list[dict]:
@@ -69,14 +70,21 @@ def main(argv: list[str] | None = None) -> int:
     for case in cases(args.split, names=args.names, kinds=args.kinds):
         sc = load_scenario(case.scenario_path)
         reg, align = registry_for(sc)
-        data = dp.case_questions(case, align_px=align, min_pixels=sc.scheduler.min_pixels,
-                                 candidates=sc.scheduler.candidates)
+        data = dp.case_questions(
+            case, align_px=align, min_pixels=sc.scheduler.min_pixels, candidates=sc.scheduler.candidates
+        )
         ambiguous += data["ambiguous"]
         rows += [{**r, "case": case.name} for r in answers(data, reg)]
         names.append(case.name)
     kinds = sorted({r["kind"] for r in rows})
-    result = {"split": args.split, "cases": names, "goal_auc": GOAL,
-              "ambiguous_left_out": ambiguous, "elapsed_s": round(time.perf_counter() - started, 1), "kinds": {}}
+    result = {
+        "split": args.split,
+        "cases": names,
+        "goal_auc": GOAL,
+        "ambiguous_left_out": ambiguous,
+        "elapsed_s": round(time.perf_counter() - started, 1),
+        "kinds": {},
+    }
     for kind in kinds:
         rr = [r for r in rows if r["kind"] == kind]
         y = [r["label"] for r in rr]
@@ -90,30 +98,40 @@ def main(argv: list[str] | None = None) -> int:
             if sel:
                 wp = sum(1 / pos for _, t in sel if t == 1)
                 wn = sum(1 / neg for _, t in sel if t == 0)
-                bins.append({"llr": [lo, hi], "n": len(sel),
-                             "predicted": round(float(np.mean([1 / (1 + math.exp(-v)) for v, _ in sel])), 3),
-                             "observed": round(wp / (wp + wn), 3)})
+                bins.append(
+                    {
+                        "llr": [lo, hi],
+                        "n": len(sel),
+                        "predicted": round(float(np.mean([1 / (1 + math.exp(-v)) for v, _ in sel])), 3),
+                        "observed": round(wp / (wp + wn), 3),
+                    }
+                )
         result["kinds"][kind] = {
-            "questions": len(rr), "positives": int(sum(y)),
-            "auc_llr": dp.roc_auc(llr, y), "auc_score": dp.roc_auc([r["score"] for r in rr], y),
+            "questions": len(rr),
+            "positives": int(sum(y)),
+            "auc_llr": dp.roc_auc(llr, y),
+            "auc_score": dp.roc_auc([r["score"] for r in rr], y),
             "auc_statistic": dp.roc_auc([r["statistic"] for r in rr], y),
-            "hard_answers": {"present_right": sum(1 for r in rr if r["present"] is True and r["label"] == 1),
-                             "present_wrong": sum(1 for r in rr if r["present"] is True and r["label"] == 0),
-                             "absent_right": sum(1 for r in rr if r["present"] is False and r["label"] == 0),
-                             "absent_wrong": sum(1 for r in rr if r["present"] is False and r["label"] == 1),
-                             "undecided": sum(1 for r in rr if r["present"] is None)},
+            "hard_answers": {
+                "present_right": sum(1 for r in rr if r["present"] is True and r["label"] == 1),
+                "present_wrong": sum(1 for r in rr if r["present"] is True and r["label"] == 0),
+                "absent_right": sum(1 for r in rr if r["present"] is False and r["label"] == 0),
+                "absent_wrong": sum(1 for r in rr if r["present"] is False and r["label"] == 1),
+                "undecided": sum(1 for r in rr if r["present"] is None),
+            },
             "calibration_bins": bins,
         }
     print(json.dumps(result, indent=1))
-    print(f"\n{args.split} split: {', '.join(names)}; "
-          f"{ambiguous} ambiguous questions left out; goal AUC >= {GOAL}\n")
+    print(f"\n{args.split} split: {', '.join(names)}; {ambiguous} ambiguous questions left out; goal AUC >= {GOAL}\n")
     print("| kind | questions | positives | AUC llr | AUC edge score | AUC colour statistic | goal |")
     print("|---|---|---|---|---|---|---|")
     for kind, v in result["kinds"].items():
         f = lambda a: "-" if a is None else f"{a:.3f}"  # noqa: E731
         ok = v["auc_llr"] is not None and v["auc_llr"] >= GOAL
-        print(f"| {kind} | {v['questions']} | {v['positives']} | {f(v['auc_llr'])} | {f(v['auc_score'])} | "
-              f"{f(v['auc_statistic'])} | {'met' if ok else 'missed'} |")
+        print(
+            f"| {kind} | {v['questions']} | {v['positives']} | {f(v['auc_llr'])} | {f(v['auc_score'])} | "
+            f"{f(v['auc_statistic'])} | {'met' if ok else 'missed'} |"
+        )
     return 0
 
 

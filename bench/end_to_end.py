@@ -67,12 +67,18 @@ def make_scenario(n: int, folder: Path, *, seed: int = 11, frames: int = 60) -> 
         ahead, off = rng.uniform(40, 90), side * rng.uniform(15, 45)
         kind = KINDS[j % len(KINDS)]
         w, d, h = {"house": (18, 12, 8), "tower": (4, 4, 30), "barn": (30, 16, 10)}[kind]
-        landmarks.append({
-            "id": f"L{j}", "kind": kind,
-            "x": round(x0 + ahead * math.cos(heading) - off * math.sin(heading), 1),
-            "y": round(y0 + ahead * math.sin(heading) + off * math.cos(heading), 1),
-            "width": w, "depth": d, "height": h, "yaw_deg": round(float(rng.uniform(0, 90)), 1),
-        })
+        landmarks.append(
+            {
+                "id": f"L{j}",
+                "kind": kind,
+                "x": round(x0 + ahead * math.cos(heading) - off * math.sin(heading), 1),
+                "y": round(y0 + ahead * math.sin(heading) + off * math.cos(heading), 1),
+                "width": w,
+                "depth": d,
+                "height": h,
+                "yaw_deg": round(float(rng.uniform(0, 90)), 1),
+            }
+        )
     data = {
         "name": f"route{n}",
         "seed": seed,
@@ -99,10 +105,12 @@ def run_one(path: Path, *, rate: float) -> dict:
             "frames": s["frames"],
             "top1": s["top1"],
             # the same criterion relaxed to the neighbouring route points (25 m away here)
-            "within_one_point": sum(f["viewframe"] is not None and abs(f["viewframe"] - f["truth_viewframe"]) <= 1
-                                    for f in frames) / len(frames),
-            "ranking_top1": sum(bool(f["ranking"]) and f["ranking"][0][0] == f["truth_viewframe"]
-                                for f in frames) / len(frames),
+            "within_one_point": sum(
+                f["viewframe"] is not None and abs(f["viewframe"] - f["truth_viewframe"]) <= 1 for f in frames
+            )
+            / len(frames),
+            "ranking_top1": sum(bool(f["ranking"]) and f["ranking"][0][0] == f["truth_viewframe"] for f in frames)
+            / len(frames),
             "mean_error_m": s["mean_error_m"],
             "mean_queries": s["mean_queries"],
             "frames_per_s": s["frames_per_s"],
@@ -125,26 +133,52 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     sizes = args.sizes or ([50, 500] if args.quick else [50, 500, 2000])
-    results = {"machine": {"python": platform.python_version(), "cpus": __import__("os").cpu_count(),
-                           "platform": platform.platform()}, "routes": {}}
+    results = {
+        "machine": {
+            "python": platform.python_version(),
+            "cpus": __import__("os").cpu_count(),
+            "platform": platform.platform(),
+        },
+        "routes": {},
+    }
     with tempfile.TemporaryDirectory() as tmp:
         for n in sizes:
             results["routes"][str(n)] = run_one(make_scenario(n, Path(tmp)), rate=args.rate)
     print(json.dumps(results, indent=1))
     if not args.json_only:
         print()
-        head = ("viewframes", "strategy", "frames", "top-1", "within 1", "rank top-1", "err m", "queries", "frames/s",
-                "p50 ms", "p99 ms", "setup s")
+        head = (
+            "viewframes",
+            "strategy",
+            "frames",
+            "top-1",
+            "within 1",
+            "rank top-1",
+            "err m",
+            "queries",
+            "frames/s",
+            "p50 ms",
+            "p99 ms",
+            "setup s",
+        )
         print("  ".join(f"{h:>10}" for h in head))
         for n, r in results["routes"].items():
             for strategy in ("associative", "prior"):
                 x = r[strategy]
-                cells = (n, strategy, x["frames"], f"{x['top1']:.1%}" if x["top1"] is not None else "-",
-                         f"{x['within_one_point']:.1%}", f"{x['ranking_top1']:.1%}",
-                         f"{x['mean_error_m']:.1f}" if x["mean_error_m"] is not None else "-",
-                         f"{x['mean_queries']:.2f}", f"{x['frames_per_s']:.1f}",
-                         f"{x.get('latency_ms_p50', float('nan')):.0f}", f"{x.get('latency_ms_p99', float('nan')):.0f}",
-                         f"{x['map_and_setup_s']:.1f}")
+                cells = (
+                    n,
+                    strategy,
+                    x["frames"],
+                    f"{x['top1']:.1%}" if x["top1"] is not None else "-",
+                    f"{x['within_one_point']:.1%}",
+                    f"{x['ranking_top1']:.1%}",
+                    f"{x['mean_error_m']:.1f}" if x["mean_error_m"] is not None else "-",
+                    f"{x['mean_queries']:.2f}",
+                    f"{x['frames_per_s']:.1f}",
+                    f"{x.get('latency_ms_p50', float('nan')):.0f}",
+                    f"{x.get('latency_ms_p99', float('nan')):.0f}",
+                    f"{x['map_and_setup_s']:.1f}",
+                )
                 print("  ".join(f"{c:>10}" for c in cells))
             print(f"{'':>10}  queries associative/prior = {r['queries_ratio_associative_to_prior']:.2f}")
     return 0

@@ -69,13 +69,13 @@ logger = logging.getLogger("bench.index")
 SHAPE = (120, 160)
 
 
-
-
 def perturb(img: np.ndarray, rng: np.random.Generator, *, shift: float, noise: float) -> np.ndarray:
     """Camera-like perturbation: shift, gain/offset, noise (see the module docstring)."""
     h, w = img.shape
     dx, dy = rng.uniform(-shift, shift, 2)
-    out = cv2.warpAffine(img.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REPLICATE)
+    out = cv2.warpAffine(
+        img.astype(np.float32), np.float32([[1, 0, dx], [0, 1, dy]]), (w, h), borderMode=cv2.BORDER_REPLICATE
+    )
     out = out * rng.uniform(0.6, 1.4) + rng.uniform(-30, 30) + rng.normal(0.0, noise, out.shape)
     return np.clip(out, 0, 255).astype(np.uint8)
 
@@ -89,8 +89,9 @@ def _median_ms(fn: Callable[[], object], repeats: int) -> float:
     return 1000.0 * statistics.median(times)
 
 
-def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noise: float, seed: int,
-             max_shift: tuple[int, int]) -> list[dict]:
+def capacity(
+    sizes: list[int], hs: list[int], *, queries: int, shift: float, noise: float, seed: int, max_shift: tuple[int, int]
+) -> list[dict]:
     """Top-1 and recall quality of ONE bank as the number of stored patterns grows."""
     rng = np.random.default_rng(seed)
     images = [scene(rng) for _ in range(max(hs))]
@@ -109,8 +110,15 @@ def capacity(sizes: list[int], hs: list[int], *, queries: int, shift: float, noi
                 rel.append(r.reliability)
                 rec = mem.recall(q)
                 quality.append(float(np.sum(rec * pats[i]) / max(np.linalg.norm(rec), 1e-12)))
-            rows.append({"N": n, "H": h, "top1": hits / queries, "recall_cos": float(np.median(quality)),
-                         "reliability": float(np.median(rel))})
+            rows.append(
+                {
+                    "N": n,
+                    "H": h,
+                    "top1": hits / queries,
+                    "recall_cos": float(np.median(quality)),
+                    "reliability": float(np.median(rel)),
+                }
+            )
             logger.info("capacity N=%s H=%s top1=%.2f", n, h, hits / queries)
     return rows
 
@@ -146,14 +154,24 @@ def scenario_top1(paths: list[str], *, bank_sizes: list[int], shifts: list[tuple
                 index = ViewframeIndex(sc.memory.model_copy(update={"bank_size": b, "max_shift": ms}))
                 index.add_patterns(pats, range(len(pats)))
                 row[f"memory b={b} shift={ms[0]},{ms[1]}"] = sum(
-                    index.rank_pattern(q).best == t for q, t in zip(queries, truth))
+                    index.rank_pattern(q).best == t for q, t in zip(queries, truth)
+                )
         rows.append(row)
         logger.info("%s", row)
     return rows
 
 
-def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, np.ndarray]], *,
-             bank_size: int, max_shift: tuple[int, int], with_orb: bool, with_single: bool) -> list[dict]:
+def run_case(
+    n: int,
+    h: int,
+    images: list[np.ndarray],
+    queries: list[tuple[int, np.ndarray]],
+    *,
+    bank_size: int,
+    max_shift: tuple[int, int],
+    with_orb: bool,
+    with_single: bool,
+) -> list[dict]:
     """All methods on one (N, H) case."""
     out = []
     methods: list = [HolographicIndex(n, bank_size=bank_size, max_shift=max_shift)]
@@ -181,14 +199,21 @@ def run_case(n: int, h: int, images: list[np.ndarray], queries: list[tuple[int, 
             order = rank(p)
             times.append(time.perf_counter() - t0)
             hits += int(order[0]) == i
-        row = {"method": m.name, "N": n, "H": h, "store_s": round(store_s, 3),
-               "rank_ms": round(1000 * statistics.median(times), 3), "preprocess_ms": round(t_pre, 3),
-               "top1": hits / len(pats)}
+        row = {
+            "method": m.name,
+            "N": n,
+            "H": h,
+            "store_s": round(store_s, 3),
+            "rank_ms": round(1000 * statistics.median(times), 3),
+            "preprocess_ms": round(t_pre, 3),
+            "top1": hits / len(pats),
+        }
         if isinstance(m, HolographicIndex):
             matrix = m.memory.ranking_matrix
             floor = _median_ms(lambda matrix=matrix: matrix.sum(), 7)
-            row.update({"banks": len(m.memory.banks), "floor_ms": round(floor, 3),
-                        "ratio": round(row["rank_ms"] / floor, 2)})
+            row.update(
+                {"banks": len(m.memory.banks), "floor_ms": round(floor, 3), "ratio": round(row["rank_ms"] / floor, 2)}
+            )
         out.append(row)
         logger.info("%s", row)
         del m
@@ -202,20 +227,32 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hs", type=int, nargs="+", default=None, help="stored viewframes (default 100 1000 5000)")
     parser.add_argument("--queries", type=int, default=None, help="perturbed queries per case (default 100, quick 40)")
     parser.add_argument("--bank-size", type=int, default=DEFAULTS.bank_size)
-    parser.add_argument("--max-shift", type=int, nargs=2, default=list(DEFAULTS.max_shift), metavar=("ROWS", "COLS"),
-                        help="shift search of the memory, memory pixels")
+    parser.add_argument(
+        "--max-shift",
+        type=int,
+        nargs=2,
+        default=list(DEFAULTS.max_shift),
+        metavar=("ROWS", "COLS"),
+        help="shift search of the memory, memory pixels",
+    )
     parser.add_argument("--shift", type=float, default=3.0, help="max shift of a query in image pixels")
     parser.add_argument("--noise", type=float, default=8.0, help="gaussian noise of a query, gray levels")
     parser.add_argument("--no-orb", action="store_true", help="skip the ORB baseline")
     parser.add_argument("--no-capacity", action="store_true")
-    parser.add_argument("--scenarios", nargs="*", default=None, metavar="YAML",
-                        help="also top-1 on these scenarios' rendered viewframes and simulated frames "
-                             "(default: the bundled hills, contours, jacksboro; none with --quick)")
+    parser.add_argument(
+        "--scenarios",
+        nargs="*",
+        default=None,
+        metavar="YAML",
+        help="also top-1 on these scenarios' rendered viewframes and simulated frames "
+        "(default: the bundled hills, contours, jacksboro; none with --quick)",
+    )
     parser.add_argument("--json-only", action="store_true")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.json_only else logging.INFO, stream=sys.stderr,
-                        format="%(asctime)s %(message)s")
+    logging.basicConfig(
+        level=logging.WARNING if args.json_only else logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s"
+    )
     hs = args.hs or ([100, 1000] if args.quick else [100, 1000, 5000])
     nq = args.queries or (40 if args.quick else 100)
 
@@ -223,24 +260,63 @@ def main(argv: list[str] | None = None) -> int:
     images = [scene(rng) for _ in range(max(hs))]
     results = []
     for h in hs:
-        queries = [(i, perturb(images[i], rng, shift=args.shift, noise=args.noise))
-                   for i in rng.integers(0, h, size=nq).tolist()]
+        queries = [
+            (i, perturb(images[i], rng, shift=args.shift, noise=args.noise))
+            for i in rng.integers(0, h, size=nq).tolist()
+        ]
         for n in args.sizes:
-            results += run_case(n, h, images, queries, bank_size=args.bank_size, max_shift=tuple(args.max_shift),
-                                with_orb=not args.no_orb and n == args.sizes[0], with_single=h <= 1000)
-    cap = [] if args.no_capacity else capacity(
-        args.sizes, [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]), queries=nq,
-        shift=args.shift, noise=args.noise, seed=args.seed + 1, max_shift=tuple(args.max_shift))
+            results += run_case(
+                n,
+                h,
+                images,
+                queries,
+                bank_size=args.bank_size,
+                max_shift=tuple(args.max_shift),
+                with_orb=not args.no_orb and n == args.sizes[0],
+                with_single=h <= 1000,
+            )
+    cap = (
+        []
+        if args.no_capacity
+        else capacity(
+            args.sizes,
+            [4, 8, 16, 32, 64, 128] + ([] if args.quick else [256]),
+            queries=nq,
+            shift=args.shift,
+            noise=args.noise,
+            seed=args.seed + 1,
+            max_shift=tuple(args.max_shift),
+        )
+    )
     if args.scenarios is None:
         root = Path(__file__).resolve().parent.parent / "scenarios"
         args.scenarios = [] if args.quick else [str(root / f"{n}.yaml") for n in ("hills", "contours", "jacksboro")]
-    scen = scenario_top1(args.scenarios, bank_sizes=[1, DEFAULTS.bank_size, 4, 8],
-                         shifts=[(0, 0), (2, 6), DEFAULTS.max_shift]) if args.scenarios else []
+    scen = (
+        scenario_top1(
+            args.scenarios, bank_sizes=[1, DEFAULTS.bank_size, 4, 8], shifts=[(0, 0), (2, 6), DEFAULTS.max_shift]
+        )
+        if args.scenarios
+        else []
+    )
     doc = {
-        "machine": {"cpus": os.cpu_count(), "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"), "python": platform.python_version(),
-                    "numpy": np.__version__, "opencv": cv2.__version__},
-        "params": {"hs": hs, "sizes": args.sizes, "queries": nq, "shift_px": args.shift, "noise": args.noise,
-                   "bank_size": args.bank_size, "max_shift": args.max_shift, "image": list(SHAPE), "seed": args.seed},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "blas_threads": os.environ.get("OPENBLAS_NUM_THREADS"),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "opencv": cv2.__version__,
+        },
+        "params": {
+            "hs": hs,
+            "sizes": args.sizes,
+            "queries": nq,
+            "shift_px": args.shift,
+            "noise": args.noise,
+            "bank_size": args.bank_size,
+            "max_shift": args.max_shift,
+            "image": list(SHAPE),
+            "seed": args.seed,
+        },
         "results": results,
         "capacity": cap,
         "scenarios": scen,
@@ -268,8 +344,11 @@ def _table(doc: dict) -> None:
         scols, srows = [], []
     if Console is not None:
         console = Console(stderr=True)
-        for title, cs, rs in (("index benchmark", cols, rows), ("capacity of one bank", ccols, crows),
-                              ("top-1 on scenario frames (counts)", scols, srows)):
+        for title, cs, rs in (
+            ("index benchmark", cols, rows),
+            ("capacity of one bank", ccols, crows),
+            ("top-1 on scenario frames (counts)", scols, srows),
+        ):
             if not rs:
                 continue
             t = Table(title=title)

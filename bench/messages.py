@@ -44,19 +44,50 @@ def samples(width: int, height: int, viewframes: int) -> dict[str, levels.Messag
     image = rng.integers(0, 256, (height, width, 3), dtype=np.uint8)
     return {
         "sensor_frame": levels.SensorFrame(frame=3, image=image, source="simulated"),
-        "viewframe": levels.Viewframe(index=3, pose=[1.0, 2.0, 2.0, 90.0, 0.0], image=image,
-                                      mask=np.full((height, width), -1, np.int16),
-                                      description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]},
-                                      skyline=np.zeros(width // 2, np.float32)),
-        "ranking": levels.Ranking(frame=3, frame_time=1.0, shard=0, shards=1, viewframes=list(range(viewframes)),
-                                  variances=[float(v) for v in rng.random(viewframes)], reliability=2.0),
+        "viewframe": levels.Viewframe(
+            index=3,
+            pose=[1.0, 2.0, 2.0, 90.0, 0.0],
+            image=image,
+            mask=np.full((height, width), -1, np.int16),
+            description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]},
+            skyline=np.zeros(width // 2, np.float32),
+        ),
+        "ranking": levels.Ranking(
+            frame=3,
+            frame_time=1.0,
+            shard=0,
+            shards=1,
+            viewframes=list(range(viewframes)),
+            variances=[float(v) for v in rng.random(viewframes)],
+            reliability=2.0,
+        ),
         "query": levels.Query(frame=3, number=1, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
-        "answer": levels.Answer(query="q-000003-1", frame=3, landmark="H1", viewframe=2, present=True, score=0.8,
-                                location=[10.0, 20.0], detector="edges", reason="edges match"),
-        "position": levels.Position(frame=3, viewframe=2, position=[1.0, 2.0], heading_deg=90.0, confidence=0.9,
-                                    queries=1, backtracks=0, latency_ms=30.0, ranking=[[2, 1e-5]] * 5,
-                                    reason="accepted", degraded=[], steps=[{"landmark": "H1", "present": True}],
-                                    strategy="associative"),
+        "answer": levels.Answer(
+            query="q-000003-1",
+            frame=3,
+            landmark="H1",
+            viewframe=2,
+            present=True,
+            score=0.8,
+            location=[10.0, 20.0],
+            detector="edges",
+            reason="edges match",
+        ),
+        "position": levels.Position(
+            frame=3,
+            viewframe=2,
+            position=[1.0, 2.0],
+            heading_deg=90.0,
+            confidence=0.9,
+            queries=1,
+            backtracks=0,
+            latency_ms=30.0,
+            ranking=[[2, 1e-5]] * 5,
+            reason="accepted",
+            degraded=[],
+            steps=[{"landmark": "H1", "present": True}],
+            strategy="associative",
+        ),
     }
 
 
@@ -77,14 +108,26 @@ def main(argv: list[str] | None = None) -> int:
         make = _per_call_us(lambda: cls(**fields).to_body(), args.repeat)  # noqa: B023
         read = _per_call_us(lambda: cls.from_body(decoded), args.repeat)  # noqa: B023
         codec = _per_call_us(lambda: decode(encode(body)), args.repeat)  # noqa: B023
-        rows.append({"level": level, "bytes": len(wire), "make_to_body_us": make, "from_body_us": read,
-                     "codec_us": codec, "overhead": (make + read) / codec})
+        rows.append(
+            {
+                "level": level,
+                "bytes": len(wire),
+                "make_to_body_us": make,
+                "from_body_us": read,
+                "codec_us": codec,
+                "overhead": (make + read) / codec,
+            }
+        )
     print(json.dumps({"size": [width, height], "ranking_entries": args.viewframes, "rows": rows}))
-    print(f"{'level':13} {'bytes':>8} {'make+to_body us':>16} {'from_body us':>13} {'encode+decode us':>17} "
-          f"{'typed/codec':>12}")
+    print(
+        f"{'level':13} {'bytes':>8} {'make+to_body us':>16} {'from_body us':>13} {'encode+decode us':>17} "
+        f"{'typed/codec':>12}"
+    )
     for r in rows:
-        print(f"{r['level']:13} {r['bytes']:8d} {r['make_to_body_us']:16.2f} {r['from_body_us']:13.2f} "
-              f"{r['codec_us']:17.2f} {r['overhead']:12.2f}")
+        print(
+            f"{r['level']:13} {r['bytes']:8d} {r['make_to_body_us']:16.2f} {r['from_body_us']:13.2f} "
+            f"{r['codec_us']:17.2f} {r['overhead']:12.2f}"
+        )
     return 0
 
 

@@ -71,8 +71,11 @@ def bench_scenario(path: Path, repeat: int) -> dict:
     scenario = load_scenario(path)
     terrain = load_terrain(scenario.terrain, base_dir=scenario.base_dir, seed=scenario.seed)
     poses = None
-    out: dict = {"scenario": scenario.name, "dem": list(terrain.shape),
-                 "size": f"{scenario.camera.width}x{scenario.camera.height}"}
+    out: dict = {
+        "scenario": scenario.name,
+        "dem": list(terrain.shape),
+        "size": f"{scenario.camera.width}x{scenario.camera.height}",
+    }
     views: dict = {}
     for name, lod in (("lod", {}), ("full", {"levels": 1})):
         with World(scenario, terrain=terrain, **lod) as world:
@@ -83,8 +86,13 @@ def bench_scenario(path: Path, repeat: int) -> dict:
                 dt, vs, tri = _pass(cam, poses)
                 total += dt
             n = len(poses) * repeat
-            out[name] = {"vf_per_s": round(n / total, 1), "ms_per_vf": round(1000 * total / n, 2),
-                         "triangles": tri, "warmup_s": round(warm, 2), "views": len(poses)}
+            out[name] = {
+                "vf_per_s": round(n / total, 1),
+                "ms_per_vf": round(1000 * total / n, 2),
+                "triangles": tri,
+                "warmup_s": round(warm, 2),
+                "views": len(poses),
+            }
             views[name] = vs
         out["full_dem_triangles"] = env.full_triangles
     errs, p99s, ious, same = [], [], [], []
@@ -98,9 +106,12 @@ def bench_scenario(path: Path, repeat: int) -> dict:
         if (la | lb).any():
             ious.append(float(((a.mask == b.mask) & la).sum() / (la | lb).sum()))
         same.append(da.visible == db.visible)
-    out["lod"].update(depth_err_m=round(float(np.median(errs)), 3),
-                      depth_rel_p99=round(float(np.median(p99s)), 4), mask_iou=round(float(np.mean(ious)), 3)
-                      if ious else None, same_visible=round(float(np.mean(same)), 3))
+    out["lod"].update(
+        depth_err_m=round(float(np.median(errs)), 3),
+        depth_rel_p99=round(float(np.median(p99s)), 4),
+        mask_iou=round(float(np.mean(ious)), 3) if ious else None,
+        same_visible=round(float(np.mean(same)), 3),
+    )
     out["speedup"] = round(out["full"]["ms_per_vf"] / out["lod"]["ms_per_vf"], 2)
     return out
 
@@ -114,8 +125,11 @@ def main(argv: list[str] | None = None) -> int:
     results = [bench_scenario(p, args.repeat) for p in paths]
     doc = {
         "benchmark": "render",
-        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "gl": os.environ.get("PYOPENGL_PLATFORM")},
+        "machine": {
+            "cpus": os.cpu_count(),
+            "python": platform.python_version(),
+            "gl": os.environ.get("PYOPENGL_PLATFORM"),
+        },
         "goal_vf_per_s": 30,
         "results": results,
     }
@@ -125,18 +139,40 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _table(results: list[dict]) -> None:
-    cols = ["scenario", "dem", "config", "vf/s", "ms/vf", "triangles", "warmup_s", "depth_err_m", "depth_rel_p99",
-            "mask_iou",
-            "same_visible", "speedup"]
+    cols = [
+        "scenario",
+        "dem",
+        "config",
+        "vf/s",
+        "ms/vf",
+        "triangles",
+        "warmup_s",
+        "depth_err_m",
+        "depth_rel_p99",
+        "mask_iou",
+        "same_visible",
+        "speedup",
+    ]
     rows = []
     for r in results:
         for cfg in ("lod", "full"):
             c = r[cfg]
-            rows.append([r["scenario"], "x".join(map(str, r["dem"])), cfg, str(c["vf_per_s"]), str(c["ms_per_vf"]),
-                         str(c["triangles"]), str(c["warmup_s"]), str(c.get("depth_err_m", "")),
-                         str(c.get("depth_rel_p99", "")),
-                         str(c.get("mask_iou", "")), str(c.get("same_visible", "")),
-                         str(r["speedup"]) if cfg == "lod" else ""])
+            rows.append(
+                [
+                    r["scenario"],
+                    "x".join(map(str, r["dem"])),
+                    cfg,
+                    str(c["vf_per_s"]),
+                    str(c["ms_per_vf"]),
+                    str(c["triangles"]),
+                    str(c["warmup_s"]),
+                    str(c.get("depth_err_m", "")),
+                    str(c.get("depth_rel_p99", "")),
+                    str(c.get("mask_iou", "")),
+                    str(c.get("same_visible", "")),
+                    str(r["speedup"]) if cfg == "lod" else "",
+                ]
+            )
     try:
         from rich.console import Console
         from rich.table import Table

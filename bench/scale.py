@@ -88,8 +88,11 @@ def components(path: Path, cache_dir: Path) -> dict:
     render_s = time.perf_counter() - t0
     r3 = rss_mb()
     n = len(viewframes)
-    arrays = {f.name: sum(getattr(vf, f.name).nbytes for vf in viewframes) / n
-              for f in dataclasses.fields(viewframes[0]) if isinstance(getattr(viewframes[0], f.name), np.ndarray)}
+    arrays = {
+        f.name: sum(getattr(vf, f.name).nbytes for vf in viewframes) / n
+        for f in dataclasses.fields(viewframes[0])
+        if isinstance(getattr(viewframes[0], f.name), np.ndarray)
+    }
     out["viewframes"] = n
     out["render_s"] = render_s
     out["rss_environment_mb"] = r1 - r0
@@ -104,9 +107,13 @@ def components(path: Path, cache_dir: Path) -> dict:
     sizes = []
     for vf in viewframes[: min(n, 200)]:
         p = vf.pose
-        msg = levels.Viewframe(index=vf.index, pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
-                               image=np.ascontiguousarray(vf.image), mask=vf.mask.astype(np.int16),
-                               description=vf.description.to_dict())
+        msg = levels.Viewframe(
+            index=vf.index,
+            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+            image=np.ascontiguousarray(vf.image),
+            mask=vf.mask.astype(np.int16),
+            description=vf.description.to_dict(),
+        )
         sizes.append(len(encode(msg.to_body())))
     out["message_bytes_per_viewframe"] = float(np.mean(sizes))
 
@@ -168,8 +175,13 @@ def banks(count: int) -> dict:
     with the spectrum in complex128 and in complex64: one fresh child process each."""
     out = {}
     for dtype in ("complex128", "complex64"):
-        done = subprocess.run([sys.executable, "-c", _BANKS, str(count), dtype], cwd=HERE.parent,
-                              capture_output=True, text=True, timeout=1800)
+        done = subprocess.run(
+            [sys.executable, "-c", _BANKS, str(count), dtype],
+            cwd=HERE.parent,
+            capture_output=True,
+            text=True,
+            timeout=1800,
+        )
         if done.returncode != 0:
             raise RuntimeError(f"bank measurement failed: {done.stderr[-2000:]}")
         out[dtype] = json.loads(done.stdout.strip().splitlines()[-1])
@@ -191,8 +203,14 @@ print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_max
 
 def mission(path: Path, cache: str, trace: Path) -> dict:
     env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl"}
-    done = subprocess.run([sys.executable, "-c", _CHILD, str(path), str(trace)], cwd=HERE.parent, env=env,
-                          capture_output=True, text=True, timeout=3600)
+    done = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(path), str(trace)],
+        cwd=HERE.parent,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=3600,
+    )
     if done.returncode != 0:
         raise RuntimeError(f"mission run failed: {done.stderr[-2000:]}")
     out = json.loads(done.stdout.strip().splitlines()[-1])
@@ -205,13 +223,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="*", default=[1000], help="route lengths (default 1000)")
     parser.add_argument("--frames", type=int, default=20, help="simulated camera frames per route")
     parser.add_argument("--no-mission", action="store_true", help="skip the whole-mission child runs")
-    parser.add_argument("--banks-only", action="store_true",
-                        help="only the memory banks' bytes per viewframe (random patterns, no rendering)")
+    parser.add_argument(
+        "--banks-only",
+        action="store_true",
+        help="only the memory banks' bytes per viewframe (random patterns, no rendering)",
+    )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
-    results: dict = {"machine": {"python": platform.python_version(), "cpus": os.cpu_count(),
-                                 "platform": platform.platform(), "load_avg_start": os.getloadavg()},
-                     "routes": {}}
+    results: dict = {
+        "machine": {
+            "python": platform.python_version(),
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "load_avg_start": os.getloadavg(),
+        },
+        "routes": {},
+    }
     if args.banks_only:
         results["banks"] = {str(n): banks(n) for n in args.sizes}
         results["machine"]["load_avg_end"] = os.getloadavg()
@@ -220,8 +247,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"\n{'viewframes':>10} {'spectrum':>10} {'traced KB/vf':>13} {'+ ranking':>10} {'RSS KB/vf':>10}")
             for n, r in results["banks"].items():
                 for dtype, x in r.items():
-                    print(f"{n:>10} {dtype:>10} {x['traced_kb_per_vf_written']:>13.0f} "
-                          f"{x['traced_kb_per_vf_ranked']:>10.0f} {x['rss_kb_per_vf']:>10.0f}")
+                    print(
+                        f"{n:>10} {dtype:>10} {x['traced_kb_per_vf_written']:>13.0f} "
+                        f"{x['traced_kb_per_vf_ranked']:>10.0f} {x['rss_kb_per_vf']:>10.0f}"
+                    )
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -241,27 +270,50 @@ def main(argv: list[str] | None = None) -> int:
         for n, r in results["routes"].items():
             c = r["components"]
             print(f"route of {n} viewframes (memory size {c['memory_size']})")
-            rows = [("environment model (RSS)", f"{c['rss_environment_mb']:.1f} MB", ""),
-                    ("camera emulator, pyrender (RSS)", f"{c['rss_emulator_mb']:.1f} MB", ""),
-                    ("rendered viewframes (RSS)", f"{c['rss_viewframes_mb']:.1f} MB",
-                     f"{c['rss_per_viewframe_kb']:.0f} KB/vf")]
-            rows += [(f"  array {k}", f"{v * int(n) / MB:.1f} MB", f"{v / 1024:.0f} KB/vf")
-                     for k, v in c["array_bytes_per_viewframe"].items()]
-            rows += [("viewframe message (encoded)", f"{c['message_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
-                      f"{c['message_bytes_per_viewframe'] / 1024:.0f} KB/vf"),
-                     ("memory banks", f"{c['bank_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
-                      f"{c['bank_bytes_per_viewframe'] / 1024:.0f} KB/vf"),
-                     ("cache entry on disk", f"{c['cache_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
-                      f"{c['cache_bytes_per_viewframe'] / 1024:.0f} KB/vf"),
-                     ("render + describe", f"{c['render_s']:.1f} s", ""),
-                     ("index (preprocess + store)", f"{c['index_s']:.1f} s", ""),
-                     ("cache store / load", f"{c['cache_store_s']:.2f} s / {c['cache_load_s']:.2f} s", "")]
+            rows = [
+                ("environment model (RSS)", f"{c['rss_environment_mb']:.1f} MB", ""),
+                ("camera emulator, pyrender (RSS)", f"{c['rss_emulator_mb']:.1f} MB", ""),
+                (
+                    "rendered viewframes (RSS)",
+                    f"{c['rss_viewframes_mb']:.1f} MB",
+                    f"{c['rss_per_viewframe_kb']:.0f} KB/vf",
+                ),
+            ]
+            rows += [
+                (f"  array {k}", f"{v * int(n) / MB:.1f} MB", f"{v / 1024:.0f} KB/vf")
+                for k, v in c["array_bytes_per_viewframe"].items()
+            ]
+            rows += [
+                (
+                    "viewframe message (encoded)",
+                    f"{c['message_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
+                    f"{c['message_bytes_per_viewframe'] / 1024:.0f} KB/vf",
+                ),
+                (
+                    "memory banks",
+                    f"{c['bank_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
+                    f"{c['bank_bytes_per_viewframe'] / 1024:.0f} KB/vf",
+                ),
+                (
+                    "cache entry on disk",
+                    f"{c['cache_bytes_per_viewframe'] * int(n) / MB:.1f} MB",
+                    f"{c['cache_bytes_per_viewframe'] / 1024:.0f} KB/vf",
+                ),
+                ("render + describe", f"{c['render_s']:.1f} s", ""),
+                ("index (preprocess + store)", f"{c['index_s']:.1f} s", ""),
+                ("cache store / load", f"{c['cache_store_s']:.2f} s / {c['cache_load_s']:.2f} s", ""),
+            ]
             for run in ("mission_cold", "mission_warm"):
                 if run in r:
                     m = r[run]
-                    rows.append((f"{run}: peak RSS / setup / wall", f"{m['peak_rss_mb']:.0f} MB",
-                                 f"{m['setup_s']:.1f} s / {m['wall_s']:.1f} s, trace {m['trace_mb']:.1f} MB, "
-                                 f"top-1 {m['top1']}"))
+                    rows.append(
+                        (
+                            f"{run}: peak RSS / setup / wall",
+                            f"{m['peak_rss_mb']:.0f} MB",
+                            f"{m['setup_s']:.1f} s / {m['wall_s']:.1f} s, trace {m['trace_mb']:.1f} MB, "
+                            f"top-1 {m['top1']}",
+                        )
+                    )
             for a, b, cc in rows:
                 print(f"  {a:<38} {b:>14}  {cc}")
         print(f"load average {results['machine']['load_avg_start']} -> {results['machine']['load_avg_end']}")

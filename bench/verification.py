@@ -70,12 +70,26 @@ def run_rules(data: dict, scenario, registry) -> list[dict]:
     for fi, rk in enumerate(data["rankings"]):
         ranking = [(int(k), float(v)) for k, v in zip(rk.viewframes, rk.variances)]
         truth = data["truth"][fi]
-        rec = {"frame": fi, "truth": truth, "ranking_first": ranking[0][0],
-               "in_candidates": truth in [k for k, _ in ranking[: s.candidates]],
-               "landmarks_differ": visible[ranking[0][0]] != visible[truth]}
+        rec = {
+            "frame": fi,
+            "truth": truth,
+            "ranking_first": ranking[0][0],
+            "in_candidates": truth in [k for k, _ in ranking[: s.candidates]],
+            "landmarks_differ": visible[ranking[0][0]] != visible[truth],
+        }
         for name, rule in RULES.items():
-            sa = SceneAnalysis(ranking, visible, strategy="associative", candidates=s.candidates, accept=s.accept,
-                               reliability=s.reliability, beta=s.beta, floor=s.floor, max_llr=s.max_llr, **rule)
+            sa = SceneAnalysis(
+                ranking,
+                visible,
+                strategy="associative",
+                candidates=s.candidates,
+                accept=s.accept,
+                reliability=s.reliability,
+                beta=s.beta,
+                floor=s.floor,
+                max_llr=s.max_llr,
+                **rule,
+            )
             while (q := sa.next_question()) is not None:
                 key = (fi, q.landmark, q.viewframe)
                 if key not in cache:
@@ -86,13 +100,25 @@ def run_rules(data: dict, scenario, registry) -> list[dict]:
                 d = cache[key]
                 sa.answer(q, d.present, score=d.score, llr=d.llr)
             rec[name] = {"viewframe": sa.decision.viewframe, "queries": sa.decision.queries}
-        sa = SceneAnalysis(ranking, visible, strategy="associative", candidates=s.candidates, accept=s.accept,
-                           reliability=s.reliability, beta=s.beta, floor=s.floor, max_llr=s.max_llr,
-                           **RULES["soft, information gain (default)"])
+        sa = SceneAnalysis(
+            ranking,
+            visible,
+            strategy="associative",
+            candidates=s.candidates,
+            accept=s.accept,
+            reliability=s.reliability,
+            beta=s.beta,
+            floor=s.floor,
+            max_llr=s.max_llr,
+            **RULES["soft, information gain (default)"],
+        )
         while (q := sa.next_question()) is not None:
             label = labels.get((fi, q.landmark, q.viewframe))
-            sa.answer(q, None if label is None else bool(label),
-                      llr=None if label is None else (s.max_llr if label else -s.max_llr))
+            sa.answer(
+                q,
+                None if label is None else bool(label),
+                llr=None if label is None else (s.max_llr if label else -s.max_llr),
+            )
         rec[ORACLE] = {"viewframe": sa.decision.viewframe, "queries": sa.decision.queries}
         out.append(rec)
     return out
@@ -109,41 +135,58 @@ def main(argv: list[str] | None = None) -> int:
     for case in bench_detectors.cases(args.split, names=args.names, kinds=args.kinds):
         sc = load_scenario(case.scenario_path)
         reg, align = bench_detectors.registry_for(sc)
-        data = dp.case_questions(case, align_px=align, min_pixels=sc.scheduler.min_pixels,
-                                 candidates=sc.scheduler.candidates)
+        data = dp.case_questions(
+            case, align_px=align, min_pixels=sc.scheduler.min_pixels, candidates=sc.scheduler.candidates
+        )
         frames += [{**r, "scenario": case.name} for r in run_rules(data, sc, reg)]
     ranking_right = [f for f in frames if f["ranking_first"] == f["truth"]]
     fixable = [f for f in frames if f["ranking_first"] != f["truth"] and f["in_candidates"]]
-    result = {"split": args.split, "scenarios": sorted({f["scenario"] for f in frames}), "frames": len(frames),
-              "ranking_top1": len(ranking_right) / len(frames), "ranking_right": len(ranking_right),
-              "fixable": len(fixable),
-              "fixable_landmarks_differ": sum(f["landmarks_differ"] for f in fixable), "elapsed_s": round(time.perf_counter() - started, 1), "rules": {}}
+    result = {
+        "split": args.split,
+        "scenarios": sorted({f["scenario"] for f in frames}),
+        "frames": len(frames),
+        "ranking_top1": len(ranking_right) / len(frames),
+        "ranking_right": len(ranking_right),
+        "fixable": len(fixable),
+        "fixable_landmarks_differ": sum(f["landmarks_differ"] for f in fixable),
+        "elapsed_s": round(time.perf_counter() - started, 1),
+        "rules": {},
+    }
     for name in [*RULES, ORACLE]:
         fixed = sum(f[name]["viewframe"] == f["truth"] for f in fixable)
         broken = sum(f[name]["viewframe"] != f["truth"] for f in ranking_right)
         result["rules"][name] = {
             "top1": sum(f[name]["viewframe"] == f["truth"] for f in frames) / len(frames),
-            "fixed": fixed, "fixed_fraction": fixed / len(fixable) if fixable else None,
-            "broken": broken, "broken_fraction": broken / len(ranking_right) if ranking_right else None,
+            "fixed": fixed,
+            "fixed_fraction": fixed / len(fixable) if fixable else None,
+            "broken": broken,
+            "broken_fraction": broken / len(ranking_right) if ranking_right else None,
             "queries_per_frame": float(np.mean([f[name]["queries"] for f in frames])),
-            "by_scenario": {s: sum(f[name]["viewframe"] == f["truth"] for f in frames if f["scenario"] == s)
-                            / max(1, sum(f["scenario"] == s for f in frames)) for s in result["scenarios"]},
+            "by_scenario": {
+                s: sum(f[name]["viewframe"] == f["truth"] for f in frames if f["scenario"] == s)
+                / max(1, sum(f["scenario"] == s for f in frames))
+                for s in result["scenarios"]
+            },
         }
     print(json.dumps(result, indent=1))
-    print(f"\n{len(frames)} frames ({args.split} split); ranking top-1 {result['ranking_top1']:.3f}; "
-          f"{len(fixable)} frames with the ranking's first wrong and the truth among the candidates; "
-          f"{len(ranking_right)} with the ranking right. Goal: fix >= 50%, break < 2%. In "
-          f"{result['fixable_landmarks_differ']} of the {len(fixable)} the ranking's first and the truth differ in "
-          f"their landmarks (of at least min_pixels): the others no landmark question can tell apart.\n")
+    print(
+        f"\n{len(frames)} frames ({args.split} split); ranking top-1 {result['ranking_top1']:.3f}; "
+        f"{len(fixable)} frames with the ranking's first wrong and the truth among the candidates; "
+        f"{len(ranking_right)} with the ranking right. Goal: fix >= 50%, break < 2%. In "
+        f"{result['fixable_landmarks_differ']} of the {len(fixable)} the ranking's first and the truth differ in "
+        f"their landmarks (of at least min_pixels): the others no landmark question can tell apart.\n"
+    )
     print("| rule | top-1 | fixed | broken | queries/frame | goal |")
     print("|---|---|---|---|---|---|")
     for name, v in result["rules"].items():
         ff = v["fixed_fraction"] or 0.0
         bf = v["broken_fraction"] or 0.0
         ok = ff >= 0.5 and bf < 0.02
-        print(f"| {name} | {v['top1']:.3f} | {v['fixed']}/{len(fixable)} ({ff:.0%}) | "
-              f"{v['broken']}/{len(ranking_right)} ({bf:.1%}) | {v['queries_per_frame']:.2f} | "
-              f"{'met' if ok else 'missed'} |")
+        print(
+            f"| {name} | {v['top1']:.3f} | {v['fixed']}/{len(fixable)} ({ff:.0%}) | "
+            f"{v['broken']}/{len(ranking_right)} ({bf:.1%}) | {v['queries_per_frame']:.2f} | "
+            f"{'met' if ok else 'missed'} |"
+        )
     return 0
 
 

@@ -61,8 +61,11 @@ _LEAVE_TIMEOUT_S = 2.0
 #: with code ``"s"`` (activation_start, extra None), ``"f"`` (activation_finish, extra duration_s) or
 #: ``"o"`` (activation_obviated, extra reason); errors travel as full dict records
 ACTIVITY_ROW = ("code", "level", "id", "version", "event", "rating", "t", "extra")
-ACTIVITY_CODES = {"s": ("activation_start", None), "f": ("activation_finish", "duration_s"),
-                  "o": ("activation_obviated", "reason")}
+ACTIVITY_CODES = {
+    "s": ("activation_start", None),
+    "f": ("activation_finish", "duration_s"),
+    "o": ("activation_obviated", "reason"),
+}
 
 
 class AgentRunner:
@@ -133,28 +136,34 @@ class AgentRunner:
         self._session = session = self._open(wait_s, deadline)
         put = self._inbox.put
         self._entities.append(session.declare_subscriber(self.keys.run_end, self._on_run_end))
-        self._entities.append(session.liveliness().declare_subscriber(self.keys.node_token, self._on_node_token,
-                                                                      history=True))
+        self._entities.append(
+            session.liveliness().declare_subscriber(self.keys.node_token, self._on_node_token, history=True)
+        )
         if wait_s > 0 and not self._node_seen.wait(max(0.0, deadline - time.monotonic())):
             self._close_session()
-            raise TransportError(f"no blackboard node of run {self.keys.run_id!r} at {', '.join(self.connect)} "
-                                 f"within {wait_s:g} s (is the run started, with this --run-id?)")
+            raise TransportError(
+                f"no blackboard node of run {self.keys.run_id!r} at {', '.join(self.connect)} "
+                f"within {wait_s:g} s (is the run started, with this --run-id?)"
+            )
         for level in self.source.consumes:
             self._entities.append(session.declare_subscriber(self.keys.level(level), lambda s: put(("hyp", s))))
         self._entities.append(session.declare_subscriber(self.keys.inbox(self.name), lambda s: put(("ctl", s))))
         self._entities.append(session.declare_subscriber(self.keys.probe, lambda s: put(("probe", s))))
-        self.board = ZenohBoard(session, self.keys, self.name, produces=self.source.produces,
-                                max_message_bytes=self._max)
+        self.board = ZenohBoard(
+            session, self.keys, self.name, produces=self.source.produces, max_message_bytes=self._max
+        )
         try:
-            reply = self.board._request({
-                "op": "join",
-                "consumes": list(self.source.consumes),
-                "produces": list(self.source.produces),
-                "exclusive": list(self.source.exclusive),
-                "pid": os.getpid(),
-                "host": socket.gethostname()[:200],
-                "proof": None if self._secret is None else proof(self._secret, "join", self.keys.run_id, self.name),
-            })
+            reply = self.board._request(
+                {
+                    "op": "join",
+                    "consumes": list(self.source.consumes),
+                    "produces": list(self.source.produces),
+                    "exclusive": list(self.source.exclusive),
+                    "pid": os.getpid(),
+                    "host": socket.gethostname()[:200],
+                    "proof": None if self._secret is None else proof(self._secret, "join", self.keys.run_id, self.name),
+                }
+            )
             self.board.agent_key = bytes.fromhex(str(reply["agent_key"]))
             self.board.run_key = bytes.fromhex(str(reply["run_key"]))
         except BlackboardError:
@@ -162,8 +171,10 @@ class AgentRunner:
             raise
         except (KeyError, ValueError):
             self._close_session()
-            raise TransportError(f"agent {self.name!r}: the node's join reply holds no keys (not a mapinterp node "
-                                 "of this version, or a forged reply)") from None
+            raise TransportError(
+                f"agent {self.name!r}: the node's join reply holds no keys (not a mapinterp node "
+                "of this version, or a forged reply)"
+            ) from None
         self._entities.append(session.liveliness().declare_token(self.keys.liveliness(self.name)))
         try:
             self.source.setup(self.board)
@@ -184,8 +195,10 @@ class AgentRunner:
                 if time.monotonic() + _RETRY_S > deadline:
                     if wait_s <= 0:
                         raise
-                    raise TransportError(f"cannot reach the blackboard at {', '.join(self.connect)} within "
-                                         f"{wait_s:g} s (nothing listens there, or not reachable from here)") from None
+                    raise TransportError(
+                        f"cannot reach the blackboard at {', '.join(self.connect)} within "
+                        f"{wait_s:g} s (nothing listens there, or not reachable from here)"
+                    ) from None
             time.sleep(_RETRY_S)
 
     def _from_node(self, sample: zenoh.Sample) -> bool:
@@ -237,8 +250,13 @@ class AgentRunner:
         try:
             payload = encode({"op": "leave", "agent": self.name})
             attachment = self.board._tags(payload) if self.board is not None else None
-            for _ in self._session.get(self.keys.request, payload=payload, attachment=attachment,
-                                       timeout=_LEAVE_TIMEOUT_S, congestion_control=zenoh.CongestionControl.BLOCK):
+            for _ in self._session.get(
+                self.keys.request,
+                payload=payload,
+                attachment=attachment,
+                timeout=_LEAVE_TIMEOUT_S,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            ):
                 pass
         except (zenoh.ZError, CodecError) as err:
             logger.warning("agent %s: could not say goodbye to the node: %s", self.name, err)
@@ -335,8 +353,10 @@ class AgentRunner:
             logger.warning("agent %s: ignored a malformed control message: %s", self.name, err)
             return
         self._timeouts += 1
-        heapq.heappush(self._agenda, (-float("inf"), next(self._order),
-                                      Event(EventKind.TIMEOUT, hyp, str(message.get("reason", "")))))
+        heapq.heappush(
+            self._agenda,
+            (-float("inf"), next(self._order), Event(EventKind.TIMEOUT, hyp, str(message.get("reason", "")))),
+        )
 
     def _on_probe(self, sample: zenoh.Sample) -> None:
         if not self._from_node(sample):
@@ -371,8 +391,14 @@ class AgentRunner:
         neg_rating, _, event = heapq.heappop(self._agenda)
         hyp = event.hypothesis
         # activity rows (see ACTIVITY_ROW): compact on the wire, made into trace records by the node
-        head = (hyp.level, hyp.id, hyp.version, event.kind.value,
-                -neg_rating if neg_rating != -float("inf") else None, time.time())
+        head = (
+            hyp.level,
+            hyp.id,
+            hyp.version,
+            event.kind.value,
+            -neg_rating if neg_rating != -float("inf") else None,
+            time.time(),
+        )
         why = self._obviated(event)
         if why is not None:
             self._activity.append(("o", *head, why))
@@ -395,10 +421,19 @@ class AgentRunner:
         hyp = event.hypothesis
         message = f"{where} raised {type(err).__name__}: {err}"
         logger.warning("agent %s: %s on %s %s", self.name, message, event.kind.value, hyp.id)
-        self._activity.append({"kind": "activation_error", "t": time.time(), "level": hyp.level, "id": hyp.id,
-                               "version": hyp.version, "event": event.kind.value, "message": message,
-                               "traceback": traceback.format_exc(limit=8),
-                               "duration_s": None if started is None else time.perf_counter() - started})
+        self._activity.append(
+            {
+                "kind": "activation_error",
+                "t": time.time(),
+                "level": hyp.level,
+                "id": hyp.id,
+                "version": hyp.version,
+                "event": event.kind.value,
+                "message": message,
+                "traceback": traceback.format_exc(limit=8),
+                "duration_s": None if started is None else time.perf_counter() - started,
+            }
+        )
         input_error = self._input_error(err)
         if input_error is not None:  # a user's input (file, field): no retry will help, the run must stop
             self._report_dead(message, input_error=input_error)
@@ -422,16 +457,28 @@ class AgentRunner:
         """Send the activity records and the counters to the node (status key)."""
         if self._session is None or self._session.is_closed() or self.board is None:
             return
-        message = {"agent": self.name, "state": state, "recv": self._recv, "sent": self.board.sent,
-                   "timeouts": self._timeouts, "probe": self._probe, "activity": self._activity, "reason": reason}
+        message = {
+            "agent": self.name,
+            "state": state,
+            "recv": self._recv,
+            "sent": self.board.sent,
+            "timeouts": self._timeouts,
+            "probe": self._probe,
+            "activity": self._activity,
+            "reason": reason,
+        }
         if input_error is not None:
             message["input_error"] = input_error
         self._status_seq += 1
         message["seq"] = self._status_seq  # the node takes no status twice (no replay)
         try:  # every part is ours (str keys, flat rows): nothing for the encoder's walk to find
             data = encode(message, check=())
-            self._session.put(self.keys.status, data, congestion_control=zenoh.CongestionControl.BLOCK,
-                              attachment=self.board._tags(data))
+            self._session.put(
+                self.keys.status,
+                data,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                attachment=self.board._tags(data),
+            )
         except (zenoh.ZError, CodecError) as err:
             logger.error("agent %s: cannot report status: %s", self.name, err)
         self._activity = []

@@ -40,9 +40,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         private = json.loads(sys.stdin.buffer.readline().decode() or "{}")
         source = resolve_factory(spec["factory"])(spec["name"], **spec.get("options", {}))
         options = ZenohOptions(config_file=spec.get("zenoh_config"), password=private.get("password"))
-        runner = AgentRunner(source, run_id=spec["run_id"], connect=list(spec["connect"]), zenoh_options=options,
-                             max_message_bytes=int(spec["max_message_bytes"]),
-                             secret=private.get("secret"))
+        runner = AgentRunner(
+            source,
+            run_id=spec["run_id"],
+            connect=list(spec["connect"]),
+            zenoh_options=options,
+            max_message_bytes=int(spec["max_message_bytes"]),
+            secret=private.get("secret"),
+        )
         runner.start()
     except (BlackboardError, ValueError, KeyError, IndexError, TypeError) as err:
         message = err.message if isinstance(err, AgentError) else str(err)  # the parent names the agent

@@ -156,7 +156,9 @@ def _ext_hook(code: int, data: bytes) -> Any:
     unpacker.feed(data)
     header = unpacker.unpack()
     offset = unpacker.tell()
-    if not (isinstance(header, list) and len(header) == 2 and isinstance(header[0], str) and isinstance(header[1], list)):
+    if not (
+        isinstance(header, list) and len(header) == 2 and isinstance(header[0], str) and isinstance(header[1], list)
+    ):
         raise ValueError("malformed ndarray header")
     dtype = np.dtype(header[0])
     shape = header[1]

@@ -187,12 +187,27 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add ``--connect``, ``--listen`` and ``--zenoh-config`` (the one place they are defined)."""
     group = parser.add_argument_group("zenoh")
-    group.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                       help="join an existing zenoh network, e.g. tcp/127.0.0.1:7447 (repeatable)")
-    group.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                       help="let other mapinterp processes connect here, e.g. tcp/127.0.0.1:7447")
-    group.add_argument("--zenoh-config", type=Path, default=None, metavar="FILE",
-                       help="a zenoh JSON5 config file (TLS, access control); multicast stays your choice")
+    group.add_argument(
+        "--connect",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="join an existing zenoh network, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument(
+        "--listen",
+        action="append",
+        default=[],
+        metavar="ENDPOINT",
+        help="let other mapinterp processes connect here, e.g. tcp/127.0.0.1:7447",
+    )
+    group.add_argument(
+        "--zenoh-config",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="a zenoh JSON5 config file (TLS, access control); multicast stays your choice",
+    )
 
 
 def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:

@@ -82,6 +82,11 @@ class Deadlines:
             pending = self.pending.get(hyp_id)
             if pending is not None:
                 hyp = pending.hyp
-                out.append((hyp_id, f"no answer within {hyp.deadline_s} s"
-                            + (f" from agent {hyp.addressed_to!r}" if hyp.addressed_to else "")))
+                out.append(
+                    (
+                        hyp_id,
+                        f"no answer within {hyp.deadline_s} s"
+                        + (f" from agent {hyp.addressed_to!r}" if hyp.addressed_to else ""),
+                    )
+                )
         return out

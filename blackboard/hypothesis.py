@@ -120,18 +120,20 @@ class Hypothesis:
         deadline_s: float | None = None,
     ) -> Hypothesis:
         """A version-1 hypothesis with a fresh id (``<source>-<hex>``) unless ``id`` is given."""
-        return cls._make({
-            "id": new_id(source) if id is None else id,
-            "level": level,
-            "source": source,
-            "credibility": credibility,
-            "links": links,
-            "version": 1,
-            "timestamp": time.time(),
-            "body": body,
-            "addressed_to": addressed_to,
-            "deadline_s": None if deadline_s is None else float(deadline_s),
-        })
+        return cls._make(
+            {
+                "id": new_id(source) if id is None else id,
+                "level": level,
+                "source": source,
+                "credibility": credibility,
+                "links": links,
+                "version": 1,
+                "timestamp": time.time(),
+                "body": body,
+                "addressed_to": addressed_to,
+                "deadline_s": None if deadline_s is None else float(deadline_s),
+            }
+        )
 
     def evolve(self, *, body: dict | None = None, credibility: float | None = None) -> Hypothesis:
         """The next version: ``body`` is merged into the current body (top-level keys)."""
@@ -165,18 +167,20 @@ class Hypothesis:
             raise CodecError(f"hypothesis record must be a map, got {type(record).__name__}", key=key)
         try:
             get = record.get
-            return cls._make({
-                "id": record["id"],
-                "level": record["level"],
-                "source": record["source"],
-                "credibility": record["credibility"],
-                "links": get("links", ()),
-                "version": record["version"],
-                "timestamp": float(record["timestamp"]),
-                "body": record["body"],
-                "addressed_to": get("addressed_to"),
-                "deadline_s": get("deadline_s"),
-            })
+            return cls._make(
+                {
+                    "id": record["id"],
+                    "level": record["level"],
+                    "source": record["source"],
+                    "credibility": record["credibility"],
+                    "links": get("links", ()),
+                    "version": record["version"],
+                    "timestamp": float(record["timestamp"]),
+                    "body": record["body"],
+                    "addressed_to": get("addressed_to"),
+                    "deadline_s": get("deadline_s"),
+                }
+            )
         except KeyError as err:
             raise CodecError(f"hypothesis record lacks field {err.args[0]!r}", key=key) from None
         except (TypeError, ValueError) as err:
@@ -204,8 +208,9 @@ def _check_fields(fields: dict[str, Any]) -> None:
     if version > MAX_VERSION:
         raise ValueError(f"version must be <= {MAX_VERSION}, got {version!r}")
     deadline_s = fields["deadline_s"]
-    if deadline_s is not None and (isinstance(deadline_s, bool) or not isinstance(deadline_s, (int, float))
-                                   or not 0 < deadline_s <= MAX_DEADLINE_S):
+    if deadline_s is not None and (
+        isinstance(deadline_s, bool) or not isinstance(deadline_s, (int, float)) or not 0 < deadline_s <= MAX_DEADLINE_S
+    ):
         raise ValueError(f"deadline_s must be a number of seconds in (0, {MAX_DEADLINE_S:g}], got {deadline_s!r}")
     if not math.isfinite(fields["timestamp"]):
         raise ValueError(f"timestamp must be finite, got {fields['timestamp']!r}")

@@ -101,8 +101,9 @@ def read_parameters(parameters: object) -> tuple[str, int, dict[str, int]]:
     agent = get("agent") or ""
     try:
         sent = int(get("sent") or 0)
-        seen = {name: int(n) for name, _, n in
-                (item.rpartition(":") for item in (get("after") or "").split(",") if item)}
+        seen = {
+            name: int(n) for name, _, n in (item.rpartition(":") for item in (get("after") or "").split(",") if item)
+        }
     except ValueError:
         sent, seen = 0, {}
     return agent, sent, seen

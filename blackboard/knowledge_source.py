@@ -76,8 +76,11 @@ class KnowledgeSource:
         for level in (*self.consumes, *self.produces, *self.exclusive):
             validate_name(level, f"level declared by {type(self).__name__}")
         if not set(self.exclusive) <= set(self.produces):
-            raise DeclarationError(name, ",".join(sorted(set(self.exclusive) - set(self.produces))),
-                                   "exclusive levels must also be in produces")
+            raise DeclarationError(
+                name,
+                ",".join(sorted(set(self.exclusive) - set(self.produces))),
+                "exclusive levels must also be in produces",
+            )
 
     def setup(self, board: Board) -> None:
         """Once, after connecting; may read existing state."""

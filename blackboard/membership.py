@@ -87,16 +87,24 @@ class Membership:
             return JoinRefused({"ok": False, "error": "malformed", "message": f"bad agent name {name!r}"})
         old = self.agents.get(name)
         if old is not None and old.live:
-            return JoinRefused({"ok": False, "error": "declaration", "level": "",
-                                "message": f"an agent named {name!r} already joined"})
+            return JoinRefused(
+                {"ok": False, "error": "declaration", "level": "", "message": f"an agent named {name!r} already joined"}
+            )
         for other in self.agents.values():
             if not other.live or other.name == name:
                 continue
             for level in decl["produces"]:
                 if level in other.exclusive or (level in decl["exclusive"] and level in other.produces):
-                    return JoinRefused({"ok": False, "error": "declaration", "level": level,
-                                        "message": f"level is written exclusively, and agent {other.name!r} "
-                                                   "also writes it"}, level=level, other=other.name)
+                    return JoinRefused(
+                        {
+                            "ok": False,
+                            "error": "declaration",
+                            "level": level,
+                            "message": f"level is written exclusively, and agent {other.name!r} also writes it",
+                        },
+                        level=level,
+                        other=other.name,
+                    )
         state = AgentState(name, decl["consumes"], decl["produces"], decl["exclusive"], pid=request.get("pid"))
         with self.lock:
             self.agents[name] = state
@@ -110,8 +118,9 @@ class Membership:
             return f"level not declared in produces {list(state.produces)}"
         if not self.any_exclusive:  # no agent ever declared an exclusive level: nothing to scan
             return None
-        owner = next((a.name for a in self.agents.values() if a.live and level in a.exclusive and a.name != agent),
-                     None)
+        owner = next(
+            (a.name for a in self.agents.values() if a.live and level in a.exclusive and a.name != agent), None
+        )
         if owner is not None:
             return f"level is written exclusively by agent {owner!r}"
         return None

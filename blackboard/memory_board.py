@@ -95,8 +95,16 @@ class MemoryBoard:
         deadline_s: float | None = None,
     ) -> Hypothesis:
         self._check_level(level)
-        hyp = Hypothesis.new(level, body, source=self.agent, links=tuple(links), credibility=credibility, id=id,
-                             addressed_to=addressed_to, deadline_s=deadline_s)
+        hyp = Hypothesis.new(
+            level,
+            body,
+            source=self.agent,
+            links=tuple(links),
+            credibility=credibility,
+            id=id,
+            addressed_to=addressed_to,
+            deadline_s=deadline_s,
+        )
         self._bb._accept(_wire(hyp, self._bb.max_message_bytes))
         return hyp
 
@@ -171,8 +179,9 @@ class MemoryBlackboard:
         for other in self._agents.values():
             for level in source.produces:
                 if level in other.source.exclusive or (level in source.exclusive and level in other.source.produces):
-                    raise DeclarationError(name, level, f"level is written exclusively, and agent "
-                                                        f"{other.source.name!r} also writes it")
+                    raise DeclarationError(
+                        name, level, f"level is written exclusively, and agent {other.source.name!r} also writes it"
+                    )
         board = MemoryBoard(self, name, produces=source.produces)
         self._agents[name] = _Agent(source, board)
         source.setup(board)
@@ -287,7 +296,8 @@ class MemoryBlackboard:
         _, _, event = heapq.heappop(agent.agenda)
         hyp = event.hypothesis
         if event.kind in (EventKind.POSTED, EventKind.UPDATED) and (
-                hyp.id in self._retracted or self._latest.get(hyp.id, 0) > hyp.version):
+            hyp.id in self._retracted or self._latest.get(hyp.id, 0) > hyp.version
+        ):
             return  # obviated
         try:
             if event.kind is EventKind.TIMEOUT:
@@ -301,8 +311,9 @@ class MemoryBlackboard:
         if self.raise_errors:
             raise err
         name = agent.source.name
-        logger.warning("memory blackboard: agent %s raised %s: %s on %s", name, type(err).__name__, err,
-                       event.hypothesis.id)
+        logger.warning(
+            "memory blackboard: agent %s raised %s: %s on %s", name, type(err).__name__, err, event.hypothesis.id
+        )
         self.errors.append((name, event, err))
         agent.failures += 1
         if agent.failures >= agent.source.max_failures:

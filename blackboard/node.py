@@ -99,8 +99,11 @@ class BlackboardNode:
         extra_listen = [] if options.listen else [self.endpoint]
         self._router_config = zenoh_config(options, mode="router", listen=extra_listen)
         self._joins_network = bool(options.connect) or options.config_file is not None
-        self._config = zenoh_config(ZenohOptions(config_file=options.config_file, password=options.password),
-                                    mode="client", connect=[self.endpoint])
+        self._config = zenoh_config(
+            ZenohOptions(config_file=options.config_file, password=options.password),
+            mode="client",
+            connect=[self.endpoint],
+        )
         self._max = max_message_bytes
         # the trust model (blackboard.trust)
         self._run_key = os.urandom(32)  # shared with joined agents: tags the node's own messages
@@ -146,16 +149,18 @@ class BlackboardNode:
             raise
         put = self._inbox.put
         self._entities = [
-            session.declare_subscriber(self.keys.all_hypotheses, lambda s: put(("hyp", s)),
-                                       allowed_origin=zenoh.Locality.REMOTE),
+            session.declare_subscriber(
+                self.keys.all_hypotheses, lambda s: put(("hyp", s)), allowed_origin=zenoh.Locality.REMOTE
+            ),
             session.declare_subscriber(self.keys.status, lambda s: put(("status", s))),
             # only this node speaks on these keys: whatever else arrives there is a forgery
-            *(session.declare_subscriber(key, lambda s: put(("forged", s)), allowed_origin=zenoh.Locality.REMOTE)
-              for key in (self.keys.probe, self.keys.run_end, self.keys.inbox("*"))),
+            *(
+                session.declare_subscriber(key, lambda s: put(("forged", s)), allowed_origin=zenoh.Locality.REMOTE)
+                for key in (self.keys.probe, self.keys.run_end, self.keys.inbox("*"))
+            ),
             session.declare_queryable(self.keys.request, lambda q: put(("request", q))),
             session.declare_queryable(self.keys.all_hypotheses, lambda q: put(("read", q))),
-            session.liveliness().declare_subscriber(self.keys.liveliness_all, lambda s: put(("live", s)),
-                                                    history=True),
+            session.liveliness().declare_subscriber(self.keys.liveliness_all, lambda s: put(("live", s)), history=True),
         ]
         self._trace.write(TraceKind.RUN_START, run_id=self.keys.run_id, endpoint=self.endpoint)
         self._thread = threading.Thread(target=self._work, name=f"node-{self.keys.run_id}", daemon=True)
@@ -179,8 +184,10 @@ class BlackboardNode:
         except zenoh.ZError as err:
             raise TransportError(f"cannot check whether run id {self.keys.run_id!r} is in use: {err}") from None
         if any(reply.ok is not None for reply in replies):
-            raise BlackboardError(f"run id {self.keys.run_id!r} is already in use on this zenoh network (its node "
-                                  "is up): choose another --run-id; the other run was not touched")
+            raise BlackboardError(
+                f"run id {self.keys.run_id!r} is already in use on this zenoh network (its node "
+                "is up): choose another --run-id; the other run was not touched"
+            )
 
     def expect(self, name: str, secret: str) -> None:
         """Let agent ``name`` join, proving it knows ``secret`` (see :mod:`blackboard.trust`)."""
@@ -195,8 +202,10 @@ class BlackboardNode:
             gone = threading.Event()
             self._inbox.put(("end", gone))
             if not gone.wait(grace_s):
-                logger.warning("blackboard node: agents still connected at the end of the run: %s",
-                               ", ".join(self._members.connected()))
+                logger.warning(
+                    "blackboard node: agents still connected at the end of the run: %s",
+                    ", ".join(self._members.connected()),
+                )
             self._inbox.put(("stop", None))
             self._thread.join(max(1.0, 2 * grace_s))
             self._thread = None
@@ -255,11 +264,20 @@ class BlackboardNode:
     # -- worker ------------------------------------------------------------------------------------
 
     def _work(self) -> None:
-        handlers: dict[str, Callable[[Any], Any]] = {"hyp": self._on_hyp, "status": self._on_status, "request": self._on_request,
-                    "read": self._on_read, "live": self._on_live, "local_post": self._on_local_post,
-                    "await": self._quiescence.waiters.append, "listen": self._set_listener, "call": lambda fn: fn(),
-                    "await_join": lambda item: self._members.await_join(*item), "end": self._on_end,
-                    "forged": self._on_forged}
+        handlers: dict[str, Callable[[Any], Any]] = {
+            "hyp": self._on_hyp,
+            "status": self._on_status,
+            "request": self._on_request,
+            "read": self._on_read,
+            "live": self._on_live,
+            "local_post": self._on_local_post,
+            "await": self._quiescence.waiters.append,
+            "listen": self._set_listener,
+            "call": lambda fn: fn(),
+            "await_join": lambda item: self._members.await_join(*item),
+            "end": self._on_end,
+            "forged": self._on_forged,
+        }
         bookkept = time.monotonic()
         while True:
             try:
@@ -286,8 +304,9 @@ class BlackboardNode:
 
     def _publish(self, key: str, data: bytes) -> None:
         assert self._session is not None
-        self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK,
-                          attachment=sign(self._run_key, data))
+        self._session.put(
+            key, data, congestion_control=zenoh.CongestionControl.BLOCK, attachment=sign(self._run_key, data)
+        )
 
     # -- posts ---------------------------------------------------------------------------------------
 
@@ -304,8 +323,9 @@ class BlackboardNode:
             if not isinstance(sender, str) or NAME_PATTERN.fullmatch(sender) is None:
                 raise CodecError(f"bad sender {sender!r}", key=key)
             if not verify(self._agent_keys.get(sender), data, (attachment_bytes(sample) or b"")[:TAG_BYTES]):
-                raise CodecError(f"not signed by a joined agent {sender!r} (a forgery, or from outside the run)",
-                                 key=key)
+                raise CodecError(
+                    f"not signed by a joined agent {sender!r} (a forgery, or from outside the run)", key=key
+                )
             self._barrier.received_from(sender)
             record = message.get("hyp")
             if isinstance(record, dict) and record.get("level") in PRIVATE_LEVELS:
@@ -331,8 +351,11 @@ class BlackboardNode:
     def _on_forged(self, sample: zenoh.Sample) -> None:
         """A sample on a key only the node publishes on (probe, run end, an agent's inbox): the
         agents ignore it (no run-key tag); the trace records it."""
-        self._trace.reject(str(sample.key_expr), "forged node message: only the node speaks on this key "
-                                                 "(agents ignore it)", size=len(sample.payload))
+        self._trace.reject(
+            str(sample.key_expr),
+            "forged node message: only the node speaks on this key (agents ignore it)",
+            size=len(sample.payload),
+        )
 
     def _message(self, hyp: Hypothesis, op: str, sender: str) -> bytes:
         """The message of ``op`` by ``sender`` that carries ``hyp`` (the store's re-encoding)."""
@@ -355,8 +378,10 @@ class BlackboardNode:
         if problem is None and hyp.id in self._store:
             problem = f"hypothesis id {hyp.id!r} already exists"
         if problem is None and self._stored_bytes + len(data) > self.run_budget_bytes:
-            problem = (f"the run's memory budget of {self.run_budget_bytes} bytes is spent "
-                       f"({self._stored_bytes} stored, this post {len(data)})")
+            problem = (
+                f"the run's memory budget of {self.run_budget_bytes} bytes is spent "
+                f"({self._stored_bytes} stored, this post {len(data)})"
+            )
         if problem is None and hyp.source != sender and sender != NODE_SENDER:
             problem = f"sender {sender!r} posted as {hyp.source!r}"
         if problem is not None:
@@ -413,8 +438,11 @@ class BlackboardNode:
             elif message.get("seq", 0) <= self._status_seq.get(agent.name, 0):
                 problem = f"status {message.get('seq')} of agent {name!r} seen already (a replay)"
         if problem is not None or agent is None:
-            self._trace.reject(self.keys.status, f"status refused: {problem}",
-                               agent=name if isinstance(name, str) and NAME_PATTERN.fullmatch(name) else None)
+            self._trace.reject(
+                self.keys.status,
+                f"status refused: {problem}",
+                agent=name if isinstance(name, str) and NAME_PATTERN.fullmatch(name) else None,
+            )
             return
         self._status_seq[agent.name] = message.get("seq", 0)
         self._trace.activity(agent.name, message.get("activity") or ())
@@ -464,8 +492,11 @@ class BlackboardNode:
             request, problem = None, err.message
         else:
             problem = check_request(request)
-        if problem is None and request["op"] != "join" and not verify(
-                self._agent_keys.get(request["agent"]), payload, attachment_bytes(query)):
+        if (
+            problem is None
+            and request["op"] != "join"
+            and not verify(self._agent_keys.get(request["agent"]), payload, attachment_bytes(query))
+        ):
             problem = f"{request['op']} not signed by agent {request['agent']!r} (a forgery, or from outside the run)"
         if problem is not None:
             self._trace.reject(self.keys.request, f"request refused: {problem}")
@@ -480,8 +511,9 @@ class BlackboardNode:
                 self._members.set_state(state, "stopped")
             self._reply(query, {"ok": True})
         elif op in ("update", "retract"):
-            self._barrier.hold(Barrier.after(agent, sent, request.get("after")), self._change, query, op, agent,
-                               request)
+            self._barrier.hold(
+                Barrier.after(agent, sent, request.get("after")), self._change, query, op, agent, request
+            )
         else:
             self._reply(query, {"ok": False, "error": "malformed", "message": f"unknown op {op!r}"})
 
@@ -496,10 +528,16 @@ class BlackboardNode:
     def _join(self, name: str, request: dict) -> dict:
         with self._members.lock:
             secret = self._expected.get(name)
-        if secret is None or not isinstance(request.get("proof"), str) or not hmac.compare_digest(
-                request["proof"], proof(secret, "join", self.keys.run_id, name)):
-            why = (f"agent {name!r} is not an agent of this run" if secret is None
-                   else f"agent {name!r} did not prove it is the one this run started (wrong or no secret)")
+        if (
+            secret is None
+            or not isinstance(request.get("proof"), str)
+            or not hmac.compare_digest(request["proof"], proof(secret, "join", self.keys.run_id, name))
+        ):
+            why = (
+                f"agent {name!r} is not an agent of this run"
+                if secret is None
+                else f"agent {name!r} did not prove it is the one this run started (wrong or no secret)"
+            )
             self._trace.write(TraceKind.REJECTED, agent=name, message=f"join refused: {why}")
             return {"ok": False, "error": "declaration", "level": "", "message": f"join refused: {why}"}
         if not set(request.get("exclusive", ())) <= set(request.get("produces", ())):
@@ -507,13 +545,23 @@ class BlackboardNode:
         joined = self._members.join(name, request)
         if isinstance(joined, JoinRefused):
             if joined.other is not None:
-                self._trace.write(TraceKind.REJECTED, agent=name, level=joined.level,
-                                  message=f"second writer of exclusive level (agent {joined.other!r})")
+                self._trace.write(
+                    TraceKind.REJECTED,
+                    agent=name,
+                    level=joined.level,
+                    message=f"second writer of exclusive level (agent {joined.other!r})",
+                )
             return joined.reply
         self._quiescence.change()
-        self._trace.write(TraceKind.AGENT_JOIN, agent=name, pid=request.get("pid"), host=request.get("host"),
-                          consumes=list(joined.consumes), produces=list(joined.produces),
-                          exclusive=list(joined.exclusive))
+        self._trace.write(
+            TraceKind.AGENT_JOIN,
+            agent=name,
+            pid=request.get("pid"),
+            host=request.get("host"),
+            consumes=list(joined.consumes),
+            produces=list(joined.produces),
+            exclusive=list(joined.exclusive),
+        )
         self._agent_keys[name] = agent_key = os.urandom(32)
         self._status_seq[name] = 0
         self._members.check_presence()
@@ -601,14 +649,23 @@ class BlackboardNode:
         hyp = pending.hyp
         self._quiescence.change()
         self.stats["timeout"] += 1
-        self._trace.write(TraceKind.TIMEOUT, agent=hyp.source, level=hyp.level, id=hyp.id, version=hyp.version,
-                          addressed_to=hyp.addressed_to, reason=reason)
+        self._trace.write(
+            TraceKind.TIMEOUT,
+            agent=hyp.source,
+            level=hyp.level,
+            id=hyp.id,
+            version=hyp.version,
+            addressed_to=hyp.addressed_to,
+            reason=reason,
+        )
         self._notify(EventKind.TIMEOUT, hyp, reason)
         poster = self.agents.get(hyp.source)
         if poster is not None and poster.live:
             poster.timeouts_sent += 1
-            self._publish(self.keys.inbox(poster.name),
-                          encode({"op": "timeout", "hyp": hyp.to_record(), "reason": reason}, max_bytes=self._max))
+            self._publish(
+                self.keys.inbox(poster.name),
+                encode({"op": "timeout", "hyp": hyp.to_record(), "reason": reason}, max_bytes=self._max),
+            )
         else:
             self.user_timeouts.append((hyp, reason))
 

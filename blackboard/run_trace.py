@@ -21,8 +21,15 @@ __all__ = ["RunTrace"]
 
 logger = logging.getLogger(__name__)
 
-_ACTIVITY_KINDS = {k.value: k for k in (TraceKind.ACTIVATION_START, TraceKind.ACTIVATION_FINISH,
-                                        TraceKind.ACTIVATION_ERROR, TraceKind.ACTIVATION_OBVIATED)}
+_ACTIVITY_KINDS = {
+    k.value: k
+    for k in (
+        TraceKind.ACTIVATION_START,
+        TraceKind.ACTIVATION_FINISH,
+        TraceKind.ACTIVATION_ERROR,
+        TraceKind.ACTIVATION_OBVIATED,
+    )
+}
 _ROW_CODES = {code: (TraceKind(kind), extra) for code, (kind, extra) in ACTIVITY_CODES.items()}
 _ROW_FIELDS = ACTIVITY_ROW[1:7]
 
@@ -46,9 +53,20 @@ class RunTrace:
         """A post or update of ``hyp``, with all its fields."""
         if self._writer is None:
             return
-        self._writer.write(kind, t=hyp.timestamp, agent=hyp.source, level=hyp.level, id=hyp.id,
-                           version=hyp.version, links=list(hyp.links), credibility=hyp.credibility,
-                           addressed_to=hyp.addressed_to, deadline_s=hyp.deadline_s, body=hyp.body, **extra)
+        self._writer.write(
+            kind,
+            t=hyp.timestamp,
+            agent=hyp.source,
+            level=hyp.level,
+            id=hyp.id,
+            version=hyp.version,
+            links=list(hyp.links),
+            credibility=hyp.credibility,
+            addressed_to=hyp.addressed_to,
+            deadline_s=hyp.deadline_s,
+            body=hyp.body,
+            **extra,
+        )
 
     def reject(self, key: str, message: str, **fields: Any) -> None:
         """A message the node refused: counted, logged, traced."""

@@ -140,8 +140,9 @@ class Runtime:
         #: that they belong to this run (local agents get a secret each, blackboard.trust), and
         #: with ``auth`` it is also the zenoh usrpwd password of every session of the run
         self.auth = bool(auth)
-        self.node = BlackboardNode(run_id=self.run_id, zenoh_options=self.zenoh, trace_path=trace_path,
-                                   max_message_bytes=max_message_bytes)
+        self.node = BlackboardNode(
+            run_id=self.run_id, zenoh_options=self.zenoh, trace_path=trace_path, max_message_bytes=max_message_bytes
+        )
         self._runners: dict[str, AgentRunner] = {}
         self._children: dict[str, subprocess.Popen] = {}
         self._started = False
@@ -174,9 +175,14 @@ class Runtime:
         self.node.expect(name, secret)
         if self.mode == "inprocess":
             source = resolve_factory(factory)(name, **options)
-            runner = AgentRunner(source, run_id=self.run_id, connect=[self.node.endpoint],
-                                 zenoh_options=self._agent_options(), max_message_bytes=self.max_message_bytes,
-                                 secret=secret)
+            runner = AgentRunner(
+                source,
+                run_id=self.run_id,
+                connect=[self.node.endpoint],
+                zenoh_options=self._agent_options(),
+                max_message_bytes=self.max_message_bytes,
+                secret=secret,
+            )
             runner.start()
             self._runners[name] = runner
         else:
@@ -192,16 +198,26 @@ class Runtime:
         return ZenohOptions(config_file=self.zenoh.config_file, password=self.zenoh.password)
 
     def _spawn(self, factory: str, name: str, options: dict, secret: str) -> None:
-        spec = {"factory": factory, "name": name, "options": options, "run_id": self.run_id,
-                "connect": [self.node.endpoint], "zenoh_config": None if self.zenoh.config_file is None
-                else str(self.zenoh.config_file), "max_message_bytes": self.max_message_bytes}
+        spec = {
+            "factory": factory,
+            "name": name,
+            "options": options,
+            "run_id": self.run_id,
+            "connect": [self.node.endpoint],
+            "zenoh_config": None if self.zenoh.config_file is None else str(self.zenoh.config_file),
+            "max_message_bytes": self.max_message_bytes,
+        }
         try:
             json.dumps(spec)
         except TypeError as err:
             raise AgentError(name, f"options must be plain data (JSON) in processes mode: {err}") from None
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.getcwd(), *sys.path])}
-        proc = subprocess.Popen([sys.executable, "-m", "blackboard.agent_host", json.dumps(spec)],
-                                stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "blackboard.agent_host", json.dumps(spec)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+        )
         self._children[name] = proc
         assert proc.stdin is not None and proc.stdout is not None
         # on a pipe, not on the command line others can read: its join secret, the zenoh password
@@ -286,9 +302,10 @@ class Runtime:
             if not self.node.wait_quiescent().wait(timeout_s):
                 busy = self.node.busy_agents()
                 if busy:
-                    raise AgentError(busy[0] if len(busy) == 1 else ", ".join(busy),
-                                     f"run {self.run_id} not quiescent after {timeout_s} s; still busy: "
-                                     + ", ".join(busy))
+                    raise AgentError(
+                        busy[0] if len(busy) == 1 else ", ".join(busy),
+                        f"run {self.run_id} not quiescent after {timeout_s} s; still busy: " + ", ".join(busy),
+                    )
                 raise BlackboardError(f"run {self.run_id} not quiescent after {timeout_s} s")
         finally:
             self.node.listen(None)

@@ -97,12 +97,18 @@ class Store:
         if pattern is not None:
             level, hyp_id = pattern
             with self._lock:
-                return [(h, self._data(h, d)) for h, d in self._entries.values()
-                        if level in ("*", h.level) and hyp_id in ("*", h.id)]
+                return [
+                    (h, self._data(h, d))
+                    for h, d in self._entries.values()
+                    if level in ("*", h.level) and hyp_id in ("*", h.id)
+                ]
         selector = zenoh.KeyExpr(str(key_expr))
         with self._lock:
-            return [(h, self._data(h, d)) for h, d in self._entries.values()
-                    if selector.intersects(keys.hypothesis(h.level, h.id))]
+            return [
+                (h, self._data(h, d))
+                for h, d in self._entries.values()
+                if selector.intersects(keys.hypothesis(h.level, h.id))
+            ]
 
 
 @dataclass

@@ -40,8 +40,14 @@ _HYP_KINDS = ("post", "update")
 def frame_ids(records: Sequence[TraceRecord], frame: Any) -> set[str]:
     """Ids of hypotheses whose body has ``frame == frame``, and of all hypotheses derived from them."""
     wanted = str(frame)
-    ids = {r["id"] for r in records if r.get("kind") in _HYP_KINDS and isinstance(r.get("body"), dict)
-           and "frame" in r["body"] and str(r["body"]["frame"]) == wanted}
+    ids = {
+        r["id"]
+        for r in records
+        if r.get("kind") in _HYP_KINDS
+        and isinstance(r.get("body"), dict)
+        and "frame" in r["body"]
+        and str(r["body"]["frame"]) == wanted
+    }
     children: dict[str, set[str]] = defaultdict(set)
     for r in records:
         if r.get("kind") == "post":
@@ -68,7 +74,8 @@ def filter_records(
     that frame and those derived from them (see :func:`frame_ids`)."""
     ids = frame_ids(records, frame) if frame is not None else None
     return [
-        r for r in records
+        r
+        for r in records
         if (agent is None or r.get("agent") == agent)
         and (level is None or r.get("level") == level)
         and (id is None or r.get("id") == id)
@@ -127,8 +134,20 @@ def summarize(records: Sequence[TraceRecord], *, complete: bool | None = None) -
         name = r.get("agent")
         if not name:
             continue
-        a = agents.setdefault(name, {"posts": 0, "updates": 0, "activations": 0, "errors": 0, "obviated": 0,
-                                     "timeouts": 0, "act_s": 0.0, "act_max_s": 0.0, "state": "joined"})
+        a = agents.setdefault(
+            name,
+            {
+                "posts": 0,
+                "updates": 0,
+                "activations": 0,
+                "errors": 0,
+                "obviated": 0,
+                "timeouts": 0,
+                "act_s": 0.0,
+                "act_max_s": 0.0,
+                "state": "joined",
+            },
+        )
         kind = r.get("kind")
         a["posts"] += kind == "post"
         a["updates"] += kind == "update"
@@ -153,22 +172,31 @@ def summarize(records: Sequence[TraceRecord], *, complete: bool | None = None) -
         "levels": dict(sorted(levels.items())),
         "agents": dict(sorted(agents.items())),
         "rejected": [r.get("message") for r in records if r.get("kind") == "rejected"],
-        "timeouts": [{"id": r.get("id"), "agent": r.get("agent"), "reason": r.get("reason")}
-                     for r in records if r.get("kind") == "timeout"],
+        "timeouts": [
+            {"id": r.get("id"), "agent": r.get("agent"), "reason": r.get("reason")}
+            for r in records
+            if r.get("kind") == "timeout"
+        ],
     }
 
 
 def render_summary(summary: dict[str, Any]) -> str:
     """Plain-text rendering of :func:`summarize`."""
-    lines = [f"run {summary['run_id'] or '?'}: {summary['records']} records over {summary['duration_s']:.3f} s"
-             + ("" if summary["complete"] else " (incomplete: no run_end, the run crashed or is running)")]
+    lines = [
+        f"run {summary['run_id'] or '?'}: {summary['records']} records over {summary['duration_s']:.3f} s"
+        + ("" if summary["complete"] else " (incomplete: no run_end, the run crashed or is running)")
+    ]
     lines.append("events:  " + ", ".join(f"{k} {n}" for k, n in summary["kinds"].items()))
     lines.append("levels:  " + (", ".join(f"{k} {n}" for k, n in summary["levels"].items()) or "-"))
-    lines.append(f"{'agent':<20} {'posts':>6} {'upd':>5} {'acts':>6} {'errors':>6} {'obviated':>8} "
-                 f"{'timeouts':>8} {'act s':>8} {'max s':>7}  state")
+    lines.append(
+        f"{'agent':<20} {'posts':>6} {'upd':>5} {'acts':>6} {'errors':>6} {'obviated':>8} "
+        f"{'timeouts':>8} {'act s':>8} {'max s':>7}  state"
+    )
     for name, a in summary["agents"].items():
-        lines.append(f"{name:<20} {a['posts']:>6} {a['updates']:>5} {a['activations']:>6} {a['errors']:>6} "
-                     f"{a['obviated']:>8} {a['timeouts']:>8} {a['act_s']:>8.3f} {a['act_max_s']:>7.3f}  {a['state']}")
+        lines.append(
+            f"{name:<20} {a['posts']:>6} {a['updates']:>5} {a['activations']:>6} {a['errors']:>6} "
+            f"{a['obviated']:>8} {a['timeouts']:>8} {a['act_s']:>8.3f} {a['act_max_s']:>7.3f}  {a['state']}"
+        )
     for message in summary["rejected"]:
         lines.append(f"rejected: {message}")
     for t in summary["timeouts"]:
@@ -204,6 +232,7 @@ def _body_summary(r: TraceRecord) -> str:
 
 def in_time_order(records: Sequence[TraceRecord]) -> list[TraceRecord]:
     """Records by time, then by the node's sequence number (records may arrive out of order)."""
+
     def key(r: TraceRecord) -> tuple[float, int]:
         t = r.get("t")
         return (float(t) if isinstance(t, (int, float)) else float("inf"), int(r.get("seq", 0) or 0))
@@ -253,8 +282,10 @@ def render_chain(chain: Sequence[TraceRecord]) -> str:
         body = json.dumps(_jsonable(r.get("body")), sort_keys=True)
         body = body if len(body) <= 120 else body[:117] + "..."
         links = ", ".join(r.get("links") or ()) or "input"
-        lines.append(f"{r.get('level')}/{r.get('id')} v{r.get('version')} by {r.get('agent')} "
-                     f"(credibility {r.get('credibility', 1.0):.2f}) <- {links}\n    {body}")
+        lines.append(
+            f"{r.get('level')}/{r.get('id')} v{r.get('version')} by {r.get('agent')} "
+            f"(credibility {r.get('credibility', 1.0):.2f}) <- {links}\n    {body}"
+        )
     return "\n".join(lines)
 
 
@@ -298,20 +329,32 @@ def _dot_quote(text: str) -> str:
 def chain_dot(chain: Sequence[TraceRecord]) -> str:
     """The derivation chain as a Graphviz DOT digraph: an edge from each input to what was
     derived from it; nodes labelled level/id, agent and a short body, coloured per level."""
-    palette = ["#a6cee3", "#b2df8a", "#fb9a99", "#fdbf6f", "#cab2d6", "#ffff99", "#1f78b4", "#33a02c",
-               "#e31a1c", "#ff7f00"]
+    palette = [
+        "#a6cee3",
+        "#b2df8a",
+        "#fb9a99",
+        "#fdbf6f",
+        "#cab2d6",
+        "#ffff99",
+        "#1f78b4",
+        "#33a02c",
+        "#e31a1c",
+        "#ff7f00",
+    ]
     levels = sorted({str(r.get("level")) for r in chain if r.get("kind") != "missing"})
     colour = {lvl: palette[i % len(palette)] for i, lvl in enumerate(levels)}
     lines = ["digraph derivation {", "  rankdir=BT;", '  node [shape=box, style="rounded,filled", fontsize=10];']
     for r in chain:
         if r.get("kind") == "missing":
-            lines.append(f"  {_dot_quote(r['id'])} [label={_dot_quote(r['id'] + chr(10) + 'not in the trace')}, "
-                         'style="dashed"];')
+            lines.append(
+                f'  {_dot_quote(r["id"])} [label={_dot_quote(r["id"] + chr(10) + "not in the trace")}, style="dashed"];'
+            )
             continue
         body = _body_summary(r)
         label = f"{r.get('level')}/{r.get('id')}\nby {r.get('agent')}" + (f"\n{body}" if body else "")
-        lines.append(f"  {_dot_quote(r['id'])} [label={_dot_quote(label)}, "
-                     f"fillcolor={_dot_quote(colour[str(r.get('level'))])}];")
+        lines.append(
+            f"  {_dot_quote(r['id'])} [label={_dot_quote(label)}, fillcolor={_dot_quote(colour[str(r.get('level'))])}];"
+        )
     for r in chain:
         for link in r.get("links") or ():
             lines.append(f"  {_dot_quote(link)} -> {_dot_quote(r['id'])};")

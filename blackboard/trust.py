@@ -111,8 +111,7 @@ def verify(key: bytes | None, payload: bytes, tag: bytes | None) -> bool:
 
 def _keystream(key: bytes, nonce: bytes, n: int) -> bytes:
     blocks = (n + 31) // 32
-    return b"".join(hmac.new(key, nonce + i.to_bytes(8, "big"), hashlib.sha256).digest()
-                    for i in range(blocks))[:n]
+    return b"".join(hmac.new(key, nonce + i.to_bytes(8, "big"), hashlib.sha256).digest() for i in range(blocks))[:n]
 
 
 def seal(key: bytes, plaintext: bytes) -> bytes:
@@ -163,8 +162,7 @@ def _count(value: Any) -> bool:
 
 
 def _counts(value: Any) -> bool:
-    return (type(value) is dict and len(value) <= _MAX_ENTRIES
-            and all(_name(k) and _count(v) for k, v in value.items()))
+    return type(value) is dict and len(value) <= _MAX_ENTRIES and all(_name(k) and _count(v) for k, v in value.items())
 
 
 def _text(value: Any, *, optional: bool = True) -> bool:
@@ -187,8 +185,14 @@ def _activity_problem(records: Any) -> str | None:
             if record[0] not in ACTIVITY_CODES:
                 continue  # a kind of a newer agent: ignored, as the node ignores it
             code, level, hyp_id, version, event, rating, t, extra = record
-            if not (_name(level) and _name(hyp_id) and _count(version) and _text(event, optional=False)
-                    and (rating is None or _finite(rating)) and _finite(t)):
+            if not (
+                _name(level)
+                and _name(hyp_id)
+                and _count(version)
+                and _text(event, optional=False)
+                and (rating is None or _finite(rating))
+                and _finite(t)
+            ):
                 return f"activity[{i}]: malformed row"
             if not (extra is None or _finite(extra) or _text(extra, optional=False)):
                 return f"activity[{i}]: malformed extra field"

@@ -92,18 +92,30 @@ class ZenohBoard:
             ValueError: a bad id, link, credibility or deadline.
         """
         self._check_level(level)
-        hyp = Hypothesis.new(level, body, source=self.agent, links=tuple(links), credibility=credibility,
-                             id=id, addressed_to=addressed_to, deadline_s=deadline_s)
+        hyp = Hypothesis.new(
+            level,
+            body,
+            source=self.agent,
+            links=tuple(links),
+            credibility=credibility,
+            id=id,
+            addressed_to=addressed_to,
+            deadline_s=deadline_s,
+        )
         key = self._keys.hypothesis(level, hyp.id)
         with self._lock:  # the envelope is ours (str keys, validated names): only the body needs the walk
             record = hyp.to_record()
             if level in PRIVATE_LEVELS and self.run_key is not None:  # only the node may read it
                 record["body"] = {SEALED: seal(self.run_key, encode(hyp.body, max_bytes=self._max))}
-            data = encode({"op": "post", "hyp": record, "sender": self.agent, "n": self.sent + 1},
-                          max_bytes=self._max, check=((hyp.body, 2),))
+            data = encode(
+                {"op": "post", "hyp": record, "sender": self.agent, "n": self.sent + 1},
+                max_bytes=self._max,
+                check=((hyp.body, 2),),
+            )
             try:
-                self._session.put(key, data, congestion_control=zenoh.CongestionControl.BLOCK,
-                                  attachment=self._tags(data, both=True))
+                self._session.put(
+                    key, data, congestion_control=zenoh.CongestionControl.BLOCK, attachment=self._tags(data, both=True)
+                )
             except zenoh.ZError as err:
                 raise TransportError(f"agent {self.agent!r}: cannot publish on {key}: {err}") from None
             self.sent += 1
@@ -178,15 +190,21 @@ class ZenohBoard:
 
     def _get(self, selector: str, payload: bytes | None, *, attachment: bytes | None = None) -> list[bytes]:
         try:
-            replies = self._session.get(selector, payload=payload, timeout=REQUEST_TIMEOUT_S, attachment=attachment,
-                                        congestion_control=zenoh.CongestionControl.BLOCK)
+            replies = self._session.get(
+                selector,
+                payload=payload,
+                timeout=REQUEST_TIMEOUT_S,
+                attachment=attachment,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
             out = []
             for reply in replies:
                 if reply.ok is not None:
                     out.append(reply.ok.payload.to_bytes())
                 elif reply.err is not None:
-                    logger.warning("agent %s: error reply to %s: %s", self.agent, selector,
-                                   reply.err.payload.to_string())
+                    logger.warning(
+                        "agent %s: error reply to %s: %s", self.agent, selector, reply.err.payload.to_string()
+                    )
             return out
         except zenoh.ZError as err:
             raise TransportError(f"agent {self.agent!r}: query {selector} failed: {err}") from None

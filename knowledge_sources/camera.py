@@ -61,9 +61,11 @@ class Camera(KnowledgeSource):
                 delay = start + f.index / self.rate_hz - time.perf_counter()
                 if delay > 0:
                     time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
-            posted = levels.post(board, levels.SensorFrame(frame=f.index, image=f.image, source=f.source,
-                                                                   time=f.time),
-                                 links=(levels.map_id(),))
+            posted = levels.post(
+                board,
+                levels.SensorFrame(frame=f.index, image=f.image, source=f.source, time=f.time),
+                links=(levels.map_id(),),
+            )
             if f.truth is not None:
                 levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))
         log.info("%s: posted %d camera frames", self.name, len(frames))

@@ -68,10 +68,12 @@ def _version() -> str:
 def _global_flags(parser: argparse.ArgumentParser, *, top: bool) -> None:
     """-v and --debug, on the top parser and again on each sub-command's (so they work after it)."""
     default: dict[str, object] = {} if top else {"default": argparse.SUPPRESS}
-    parser.add_argument("-v", "--verbose", action="count", help="more logging (-vv for debug)",
-                        **({"default": 0} if top else default))
-    parser.add_argument("--debug", action="store_true", help="show tracebacks of errors",
-                        **({"default": False} if top else default))
+    parser.add_argument(
+        "-v", "--verbose", action="count", help="more logging (-vv for debug)", **({"default": 0} if top else default)
+    )
+    parser.add_argument(
+        "--debug", action="store_true", help="show tracebacks of errors", **({"default": False} if top else default)
+    )
 
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
@@ -80,9 +82,9 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     parser = _Parser(
         prog="mapinterp",
         description="Localize a ground vehicle on a terrain map from its camera images, with agents "
-                    "cooperating on a zenoh blackboard.",
+        "cooperating on a zenoh blackboard.",
         epilog="Run 'mapinterp COMMAND --help' for a command's options. Shell completion: "
-               "eval \"$(mapinterp --print-completion bash)\" (or zsh, tcsh).",
+        'eval "$(mapinterp --print-completion bash)" (or zsh, tcsh).',
     )
     parser.add_argument("--version", action="version", version=f"mapinterp {_version()}")
     _global_flags(parser, top=True)

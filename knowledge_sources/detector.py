@@ -73,8 +73,12 @@ class LandmarkDetectorAgent(KnowledgeSource):
         align = None
         if self.camera_height is not None and self.fov_y_deg is not None:
             align = align_pixels(height=self.camera_height, fov_y_deg=self.fov_y_deg, tolerance_deg=self.align_deg)
-        self._registry = default_registry(threshold=self.threshold, absent_threshold=self.absent_threshold,
-                                          calibration=self.calibration, align_px=align)
+        self._registry = default_registry(
+            threshold=self.threshold,
+            absent_threshold=self.absent_threshold,
+            calibration=self.calibration,
+            align_px=align,
+        )
 
     def precondition(self, event: Event) -> float | None:
         h = event.hypothesis

@@ -86,8 +86,9 @@ class AssociativeIndexer(KnowledgeSource):
         index.add((self._images[k] for k in mine), mine)
         self._index = index
         self._images.clear()
-        levels.post(board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)),
-                    links=(levels.map_id(),))
+        levels.post(
+            board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)), links=(levels.map_id(),)
+        )
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
 
     def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
@@ -96,8 +97,14 @@ class AssociativeIndexer(KnowledgeSource):
         ranking = self._index.rank(frame.image)
         levels.post(
             board,
-            levels.Ranking.of(ranking, frame=frame.frame, frame_time=hypothesis.timestamp, shard=self.shard,
-                              shards=self.shards, time=frame.time),
+            levels.Ranking.of(
+                ranking,
+                frame=frame.frame,
+                frame_time=hypothesis.timestamp,
+                shard=self.shard,
+                shards=self.shards,
+                time=frame.time,
+            ),
             links=(hypothesis.id,),
             credibility=float(min(1.0, max(0.0, ranking.reliability / (1.0 + ranking.reliability)))),
         )

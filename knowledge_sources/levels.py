@@ -57,12 +57,50 @@ if TYPE_CHECKING:
     from models.associative import Ranking as MemoryRanking
 
 __all__ = [
-    "ANSWER", "Answer", "INDEX", "Index", "MAP", "MESSAGES", "Map", "Message", "MessageError", "POSITION",
-    "POSE", "Pose", "Position", "QUERY", "Query", "RANKING", "Ranking", "SCENARIO", "SENSOR_FRAME", "Scenario",
-    "SensorFrame", "TRACK", "TRUTH", "Track", "Truth", "VIEWFRAME", "Viewframe", "answer_id", "frame_id",
-    "index_id", "levels_table", "map_id", "message_class", "pose_id", "position_id", "post", "query_id",
-    "ranking_id", "scenario_id", "track_id", "truth_id", "viewframe_id",
+    "ANSWER",
+    "Answer",
+    "INDEX",
+    "Index",
+    "MAP",
+    "MESSAGES",
+    "Map",
+    "Message",
+    "MessageError",
+    "POSITION",
+    "POSE",
+    "Pose",
+    "Position",
+    "QUERY",
+    "Query",
+    "RANKING",
+    "Ranking",
+    "SCENARIO",
+    "SENSOR_FRAME",
+    "Scenario",
+    "SensorFrame",
+    "TRACK",
+    "TRUTH",
+    "Track",
+    "Truth",
+    "VIEWFRAME",
+    "Viewframe",
+    "answer_id",
+    "frame_id",
+    "index_id",
+    "levels_table",
+    "map_id",
+    "message_class",
+    "pose_id",
+    "position_id",
+    "post",
+    "query_id",
+    "ranking_id",
+    "scenario_id",
+    "track_id",
+    "truth_id",
+    "viewframe_id",
 ]
+
 
 class MessageError(BlackboardError):
     """A hypothesis body does not fit its level's message class.
@@ -109,8 +147,10 @@ class Message:
             return
         missing = [name for name in ("posted_by", "id_pattern") if name not in cls.__dict__]
         if missing or cls.id is Message.id:
-            raise TypeError(f"message class {cls.__qualname__} of level {level!r} must define "
-                            + ", ".join([*missing, *(["id()"] if cls.id is Message.id else [])]))
+            raise TypeError(
+                f"message class {cls.__qualname__} of level {level!r} must define "
+                + ", ".join([*missing, *(["id()"] if cls.id is Message.id else [])])
+            )
         # dataclass(slots=True) creates the class a second time: replace, do not refuse
         known = MESSAGES.get(level)
         if known is not None and (known.__name__, known.__module__) != (cls.__name__, cls.__module__):
@@ -146,14 +186,16 @@ class Message:
         if "_checks" not in cls.__dict__:
             _build_checks(cls)
         if not isinstance(body, Mapping):
-            raise MessageError(cls.level, None, f"body must be a map, got {type(body).__name__}",
-                               hypothesis_id=hypothesis_id)
+            raise MessageError(
+                cls.level, None, f"body must be a map, got {type(body).__name__}", hypothesis_id=hypothesis_id
+            )
         missing = cls._required.difference(body)
         unknown = set(body).difference(cls._names)
         if missing or unknown:
             name = min(missing) if missing else min(map(str, unknown))
-            raise MessageError(cls.level, name, "missing" if missing else "not a field of this level",
-                               hypothesis_id=hypothesis_id)
+            raise MessageError(
+                cls.level, name, "missing" if missing else "not a field of this level", hypothesis_id=hypothesis_id
+            )
         try:
             return cls(**body)
         except MessageError as err:
@@ -163,8 +205,12 @@ class Message:
     def from_hypothesis(cls, hypothesis: Hypothesis) -> Self:
         """The message a hypothesis carries; it must be on this class's level."""
         if hypothesis.level != cls.level:
-            raise MessageError(cls.level, None, f"hypothesis {hypothesis.id} is on level {hypothesis.level}",
-                               hypothesis_id=hypothesis.id)
+            raise MessageError(
+                cls.level,
+                None,
+                f"hypothesis {hypothesis.id} is on level {hypothesis.level}",
+                hypothesis_id=hypothesis.id,
+            )
         return cls.from_body(hypothesis.body, hypothesis_id=hypothesis.id)
 
 
@@ -186,8 +232,15 @@ def post(
     deadline_s: float | None = None,
 ) -> Hypothesis:
     """Post ``message`` on its level under its id (:meth:`Message.id`); keywords as ``Board.post``."""
-    return board.post(message.level, message.to_body(), id=message.id(), links=links, credibility=credibility,
-                      addressed_to=addressed_to, deadline_s=deadline_s)
+    return board.post(
+        message.level,
+        message.to_body(),
+        id=message.id(),
+        links=links,
+        credibility=credibility,
+        addressed_to=addressed_to,
+        deadline_s=deadline_s,
+    )
 
 
 # -- validation ------------------------------------------------------------------------------------
@@ -206,32 +259,40 @@ def _check_for(hint: Any, meta: Mapping[str, Any]) -> _Check:
         return lambda v: None if v is None else inner(v)
     base = origin or hint
     if base is int:
+
         def check_int(v: Any) -> Any:
             if type(v) is int:
                 return v
             if isinstance(v, np.integer):
                 return int(v)
             raise TypeError(f"must be an integer, got {type(v).__name__}")
+
         return check_int
     if base is float:
+
         def check_float(v: Any) -> Any:
             if type(v) is float:
                 return v
             if isinstance(v, (int, np.integer, np.floating)) and not isinstance(v, bool):
                 return float(v)
             raise TypeError(f"must be a number, got {type(v).__name__}")
+
         return check_float
     if base is bool:
+
         def check_bool(v: Any) -> Any:
             if isinstance(v, (bool, np.bool_)):
                 return bool(v)
             raise TypeError(f"must be true or false, got {type(v).__name__}")
+
         return check_bool
     if base is str:
+
         def check_str(v: Any) -> Any:
             if isinstance(v, str):
                 return v
             raise TypeError(f"must be a string, got {type(v).__name__}")
+
         return check_str
     if base is list:
         length = meta.get("length")
@@ -242,12 +303,15 @@ def _check_for(hint: Any, meta: Mapping[str, Any]) -> _Check:
             if length is not None and len(v) != length:
                 raise ValueError(f"must have {length} entries, got {len(v)}")
             return v
+
         return check_list
     if base is dict:
+
         def check_dict(v: Any) -> Any:
             if isinstance(v, dict):
                 return v
             raise TypeError(f"must be a map, got {type(v).__name__}")
+
         return check_dict
     if base is np.ndarray:
         dtype = None if meta.get("dtype") is None else np.dtype(meta["dtype"])
@@ -264,6 +328,7 @@ def _check_for(hint: Any, meta: Mapping[str, Any]) -> _Check:
             if channels is not None and v.shape[-1] != channels:
                 raise ValueError(f"must have {channels} channels (last axis), got shape {v.shape}")
             return v
+
         return check_array
     raise TypeError(f"unsupported field type {hint!r}")
 
@@ -272,8 +337,9 @@ def _build_checks(cls: type[Message]) -> tuple[tuple[str, _Check], ...]:
     hints = typing.get_type_hints(cls)
     fields = dataclasses.fields(cls)  # type: ignore[arg-type]
     cls._checks = tuple((f.name, _check_for(hints[f.name], f.metadata)) for f in fields)
-    cls._required = frozenset(f.name for f in fields
-                              if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING)
+    cls._required = frozenset(
+        f.name for f in fields if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+    )
     cls._names = frozenset(f.name for f in fields)
     cls._order = tuple(f.name for f in fields)
     return cls._checks
@@ -313,11 +379,22 @@ class Viewframe(Message):
     image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
     mask: np.ndarray = field(metadata=_doc("(H, W) int16 landmark index per pixel, -1 none", dtype="int16", ndim=2))
     description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
-    skyline: np.ndarray = field(metadata=_doc("(n,) float32 horizon elevation per azimuth bin, degrees, NaN: none "
-                                              "(models.skyline)", dtype="float32", ndim=1))
-    background: np.ndarray | None = field(default=None, metadata=_doc(
-        "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view",
-        dtype="uint8", ndim=3, channels=3))
+    skyline: np.ndarray = field(
+        metadata=_doc(
+            "(n,) float32 horizon elevation per azimuth bin, degrees, NaN: none (models.skyline)",
+            dtype="float32",
+            ndim=1,
+        )
+    )
+    background: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view",
+            dtype="uint8",
+            ndim=3,
+            channels=3,
+        ),
+    )
 
     def id(self) -> str:
         return viewframe_id(self.index)
@@ -426,31 +503,57 @@ class Ranking(Message):
     shard: int = field(metadata=_doc("the shard ranked (0 for a source of one shard)"))
     shards: int = field(metadata=_doc("number of shards of this source"))
     viewframes: list = field(metadata=_doc("viewframe indices k, best first"))
-    variances: list = field(metadata=_doc("the source's error of each, same order (associative: error variance; "
-                                          "skyline: truncated L1 in degrees)"))
+    variances: list = field(
+        metadata=_doc(
+            "the source's error of each, same order (associative: error variance; skyline: truncated L1 in degrees)"
+        )
+    )
     reliability: float = field(metadata=_doc("robust standard deviations the best stands below the rest"))
     source: str = field(default="associative", metadata=_doc('"associative" or "skyline": whose errors these are'))
-    shifts: list | None = field(default=None, metadata=_doc(
-        "[[heading_deg, pitch_deg], ...] the camera's best turn and tilt against each viewframe, same order, "
-        "or null"))
+    shifts: list | None = field(
+        default=None,
+        metadata=_doc(
+            "[[heading_deg, pitch_deg], ...] the camera's best turn and tilt against each viewframe, same order, "
+            "or null"
+        ),
+    )
     time: float | None = field(default=None, metadata=_doc("the camera frame's time, seconds, or null"))
 
     def id(self) -> str:
         return ranking_id(self.frame, self.shard, self.source)
 
     @classmethod
-    def of(cls, ranking: MemoryRanking, *, frame: int, frame_time: float, shard: int, shards: int,
-           source: str = "associative", shifts: list | None = None, time: float | None = None) -> Ranking:
+    def of(
+        cls,
+        ranking: MemoryRanking,
+        *,
+        frame: int,
+        frame_time: float,
+        shard: int,
+        shards: int,
+        source: str = "associative",
+        shifts: list | None = None,
+        time: float | None = None,
+    ) -> Ranking:
         """The message of a memory's :class:`~models.associative.Ranking`."""
-        return cls(frame=frame, frame_time=frame_time, shard=shard, shards=shards, source=source, shifts=shifts,
-                   time=time, **ranking.to_dict())
+        return cls(
+            frame=frame,
+            frame_time=frame_time,
+            shard=shard,
+            shards=shards,
+            source=source,
+            shifts=shifts,
+            time=time,
+            **ranking.to_dict(),
+        )
 
     def ranking(self) -> MemoryRanking:
         """As a :class:`models.associative.Ranking`."""
         from models.associative import Ranking as MemoryRanking
 
-        return MemoryRanking.from_dict({"viewframes": self.viewframes, "variances": self.variances,
-                                        "reliability": self.reliability})
+        return MemoryRanking.from_dict(
+            {"viewframes": self.viewframes, "variances": self.variances, "reliability": self.reliability}
+        )
 
 
 def ranking_id(frame: int, shard: int, source: str = "associative") -> str:
@@ -499,8 +602,9 @@ class Answer(Message):
     location: list | None = field(metadata=_doc("(row, col) of the detection in the camera image, or null"))
     detector: str = field(metadata=_doc("detector name"))
     reason: str = field(metadata=_doc("why the detector answered so"))
-    llr: float | None = field(default=None, metadata=_doc(
-        "log-likelihood ratio of the landmark being there (calibrated), or null"))
+    llr: float | None = field(
+        default=None, metadata=_doc("log-likelihood ratio of the landmark being there (calibrated), or null")
+    )
 
     def id(self) -> str:
         return answer_id(self.query)
@@ -599,8 +703,7 @@ class Track(Message):
     evidence: bool = field(metadata=_doc("the frame had evidence (else: prediction only)"))
     belief: np.ndarray = field(metadata=_doc("(N,) float32 posterior probability of each route point", ndim=1))
     prior_next: np.ndarray = field(metadata=_doc("(N,) float32 predicted probability for the next frame", ndim=1))
-    loglik: np.ndarray | None = field(metadata=_doc("(S,) float32 the frame's evidence on the route, or null",
-                                                    ndim=1))
+    loglik: np.ndarray | None = field(metadata=_doc("(S,) float32 the frame's evidence on the route, or null", ndim=1))
     dt: float | None = field(metadata=_doc("seconds since the previous frame, or null"))
 
     def id(self) -> str:
@@ -643,8 +746,7 @@ def _type_name(hint: Any, meta: Mapping[str, Any]) -> str:
 def level_fields(cls: type[Message]) -> list[tuple[str, str, str]]:
     """``(field, type, doc)`` of each field of a message class, in order."""
     hints = typing.get_type_hints(cls)
-    return [(f.name, _type_name(hints[f.name], f.metadata), f.metadata.get("doc", ""))
-            for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    return [(f.name, _type_name(hints[f.name], f.metadata), f.metadata.get("doc", "")) for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
 
 
 def levels_table() -> str:
@@ -658,7 +760,9 @@ def levels_table() -> str:
 
 
 if __doc__ is not None:
-    __doc__ += "Levels (generated from the classes)::\n\n" + "\n".join("    " + line for line in levels_table().splitlines())
+    __doc__ += "Levels (generated from the classes)::\n\n" + "\n".join(
+        "    " + line for line in levels_table().splitlines()
+    )
 
 
 if __name__ == "__main__":

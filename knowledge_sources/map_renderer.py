@@ -46,30 +46,38 @@ class MapRenderer(KnowledgeSource):
             p = vf.pose
             pose = [p.x, p.y, p.z, p.heading_deg, p.pitch_deg]
             poses.append(pose)
-            levels.post(board, levels.Viewframe(
-                index=vf.index,
-                pose=pose,
-                image=np.ascontiguousarray(vf.image),
-                mask=vf.mask.astype(np.int16),
-                description=vf.description.to_dict(),
-                skyline=vf.skyline,
-                background=None if vf.background is None else np.ascontiguousarray(vf.background),
-            ), links=(source.id,))
-        levels.post(board, levels.Map(
-            scenario=scenario.name,
-            path=request.path,
-            viewframes=len(viewframes),
-            priors={k: float(v) for k, v in priors.items()},
-            landmarks=[
-                {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
-                for i, lm in enumerate(scenario.landmarks)
-            ],
-            route=[[float(x), float(y)] for x, y in scenario.route],
-            poses=poses,
-            visible={
-                str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
-                for vf in viewframes
-            },
-            memory=scenario.memory.model_dump(),
-        ), links=(source.id,))
+            levels.post(
+                board,
+                levels.Viewframe(
+                    index=vf.index,
+                    pose=pose,
+                    image=np.ascontiguousarray(vf.image),
+                    mask=vf.mask.astype(np.int16),
+                    description=vf.description.to_dict(),
+                    skyline=vf.skyline,
+                    background=None if vf.background is None else np.ascontiguousarray(vf.background),
+                ),
+                links=(source.id,),
+            )
+        levels.post(
+            board,
+            levels.Map(
+                scenario=scenario.name,
+                path=request.path,
+                viewframes=len(viewframes),
+                priors={k: float(v) for k, v in priors.items()},
+                landmarks=[
+                    {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
+                    for i, lm in enumerate(scenario.landmarks)
+                ],
+                route=[[float(x), float(y)] for x, y in scenario.route],
+                poses=poses,
+                visible={
+                    str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
+                    for vf in viewframes
+                },
+                memory=scenario.memory.model_dump(),
+            ),
+            links=(source.id,),
+        )
         log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)

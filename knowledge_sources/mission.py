@@ -72,52 +72,88 @@ def agent_plan(
     for s in range(shards):
         plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{s}", {"shard": s, "shards": shards}))
     sky = scenario.skyline
-    match = {"step_deg": sky.step_deg, "max_heading_deg": sky.max_heading_deg,
-             "max_pitch_deg": sky.max_pitch_deg, "truncate_deg": sky.truncate_deg}
+    match = {
+        "step_deg": sky.step_deg,
+        "max_heading_deg": sky.max_heading_deg,
+        "max_pitch_deg": sky.max_pitch_deg,
+        "truncate_deg": sky.truncate_deg,
+    }
     sources = {"associative": 1.0}
     if sky.enabled:
-        plan.append(("knowledge_sources.skyline:SkylineRanker", "skyline",
-                     {"fov_y_deg": scenario.camera.fov_y_deg, **match}))
+        plan.append(
+            ("knowledge_sources.skyline:SkylineRanker", "skyline", {"fov_y_deg": scenario.camera.fov_y_deg, **match})
+        )
         sources["skyline"] = sky.weight
     named: dict[str, str] = {}
     for kind in sorted({lm.kind for lm in scenario.landmarks}):
         if detector_name(kind) in named:
-            raise ScenarioError(scenario.path, "landmarks", f"kinds {named[detector_name(kind)]!r} and {kind!r} both "
-                                f"name the detector agent {detector_name(kind)!r}: rename one")
+            raise ScenarioError(
+                scenario.path,
+                "landmarks",
+                f"kinds {named[detector_name(kind)]!r} and {kind!r} both "
+                f"name the detector agent {detector_name(kind)!r}: rename one",
+            )
         named[detector_name(kind)] = kind
-        plan.append(("knowledge_sources.detector:LandmarkDetectorAgent", detector_name(kind),
-                     {"threshold": sched.detector_threshold, "absent_threshold": sched.absent_threshold,
-                      "calibration": {k: list(v) for k, v in sched.calibration.items()},
-                      "align_deg": list(sched.align_deg), "camera_height": scenario.camera.height,
-                      "fov_y_deg": scenario.camera.fov_y_deg}))
-    plan.append((
-        "knowledge_sources.scheduler:Scheduler",
-        "scheduler",
-        {
-            "strategy": strategy or sched.strategy,
-            "candidates": sched.candidates,
-            "accept": sched.accept,
-            "reliability": sched.reliability,
-            "beta": sched.beta,
-            "min_pixels": sched.min_pixels,
-            "query_timeout_s": sched.query_timeout_s,
-            "sources": sources,
-            "tracked": tracked,
-            "backtracking": sched.backtracking,
-            "questions": sched.questions,
-            "floor": sched.floor,
-            "max_llr": sched.max_llr,
-        },
-    ))
+        plan.append(
+            (
+                "knowledge_sources.detector:LandmarkDetectorAgent",
+                detector_name(kind),
+                {
+                    "threshold": sched.detector_threshold,
+                    "absent_threshold": sched.absent_threshold,
+                    "calibration": {k: list(v) for k, v in sched.calibration.items()},
+                    "align_deg": list(sched.align_deg),
+                    "camera_height": scenario.camera.height,
+                    "fov_y_deg": scenario.camera.fov_y_deg,
+                },
+            )
+        )
+    plan.append(
+        (
+            "knowledge_sources.scheduler:Scheduler",
+            "scheduler",
+            {
+                "strategy": strategy or sched.strategy,
+                "candidates": sched.candidates,
+                "accept": sched.accept,
+                "reliability": sched.reliability,
+                "beta": sched.beta,
+                "min_pixels": sched.min_pixels,
+                "query_timeout_s": sched.query_timeout_s,
+                "sources": sources,
+                "tracked": tracked,
+                "backtracking": sched.backtracking,
+                "questions": sched.questions,
+                "floor": sched.floor,
+                "max_llr": sched.max_llr,
+            },
+        )
+    )
     ref = scenario.refine
     if ref.enabled:
-        plan.append(("knowledge_sources.refiner:PoseRefiner", "refiner",
-                     {"position": ref.position, "along_m": ref.along_m, "across_m": ref.across_m, "levels": ref.levels,
-                      "grid": ref.grid,
-                      "edge_weight": ref.edge_weight, **match}))
+        plan.append(
+            (
+                "knowledge_sources.refiner:PoseRefiner",
+                "refiner",
+                {
+                    "position": ref.position,
+                    "along_m": ref.along_m,
+                    "across_m": ref.across_m,
+                    "levels": ref.levels,
+                    "grid": ref.grid,
+                    "edge_weight": ref.edge_weight,
+                    **match,
+                },
+            )
+        )
     if tracked:
-        plan.append(("knowledge_sources.tracker:Tracker", "tracker",
-                     {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels}))
+        plan.append(
+            (
+                "knowledge_sources.tracker:Tracker",
+                "tracker",
+                {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels},
+            )
+        )
     return plan
 
 
@@ -132,8 +168,11 @@ def _check_numbers(n_frames: int, *, timeout_s: float, frame_rate: float | None,
         raise UsageError("--rate", f"must be a frame rate in (0, {MAX_RATE_HZ:g}] Hz, got {frame_rate!r}")
     span = (n_frames - 1) / frame_rate
     if span >= timeout_s:
-        raise UsageError("--rate", f"{n_frames} frames at {frame_rate:g} Hz take {span:g} s, longer than the "
-                                   f"run's timeout of {timeout_s:g} s (raise --rate or --timeout)")
+        raise UsageError(
+            "--rate",
+            f"{n_frames} frames at {frame_rate:g} Hz take {span:g} s, longer than the "
+            f"run's timeout of {timeout_s:g} s (raise --rate or --timeout)",
+        )
 
 
 def run_mission(
@@ -241,12 +280,20 @@ def run_mission(
     remote = sorted(set(remote))
     unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
     if unknown:
-        raise AgentError(", ".join(unknown), "--remote names no agent of this mission; its agents are: "
-                         + ", ".join(n for _, n, _ in plan))
+        raise AgentError(
+            ", ".join(unknown),
+            "--remote names no agent of this mission; its agents are: " + ", ".join(n for _, n, _ in plan),
+        )
     started = time.perf_counter()
     interrupted: str | None = None
-    with Runtime(mode="processes" if processes else "inprocess", zenoh=zenoh, trace_path=trace_path,
-                 run_id=run_id, secret=secret, auth=auth) as runtime:
+    with Runtime(
+        mode="processes" if processes else "inprocess",
+        zenoh=zenoh,
+        trace_path=trace_path,
+        run_id=run_id,
+        secret=secret,
+        auth=auth,
+    ) as runtime:
         try:
             if remote:
                 waiting_since = time.monotonic()
@@ -259,8 +306,11 @@ def run_mission(
                 try:
                     runtime.wait_joined(remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic()))
                 except AgentError as err:
-                    raise AgentError(err.agent, f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
-                                                "(was it started with the printed mapinterp agent command?)") from None
+                    raise AgentError(
+                        err.agent,
+                        f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
+                        "(was it started with the printed mapinterp agent command?)",
+                    ) from None
             request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
             runtime.post(request.level, request.to_body(), id=request.id())
             outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
@@ -278,16 +328,20 @@ def run_mission(
     if outcome.input_errors and interrupted is None:
         name, message = next(iter(outcome.input_errors.items()))
         raise AgentInputError(name, message)
-    positions = {p.frame: p for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses
-                                      if h.level == levels.POSITION)}
-    poses = {p.frame: p for p in (levels.Pose.from_hypothesis(h) for h in outcome.hypotheses
-                                  if h.level == levels.POSE)}
-    truths = {t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses
-                                   if h.level == levels.TRUTH)}
-    tracks = {t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses
-                                   if h.level == levels.TRACK)}
-    frames_seen = {levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses
-                   if h.level == levels.SENSOR_FRAME}
+    positions = {
+        p.frame: p
+        for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSITION)
+    }
+    poses = {p.frame: p for p in (levels.Pose.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSE)}
+    truths = {
+        t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRUTH)
+    }
+    tracks = {
+        t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRACK)
+    }
+    frames_seen = {
+        levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME
+    }
     first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
     last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
     agents = dict(outcome.agents)
@@ -298,14 +352,18 @@ def run_mission(
     records = []
     for f in sorted(frames_seen | set(range(n_frames))):
         if f not in frames_seen:
-            why = ("interrupted before the camera posted it" if interrupted else
-                   "the camera never posted it" + (f" (agents not ok: {dead})" if dead else ""))
+            why = (
+                "interrupted before the camera posted it"
+                if interrupted
+                else "the camera never posted it" + (f" (agents not ok: {dead})" if dead else "")
+            )
         elif interrupted:
             why = f"interrupted by {interrupted} before it was localized"
         else:
             why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
-        rec = frame_record(positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why,
-                           pose=poses.get(f))
+        rec = frame_record(
+            positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why, pose=poses.get(f)
+        )
         rec["missing"] = f not in frames_seen
         rec["interrupted"] = interrupted is not None and f not in positions
         p = positions.get(f)
@@ -345,16 +403,26 @@ def run_mission(
     return results
 
 
-def _track_estimates(tracks: dict[int, levels.Track], frames: Sequence[int],
-                     scenario: Scenario) -> dict[int, dict[str, Any]]:
+def _track_estimates(
+    tracks: dict[int, levels.Track], frames: Sequence[int], scenario: Scenario
+) -> dict[int, dict[str, Any]]:
     """Each frame's track as the results need it (:func:`~knowledge_sources.results.with_track`):
     the tracker's online estimates, or with ``tracking.smoothing`` the estimates of a
     forward-backward pass over every frame's evidence (offline)."""
     order = [f for f in frames if f in tracks]
     if not scenario.tracking.smoothing:
-        return {f: {"route_point": t.route_point, "position": t.position, "heading_deg": t.heading_deg,
-                    "confidence": t.confidence, "state": t.state, "arc_m": t.arc_m, "belief": t.belief}
-                for f, t in tracks.items()}
+        return {
+            f: {
+                "route_point": t.route_point,
+                "position": t.position,
+                "heading_deg": t.heading_deg,
+                "confidence": t.confidence,
+                "state": t.state,
+                "arc_m": t.arc_m,
+                "belief": t.belief,
+            }
+            for f, t in tracks.items()
+        }
     import numpy as np
 
     from models.tracking import smooth
@@ -377,10 +445,20 @@ def _announce_remote(
 
     zenoh = zenoh or ZenohOptions()
     endpoint = (zenoh.listen or zenoh.connect or [runtime.node.endpoint])[0]
-    commands = {name: command_line(factory, name, options, run_id=runtime.run_id, connect=endpoint,
-                                   zenoh_config=zenoh.config_file, secret=runtime.secret)
-                + (["--auth"] if runtime.auth and is_loopback(endpoint) else [])
-                for factory, name, options in plan if name in remote}
+    commands = {
+        name: command_line(
+            factory,
+            name,
+            options,
+            run_id=runtime.run_id,
+            connect=endpoint,
+            zenoh_config=zenoh.config_file,
+            secret=runtime.secret,
+        )
+        + (["--auth"] if runtime.auth and is_loopback(endpoint) else [])
+        for factory, name, options in plan
+        if name in remote
+    }
     if on_wait_remote is not None:
         on_wait_remote(commands)
     else:

@@ -36,7 +36,9 @@ class ExpectationMissed(Exception):
         super().__init__(f"{len(misses)} expectation(s) missed")
 
 
-def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, Any] | None = None) -> list[tuple[str, str, str, str]]:
+def check_expectations(
+    expect: Any, results: dict[str, Any], prior: dict[str, Any] | None = None
+) -> list[tuple[str, str, str, str]]:
     """Compare results with an ``ExpectSpec``; returns rows (name, wanted, got, by how much)."""
     s = results["summary"]
     misses = []
@@ -51,17 +53,34 @@ def check_expectations(expect: Any, results: dict[str, Any], prior: dict[str, An
         if got is None:
             misses.append(("top1_frame_only_min", f">= {expect.top1_frame_only_min:g}", "no truth poses", "-"))
         elif got < expect.top1_frame_only_min:
-            misses.append(("top1_frame_only_min", f">= {expect.top1_frame_only_min:g}", f"{got:.3f}",
-                           f"{expect.top1_frame_only_min - got:.3f} short"))
+            misses.append(
+                (
+                    "top1_frame_only_min",
+                    f">= {expect.top1_frame_only_min:g}",
+                    f"{got:.3f}",
+                    f"{expect.top1_frame_only_min - got:.3f} short",
+                )
+            )
     if expect.mean_queries_max is not None and s["mean_queries"] > expect.mean_queries_max:
-        misses.append(("mean_queries_max", f"<= {expect.mean_queries_max:g}", f"{s['mean_queries']:.3f}",
-                       f"{s['mean_queries'] - expect.mean_queries_max:.3f} over"))
+        misses.append(
+            (
+                "mean_queries_max",
+                f"<= {expect.mean_queries_max:g}",
+                f"{s['mean_queries']:.3f}",
+                f"{s['mean_queries'] - expect.mean_queries_max:.3f} over",
+            )
+        )
     if expect.mean_error_m_max is not None:
         got = s.get("mean_error_m")
         if got is None or got > expect.mean_error_m_max:
-            misses.append(("mean_error_m_max", f"<= {expect.mean_error_m_max:g} m",
-                           "no truth poses" if got is None else f"{got:.2f} m",
-                           "-" if got is None else f"{got - expect.mean_error_m_max:.2f} m over"))
+            misses.append(
+                (
+                    "mean_error_m_max",
+                    f"<= {expect.mean_error_m_max:g} m",
+                    "no truth poses" if got is None else f"{got:.2f} m",
+                    "-" if got is None else f"{got - expect.mean_error_m_max:.2f} m over",
+                )
+            )
     if expect.fewer_queries_than_prior and prior is not None:
         a, p = s["mean_queries"], prior["summary"]["mean_queries"]
         if not a < p:
@@ -79,8 +98,12 @@ def _check_ran(results: dict[str, Any]) -> None:
     s = results["summary"]
     if s["localized"] == 0:
         degraded = "; ".join(results.get("degraded") or [])
-        raise RunFailed(f"no frame localized ({s.get('frames_expected', s['frames'])} expected, "
-                        f"{s.get('posted', s['frames'])} posted{'; ' + degraded if degraded else ''})")
+        raise RunFailed(
+            f"no frame localized ({s.get('frames_expected', s['frames'])} expected, "
+            f"{s.get('posted', s['frames'])} posted{'; ' + degraded if degraded else ''})"
+        )
+
+
 #: markers the plugin puts on its items, registered so that ``--strict-markers`` accepts them
 MARKERS = {
     "slow": "takes more than a few seconds (rendering a whole scenario, multi-process runs)",
@@ -95,17 +118,20 @@ def pytest_configure(config: pytest.Config) -> None:
 
 def summary_line(summary: dict[str, Any]) -> str:
     """A results summary as one readable line: ``frames 30, localized 30, top-1 83.3%, ...``."""
+
     def pct(v: Any) -> str:
         return "n/a" if v is None else f"{v:.1%}"
 
     def num(v: Any, unit: str = "", spec: str = ".2f") -> str:
         return "n/a" if v is None else f"{v:{spec}}{unit}"
 
-    return (f"frames {summary.get('frames')}, localized {summary.get('localized', 'n/a')}, "
-            f"top-1 {pct(summary.get('top1'))}, mean queries {num(summary.get('mean_queries'))}, "
-            f"mean backtracks {num(summary.get('mean_backtracks'))}, "
-            f"mean error {num(summary.get('mean_error_m'), ' m', '.1f')}, "
-            f"latency p50 {num(summary.get('latency_ms_p50'), ' ms', '.0f')}")
+    return (
+        f"frames {summary.get('frames')}, localized {summary.get('localized', 'n/a')}, "
+        f"top-1 {pct(summary.get('top1'))}, mean queries {num(summary.get('mean_queries'))}, "
+        f"mean backtracks {num(summary.get('mean_backtracks'))}, "
+        f"mean error {num(summary.get('mean_error_m'), ' m', '.1f')}, "
+        f"latency p50 {num(summary.get('latency_ms_p50'), ' ms', '.0f')}"
+    )
 
 
 def pytest_collect_file(parent: pytest.Collector, file_path: Path):

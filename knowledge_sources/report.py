@@ -75,8 +75,13 @@ def plot_positions(results: dict[str, Any], *, terrain, landmarks, route, poses)
     return fig
 
 
-def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image: np.ndarray | None, *,
-               pattern: Callable[[np.ndarray], np.ndarray]) -> Figure:
+def plot_frame(
+    frame: dict[str, Any],
+    camera_image: np.ndarray,
+    viewframe_image: np.ndarray | None,
+    *,
+    pattern: Callable[[np.ndarray], np.ndarray],
+) -> Figure:
     """A camera frame beside the chosen viewframe, and both edge images as the memory sees them
     (``pattern``: the index's preprocessing, :meth:`models.index.ViewframeIndex.pattern`)."""
 
@@ -97,8 +102,11 @@ def plot_frame(frame: dict[str, Any], camera_image: np.ndarray, viewframe_image:
         ax.set_yticks([])
     truth = frame["truth_viewframe"]
     verdict = "" if frame["correct"] is None else (" — right" if frame["correct"] else f" — wrong (truth {truth})")
-    fig.suptitle(f"frame {frame['frame']}: viewframe {chosen}, confidence {frame['confidence']:.2f}, "
-                 f"{frame['queries']} queries, {frame['backtracks']} backtracks{verdict}", fontsize=10)
+    fig.suptitle(
+        f"frame {frame['frame']}: viewframe {chosen}, confidence {frame['confidence']:.2f}, "
+        f"{frame['queries']} queries, {frame['backtracks']} backtracks{verdict}",
+        fontsize=10,
+    )
     fig.tight_layout()
     return fig
 
@@ -149,8 +157,14 @@ def plot_track(results: dict[str, Any], *, terrain, landmarks, route, poses) -> 
     truth = np.array([f["truth"][:2] for f in results["frames"] if f["truth"] is not None], dtype=float)
     if truth.size:
         ax.plot(truth[:, 0], truth[:, 1], "-", color="black", lw=1.2, label="true path", zorder=5)
-    single = np.array([f["frame_only"]["position"] for f in results["frames"]
-                       if (f.get("frame_only") or {}).get("position") is not None], dtype=float)
+    single = np.array(
+        [
+            f["frame_only"]["position"]
+            for f in results["frames"]
+            if (f.get("frame_only") or {}).get("position") is not None
+        ],
+        dtype=float,
+    )
     if single.size:
         ax.plot(single[:, 0], single[:, 1], ".", color="0.45", ms=5, label="single frame", zorder=6)
     if frames:
@@ -181,13 +195,26 @@ def plot_belief(results: dict[str, Any]) -> Figure:
     width = max((len(r) for r in rows if r), default=0)
     fig, ax = plt.subplots(figsize=(9, 5))
     if width == 0:
-        ax.text(0.5, 0.5, "no track in these results (run without --no-track)", ha="center", va="center",
-                transform=ax.transAxes)
+        ax.text(
+            0.5,
+            0.5,
+            "no track in these results (run without --no-track)",
+            ha="center",
+            va="center",
+            transform=ax.transAxes,
+        )
         ax.set_axis_off()
         return fig
     belief = np.array([r if r else [np.nan] * width for r in rows], dtype=float)
-    ax.imshow(belief, aspect="auto", cmap="Greys", interpolation="nearest", vmin=0.0, vmax=max(0.2, np.nanmax(belief)),
-              extent=(-0.5, width - 0.5, len(frames) - 0.5, -0.5))
+    ax.imshow(
+        belief,
+        aspect="auto",
+        cmap="Greys",
+        interpolation="nearest",
+        vmin=0.0,
+        vmax=max(0.2, np.nanmax(belief)),
+        extent=(-0.5, width - 0.5, len(frames) - 0.5, -0.5),
+    )
     t = np.arange(len(frames))
     truth = [f["truth_viewframe"] for f in frames]
     if any(v is not None for v in truth):

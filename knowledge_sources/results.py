@@ -55,8 +55,17 @@ if TYPE_CHECKING:
     from knowledge_sources.levels import Pose as PoseMessage
     from knowledge_sources.levels import Position, Truth
 
-__all__ = ["add_map_coordinates", "frame_record", "load_results", "nearest_viewframe", "summarize", "with_track",
-           "write_results", "finite_json", "check_writable"]
+__all__ = [
+    "add_map_coordinates",
+    "frame_record",
+    "load_results",
+    "nearest_viewframe",
+    "summarize",
+    "with_track",
+    "write_results",
+    "finite_json",
+    "check_writable",
+]
 
 
 def nearest_viewframe(x: float, y: float, route_xy: Sequence[Sequence[float]]) -> int:
@@ -113,12 +122,22 @@ def frame_record(
     }
     record["route_position"] = None if route_xy_ is None else [float(route_xy_[0]), float(route_xy_[1])]
     record["route_heading_deg"] = None if route_heading is None else float(route_heading)
-    record["heading_error_deg"] = (None if t is None or heading is None
-                                   else abs((float(heading) - t[2] + 180.0) % 360.0 - 180.0))
-    record["pose"] = None if pose is None else {
-        "pitch_deg": pose.pitch_deg, "sigma_along_m": pose.sigma_along_m, "sigma_across_m": pose.sigma_across_m,
-        "sigma_heading_deg": pose.sigma_heading_deg, "score": pose.score, "start_score": pose.start_score,
-        "renders": pose.renders}
+    record["heading_error_deg"] = (
+        None if t is None or heading is None else abs((float(heading) - t[2] + 180.0) % 360.0 - 180.0)
+    )
+    record["pose"] = (
+        None
+        if pose is None
+        else {
+            "pitch_deg": pose.pitch_deg,
+            "sigma_along_m": pose.sigma_along_m,
+            "sigma_across_m": pose.sigma_across_m,
+            "sigma_heading_deg": pose.sigma_heading_deg,
+            "score": pose.score,
+            "start_score": pose.start_score,
+            "renders": pose.renders,
+        }
+    )
     if position is not None:
         record["degraded"] = list(position.degraded)
         record["steps"] = list(position.steps)
@@ -130,21 +149,28 @@ def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str
     and, when ``track`` (the tracker's estimate: ``route_point``, ``position``, ``heading_deg``,
     ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer."""
     out = dict(record)
-    out["frame_only"] = {k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct",
-                                                 "error_m")}
+    out["frame_only"] = {
+        k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct", "error_m")
+    }
     out["state"] = None
     if track is None:
         return out
     truth = record["truth"]
     vf = int(track["route_point"])
     pos = [float(track["position"][0]), float(track["position"][1])]
-    out.update({
-        "viewframe": vf, "position": pos, "heading_deg": float(track["heading_deg"]),
-        "confidence": float(track["confidence"]), "state": str(track["state"]), "arc_m": float(track["arc_m"]),
-        "belief": [round(float(p), 5) for p in track.get("belief", [])],
-        "correct": None if record["truth_viewframe"] is None else vf == record["truth_viewframe"],
-        "error_m": None if truth is None else math.hypot(pos[0] - truth[0], pos[1] - truth[1]),
-    })
+    out.update(
+        {
+            "viewframe": vf,
+            "position": pos,
+            "heading_deg": float(track["heading_deg"]),
+            "confidence": float(track["confidence"]),
+            "state": str(track["state"]),
+            "arc_m": float(track["arc_m"]),
+            "belief": [round(float(p), 5) for p in track.get("belief", [])],
+            "correct": None if record["truth_viewframe"] is None else vf == record["truth_viewframe"],
+            "error_m": None if truth is None else math.hypot(pos[0] - truth[0], pos[1] - truth[1]),
+        }
+    )
     return out
 
 

@@ -239,8 +239,11 @@ class SceneAnalysis:
         self._rank = {k: i for i, k in enumerate(ranked)}
         if self.track_prior is not None:
             tp = self.track_prior
-            w = ranking_weights([v for _, v in self.ranking], beta=self.beta) if self.strategy == "associative" \
+            w = (
+                ranking_weights([v for _, v in self.ranking], beta=self.beta)
+                if self.strategy == "associative"
                 else np.ones(len(ranked))
+            )
             prod = {k: float(w[i]) * float(tp.get(k, 0.0)) for i, k in enumerate(ranked)}
             keep = sorted(prod, key=lambda k: (-prod[k], self._rank[k]))
             if self.strategy == "associative":
@@ -267,8 +270,10 @@ class SceneAnalysis:
         """Posterior probability of each surviving candidate (sums to 1; empty when none left)."""
         if self.backtracking == "soft":
             # log space: many strong answers must not underflow
-            logs = {k: (math.log(w) if (w := self._weights[k]) > 0 else -math.inf) + self._likelihood[k]
-                    for k in self._weights}
+            logs = {
+                k: (math.log(w) if (w := self._weights[k]) > 0 else -math.inf) + self._likelihood[k]
+                for k in self._weights
+            }
             if not logs:
                 return {}
             top = max(logs.values())
@@ -337,8 +342,9 @@ class SceneAnalysis:
     def _first_rank(self, lm: str, post: Mapping[int, float]) -> int:
         return min(self._rank.get(k, len(self._rank)) for k in post if lm in self._landmarks(k))
 
-    def answer(self, question: Question, present: bool | None, *, score: float | None = None,
-               llr: float | None = None) -> None:
+    def answer(
+        self, question: Question, present: bool | None, *, score: float | None = None, llr: float | None = None
+    ) -> None:
         """Record the detector's answer to ``question``.
 
         ``present`` is ``True``/``False``, or ``None`` when the detector could not tell or no answer
@@ -350,8 +356,13 @@ class SceneAnalysis:
             raise ValueError(f"answer to {question} does not match the pending question {self._pending}")
         self._pending = None
         self._asked.add(question.landmark)
-        step = {"landmark": question.landmark, "viewframe": question.viewframe,
-                "p": round(question.probability, 6), "present": present, "score": score}
+        step = {
+            "landmark": question.landmark,
+            "viewframe": question.viewframe,
+            "p": round(question.probability, 6),
+            "present": present,
+            "score": score,
+        }
         self._queries += 1  # every question asked counts, answered or not
         if self.backtracking == "soft":
             self._answer_soft(question, present, llr, step)
@@ -398,6 +409,7 @@ class SceneAnalysis:
         step["effect"] = f"llr {llr:+.2f} on {len(holders)}" + (f", discarded {low}" if low else "")
 
     def _decide(self, viewframe: int | None, confidence: float, reason: str) -> None:
-        self._decision = Decision(viewframe, float(confidence), self._queries, self._backtracks,
-                                  reason, tuple(self._steps))
+        self._decision = Decision(
+            viewframe, float(confidence), self._queries, self._backtracks, reason, tuple(self._steps)
+        )
         return None

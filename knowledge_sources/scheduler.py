@@ -170,8 +170,9 @@ class Scheduler(KnowledgeSource):
         """Keep the map and what the questions need of it, derived once."""
         self._map = mp
         self._landmarks = {lm["id"]: lm for lm in mp.landmarks}
-        self._visible = {int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels)
-                         for k, v in mp.visible.items()}
+        self._visible = {
+            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in mp.visible.items()
+        }
 
     def _ensure_map(self, board: Board) -> levels.Map:
         if self._map is None:

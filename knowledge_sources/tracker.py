@@ -55,9 +55,7 @@ class FrameOrder:
         self.pending: dict[int, _Pending] = {}
         self.next = 0
 
-    def ranking(
-        self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str
-    ) -> None:
+    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str) -> None:
         p = self.pending.setdefault(frame, _Pending())
         p.shards = shards
         p.rankings[shard] = (list(viewframes), list(variances))
@@ -91,8 +89,9 @@ class Tracker(KnowledgeSource):
     produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
     exclusive: ClassVar[tuple[str, ...]] = (levels.TRACK,)
 
-    def __init__(self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int | None = None,
-                 **options: Any) -> None:
+    def __init__(
+        self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int | None = None, **options: Any
+    ) -> None:
         super().__init__(name, **options)
         from models.scenario import SchedulerSpec, TrackingSpec
 

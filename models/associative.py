@@ -209,9 +209,8 @@ def _check_key_method(key_method: str) -> None:
 def _check_shift(max_shift: int | tuple[int, int]) -> tuple[int, int]:
     """``max_shift`` as a (rows, cols) pair of non-negative ints."""
     pair = (max_shift, max_shift) if isinstance(max_shift, (int, np.integer)) else tuple(max_shift)
-    if (
-        len(pair) != 2
-        or any(isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 or v > 16 for v in pair)
+    if len(pair) != 2 or any(
+        isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 or v > 16 for v in pair
     ):
         raise AssociativeMemoryError(f"max_shift must be an int or (rows, cols) of ints in 0..16, got {max_shift!r}")
     return int(pair[0]), int(pair[1])
@@ -304,6 +303,7 @@ def _config_from_state(state: dict[str, Any]) -> tuple[int, dict[str, Any]]:
         "key_method": str(state["key_method"]),
         "max_shift": tuple(int(v) for v in state["max_shift"]),
     }
+
 
 class HolographicMemory:
     """One memory bank of size N x N, stored in the frequency domain.
@@ -603,9 +603,11 @@ class BankedMemory:
                 packed[row : row + len(bank)] = bank.ranking_matrix
                 bank._match = packed[row : row + len(bank)]
                 row += len(bank)
-            self._bank_power = np.stack(
-                [(b._weights * np.abs(b.spectrum) ** 2).ravel().astype(np.float32) for b in self.banks]
-            ) if self.banks else np.zeros((0, 0), np.float32)
+            self._bank_power = (
+                np.stack([(b._weights * np.abs(b.spectrum) ** 2).ravel().astype(np.float32) for b in self.banks])
+                if self.banks
+                else np.zeros((0, 0), np.float32)
+            )
             self._row_bank = np.repeat(np.arange(len(self.banks)), [len(b) for b in self.banks])
             self._packed = packed
         return self._packed

@@ -210,7 +210,9 @@ class CameraEmulator:
             self._landmark_nodes.append(node)
         self._cam_node = self.scene.add(
             pyrender.PerspectiveCamera(
-                yfov=math.radians(camera.fov_y_deg), znear=camera.near, zfar=camera.far,
+                yfov=math.radians(camera.fov_y_deg),
+                znear=camera.near,
+                zfar=camera.far,
                 aspectRatio=self.width / self.height,
             )
         )
@@ -273,7 +275,10 @@ class CameraEmulator:
         if node is None:
             lod = self.environment.tile_mesh(tile, level)
             prim = pyrender.Primitive(
-                positions=lod.positions, normals=lod.normals, color_0=lod.colors, indices=lod.indices,
+                positions=lod.positions,
+                normals=lod.normals,
+                color_0=lod.colors,
+                indices=lod.indices,
                 material=self._terrain_material,
             )
             node = self.scene.add(pyrender.Mesh([prim]))
@@ -293,8 +298,9 @@ class CameraEmulator:
                 self.scene.activate(self._terrain_node(t, new))
         self._current_levels = levels
         # landmark boxes: draw only those that may be in view (every draw call costs Python time)
-        hidden = outside_frustum(self._box_corners, pose.position, pose.rotation(),
-                                 tan_half_fov=(self._tan_x, self._tan_y))
+        hidden = outside_frustum(
+            self._box_corners, pose.position, pose.rotation(), tan_half_fov=(self._tan_x, self._tan_y)
+        )
         far = np.linalg.norm(self._box_corners.mean(1) - pose.position, axis=1) > self.camera.far + 100
         for node, off in zip(self._landmark_nodes, hidden | far):
             if off:
@@ -362,9 +368,7 @@ class CameraEmulator:
             # depth from the segmentation pass: it rasterises without multisampling, so depth is
             # sampled at pixel centres (the colour pass' depth comes from MSAA sample 0, which
             # sits 3/8 pixel off the centre)
-            seg, depth = self._renderer.render(
-                self.scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._seg_map
-            )
+            seg, depth = self._renderer.render(self.scene, flags=pyrender.RenderFlags.SEG, seg_node_map=self._seg_map)
         except Exception as exc:
             raise RenderError(f"rendering failed: {exc}") from exc
         seg = seg.astype(np.int32)

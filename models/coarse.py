@@ -35,8 +35,14 @@ COARSE_MAX_SHIFT = 4
 class CoarseIndex:
     """Descriptors of stored viewframes, and the candidates of a query (module docstring)."""
 
-    def __init__(self, *, size: int = COARSE_SIZE, blur_sigma: float = COARSE_BLUR_SIGMA,
-                 max_shift: int = COARSE_MAX_SHIFT, edge: str = "sobel") -> None:
+    def __init__(
+        self,
+        *,
+        size: int = COARSE_SIZE,
+        blur_sigma: float = COARSE_BLUR_SIGMA,
+        max_shift: int = COARSE_MAX_SHIFT,
+        edge: str = "sobel",
+    ) -> None:
         if size < 4:
             raise ValueError(f"size must be >= 4, got {size}")
         if not 0 <= max_shift < size:

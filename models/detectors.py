@@ -285,7 +285,7 @@ class EdgeTemplateDetector:
         sr = self.align_px[0] + int(0.25 * (r1 - r0))
         sc = self.align_px[1] + int(0.5 * (c1 - c0))
         pad = max(sr, sc) + 1
-        cam = np.pad(_gray(image), pad, mode="edge")[r0 - sr + pad:r1 + sr + pad, c0 - sc + pad:c1 + sc + pad]
+        cam = np.pad(_gray(image), pad, mode="edge")[r0 - sr + pad : r1 + sr + pad, c0 - sc + pad : c1 + sc + pad]
         assert view.without is not None  # checked by the callers
         behind = _gray(view.without)[r0:r1, c0:c1]
         return float(_ring_contrast(cam, m_in, m_ring).max()) - float(_ring_contrast(behind, m_in, m_ring).max())
@@ -308,17 +308,21 @@ class EdgeTemplateDetector:
             return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}{lr}", llr, statistic)
         if best < self.absent_threshold:
             return Detection(False, best, loc, f"score {best:.3f} < {self.absent_threshold}{lr}", llr, statistic)
-        return Detection(None, best, loc, f"score {best:.3f} between {self.absent_threshold} and {self.threshold}{lr}",
-                         llr, statistic)
+        return Detection(
+            None,
+            best,
+            loc,
+            f"score {best:.3f} between {self.absent_threshold} and {self.threshold}{lr}",
+            llr,
+            statistic,
+        )
 
     # -- parts ------------------------------------------------------------------------------
     @staticmethod
     def _check(image: np.ndarray, view: CandidateView) -> np.ndarray:
         sil = np.asarray(view.silhouette, bool)
         if sil.shape != image.shape[:2] or view.image.shape[:2] != image.shape[:2]:
-            raise ValueError(
-                f"image shape {image.shape[:2]} must equal the viewframe's {view.image.shape[:2]}"
-            )
+            raise ValueError(f"image shape {image.shape[:2]} must equal the viewframe's {view.image.shape[:2]}")
         return sil
 
     def _edge_score(
@@ -359,7 +363,7 @@ class EdgeTemplateDetector:
         h, w = sil.shape
         sr = self.align_px[0] + int(0.25 * (r1 - r0))
         sc = self.align_px[1] + int(0.5 * (c1 - c0))
-        win = _chromaticity(image)[max(0, r0 - sr):min(h, r1 + sr), max(0, c0 - sc):min(w, c1 + sc)]
+        win = _chromaticity(image)[max(0, r0 - sr) : min(h, r1 + sr), max(0, c0 - sc) : min(w, c1 + sc)]
         ssd0, ssd1 = (_masked_ssd(win, t, m) for t in (t0, t1))
         return (float(ssd0.min()) - float(ssd1.min())) / d2
 
@@ -400,8 +404,11 @@ def _masked_ssd(window: np.ndarray, template: np.ndarray, mask: np.ndarray) -> n
     for c in range(template.shape[2]):
         w = np.ascontiguousarray(window[..., c])
         t = np.ascontiguousarray(template[..., c])
-        out += (cv2.matchTemplate(w * w, mask, cv2.TM_CCORR) - 2.0 * cv2.matchTemplate(w, mask * t, cv2.TM_CCORR)
-                + float((mask * t * t).sum()))
+        out += (
+            cv2.matchTemplate(w * w, mask, cv2.TM_CCORR)
+            - 2.0 * cv2.matchTemplate(w, mask * t, cv2.TM_CCORR)
+            + float((mask * t * t).sum())
+        )
     return out
 
 
@@ -476,8 +483,13 @@ def default_registry(
         family = KIND_FAMILY.get(kind or "", "outline")
         if align_px is not None:
             kw["align_px"] = (int(align_px[0]), int(align_px[1]))
-        return EdgeTemplateDetector(name=name, threshold=threshold, absent_threshold=absent_threshold,
-                                    calibration=cal.get(kind or "", cal.get(family)), **kw)
+        return EdgeTemplateDetector(
+            name=name,
+            threshold=threshold,
+            absent_threshold=absent_threshold,
+            calibration=cal.get(kind or "", cal.get(family)),
+            **kw,
+        )
 
     reg = DetectorRegistry(fallback=make("box-outline", None))
     reg.register("house", make("house-outline", "house"))

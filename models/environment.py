@@ -250,8 +250,14 @@ class EnvironmentModel:
                 block = h[r0 : r1 + 1, c0 : c1 + 1]
                 bounds = (c0 * cs, c1 * cs, r0 * cs, r1 * cs, float(block.min()) - self.skirt_m, float(block.max()))
                 tiles.append(TerrainTile(r0, c0, r1, c1, bounds))
-        log.info("terrain: %d tiles of %d cells, %d levels, refine %d, skirt %.1f m",
-                 len(tiles), n, self.n_levels, self.refine, self.skirt_m)
+        log.info(
+            "terrain: %d tiles of %d cells, %d levels, refine %d, skirt %.1f m",
+            len(tiles),
+            n,
+            self.n_levels,
+            self.refine,
+            self.skirt_m,
+        )
         return tiles
 
     def tile_mesh(self, tile: int, level: int) -> TileMesh:
@@ -363,16 +369,21 @@ def check_extents(scenario, terrain: Terrain) -> list[Landmark]:
     frame = getattr(scenario, "map_frame", None)
     if frame is not None:
         (mx0, mx1), (my0, my1) = frame.to_map([x0, x1], [y0, y1])
-        where = (f"outside the terrain ({frame.name}: x {float(mx0):.7g}..{float(mx1):.7g}, "
-                 f"y {float(my0):.7g}..{float(my1):.7g}; is the scenario's crs: right?)")
+        where = (
+            f"outside the terrain ({frame.name}: x {float(mx0):.7g}..{float(mx1):.7g}, "
+            f"y {float(my0):.7g}..{float(my1):.7g}; is the scenario's crs: right?)"
+        )
     for i, (x, y) in enumerate(scenario.route):
         if not terrain.contains(x, y):
             shown = f"({x:g}, {y:g})" if frame is None else "({:.7g}, {:.7g})".format(*map(float, frame.to_map(x, y)))
             raise ScenarioError(scenario.path, f"route[{i}]", f"{shown} is {where}")
     for i, spec in enumerate(scenario.landmarks):
         if not terrain.contains(spec.x, spec.y):
-            shown = (f"({spec.x:g}, {spec.y:g})" if frame is None
-                     else "({:.7g}, {:.7g})".format(*map(float, frame.to_map(spec.x, spec.y))))
+            shown = (
+                f"({spec.x:g}, {spec.y:g})"
+                if frame is None
+                else "({:.7g}, {:.7g})".format(*map(float, frame.to_map(spec.x, spec.y)))
+            )
             raise ScenarioError(scenario.path, f"landmarks[{i}]", f"{spec.id!r} at {shown} is {where}")
     landmarks = place_landmarks(terrain, scenario.landmarks)
     for i, lm in enumerate(landmarks):

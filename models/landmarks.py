@@ -54,9 +54,7 @@ class Landmark:
     def box_vertices(self) -> np.ndarray:
         """The 8 box corners, ndarray of shape (8, 3): base (z0) first, then the top."""
         xy = self.corners()
-        return np.concatenate(
-            [np.column_stack([xy, np.full(4, self.z0)]), np.column_stack([xy, np.full(4, self.top)])]
-        )
+        return np.concatenate([np.column_stack([xy, np.full(4, self.z0)]), np.column_stack([xy, np.full(4, self.top)])])
 
 
 def place_landmarks(terrain: Terrain, specs: Iterable) -> list[Landmark]:
@@ -66,8 +64,19 @@ def place_landmarks(terrain: Terrain, specs: Iterable) -> list[Landmark]:
         probe = Landmark(s.id, s.kind, s.x, s.y, s.width, s.depth, s.height, s.yaw_deg, 0.0)
         pts = np.vstack([probe.corners(), [[s.x, s.y]]])
         z0 = float(np.min(terrain.height_at(pts[:, 0], pts[:, 1])))
-        out.append(Landmark(s.id, s.kind, float(s.x), float(s.y), float(s.width), float(s.depth),
-                            float(s.height), float(s.yaw_deg), z0))
+        out.append(
+            Landmark(
+                s.id,
+                s.kind,
+                float(s.x),
+                float(s.y),
+                float(s.width),
+                float(s.depth),
+                float(s.height),
+                float(s.yaw_deg),
+                z0,
+            )
+        )
     return out
 
 

@@ -35,8 +35,14 @@ def plot_map(
     half = terrain.cell_size / 2
     ls = LightSource(azdeg=315, altdeg=45)
     # row 0 of the DEM is the south: flip it for imshow's top-down rows
-    rgb = ls.shade(terrain.heights[::-1], cmap=plt.get_cmap("gist_earth"), blend_mode="soft",
-                   vert_exag=2.0, dx=terrain.cell_size, dy=terrain.cell_size)
+    rgb = ls.shade(
+        terrain.heights[::-1],
+        cmap=plt.get_cmap("gist_earth"),
+        blend_mode="soft",
+        vert_exag=2.0,
+        dx=terrain.cell_size,
+        dy=terrain.cell_size,
+    )
     ax.imshow(rgb, extent=(x0 - half, x1 + half, y0 - half, y1 + half), origin="upper")
     r = np.asarray(route, dtype=np.float64)
     ax.plot(r[:, 0], r[:, 1], "-", color="white", lw=2.2)
@@ -47,8 +53,18 @@ def plot_map(
         h = np.radians([p.heading_deg for p in poses])
         ax.scatter(px, py, s=12, c="yellow", edgecolors="black", linewidths=0.5, zorder=3, label="viewframes")
         span = max(np.ptp(r[:, 0]), np.ptp(r[:, 1]), 10 * terrain.cell_size) * 0.03
-        ax.quiver(px, py, np.cos(h) * span, np.sin(h) * span, angles="xy", scale_units="xy", scale=1,
-                  color="yellow", width=0.003, zorder=3)
+        ax.quiver(
+            px,
+            py,
+            np.cos(h) * span,
+            np.sin(h) * span,
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            color="yellow",
+            width=0.003,
+            zorder=3,
+        )
         step = label_every or max(1, len(poses) // 10)
         for i in range(0, len(poses), step):
             ax.annotate(str(i), (px[i], py[i]), fontsize=6, color="white", xytext=(3, 3), textcoords="offset points")

@@ -29,6 +29,7 @@ __all__ = ["check_scenario", "frame_count"]
 
 log = logging.getLogger(__name__)
 
+
 def frame_count(scenario: Scenario) -> int:
     """How many camera frames the scenario's sensor gives (0 without a ``sensor`` block)."""
     sensor = scenario.sensor
@@ -65,4 +66,3 @@ def check_scenario(scenario: Scenario, *, mission: bool = True) -> Terrain:
         frames_from_files(scenario)  # every image read as the camera will read it
     log.debug("scenario %s passed the pre-run checks", path)
     return terrain
-

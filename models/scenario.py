@@ -291,8 +291,9 @@ class SensorSpec(_Spec):
                     raise ValueError("frames: give a time for every frame or for none")
                 for i, (a, b) in enumerate(zip(times, times[1:]), start=1):
                     if b <= a:
-                        raise ValueError(f"frames[{i}].time: must be > the previous frame's ({a:g}): "
-                                         "frames are in time order")
+                        raise ValueError(
+                            f"frames[{i}].time: must be > the previous frame's ({a:g}): frames are in time order"
+                        )
         return self
 
 
@@ -390,7 +391,9 @@ class SchedulerSpec(_Spec):
     #: detector calibration, {landmark kind or detector family: [bias, w_statistic, w_score, w_contrast]}:
     #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
     #: by bench/tuning/calibrate_detectors.py on tuning seeds
-    calibration: dict[str, tuple[float, float, float, float]] = Field(default_factory=lambda: dict(DETECTOR_CALIBRATION))
+    calibration: dict[str, tuple[float, float, float, float]] = Field(
+        default_factory=lambda: dict(DETECTOR_CALIBRATION)
+    )
 
     @field_validator("align_deg")
     @classmethod
@@ -438,6 +441,8 @@ class RefineSpec(_Spec):
     levels: int = Field(default=2, ge=1, le=8)
     grid: int = Field(default=5, ge=3, le=11)
     edge_weight: float = Field(default=2.0, ge=0, le=1e3)
+
+
 class TrackingSpec(_Spec):
     """Tracking along the route (:mod:`models.tracking`): a grid filter over arc length.
 

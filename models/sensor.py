@@ -131,8 +131,8 @@ def drive_poses(
             if spec.frames is None:
                 break
             s = total
-        lateral = rho * lateral + math.sqrt(1 - rho ** 2) * rng.normal(0.0, spec.lateral_m)
-        head_err = rho * head_err + math.sqrt(1 - rho ** 2) * rng.normal(0.0, spec.heading_deg)
+        lateral = rho * lateral + math.sqrt(1 - rho**2) * rng.normal(0.0, spec.lateral_m)
+        head_err = rho * head_err + math.sqrt(1 - rho**2) * rng.normal(0.0, spec.heading_deg)
     return out
 
 
@@ -148,8 +148,9 @@ def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray
     if data is None or data.size == 0:
         raise InputError(path, "not a readable image (PNG or JPEG expected)")
     if min(data.shape[:2]) < MIN_IMAGE_PX:
-        raise InputError(path, f"image is {data.shape[1]}x{data.shape[0]} pixels; at least "
-                               f"{MIN_IMAGE_PX}x{MIN_IMAGE_PX} needed")
+        raise InputError(
+            path, f"image is {data.shape[1]}x{data.shape[0]} pixels; at least {MIN_IMAGE_PX}x{MIN_IMAGE_PX} needed"
+        )
     if data.dtype != np.uint8:
         data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
     if data.ndim == 2:
@@ -265,8 +266,10 @@ def simulate_frames(
     rng = np.random.default_rng(rng)
     if spec.drive is not None:
         route = [(p.x, p.y) for p in poses]
-        drive = [_render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
-                 for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))]
+        drive = [
+            _render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
+            for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))
+        ]
         log.info("simulated a drive of %d camera frames for scenario %s", len(drive), scenario.name)
         return drive
     frames: list[SensorFrame] = []
@@ -289,8 +292,16 @@ def simulate_frames(
     return frames
 
 
-def _render_frame(emulator, index: int, x: float, y: float, heading: float, spec: SimulateSpec,
-                  rng: np.random.Generator, time: float | None = None) -> SensorFrame:
+def _render_frame(
+    emulator,
+    index: int,
+    x: float,
+    y: float,
+    heading: float,
+    spec: SimulateSpec,
+    rng: np.random.Generator,
+    time: float | None = None,
+) -> SensorFrame:
     """Render the camera at ``(x, y, heading)`` under drawn lighting and degrade it."""
     true_pose = emulator.pose_at(x, y, heading)
     intensity = 1.0 + spec.lighting * rng.uniform(-1, 1)

@@ -92,6 +92,7 @@ def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
     Relative paths resolve against ``base_dir``; ``seed`` seeds a procedural terrain without
     its own seed. Raises :class:`InputError` for an unreadable DEM or contour file.
     """
+
     def resolve(p: Path) -> Path:
         return _resolve(p, base_dir)
 
@@ -137,6 +138,7 @@ def scenario_terrain(scenario: Scenario) -> Terrain:
         raise ScenarioError(scenario.path, field, f"cannot build the terrain: {err}") from None
     low, high = float(np.min(terrain.heights)), float(np.max(terrain.heights))
     if max(abs(low), abs(high)) > MAX_ABS_HEIGHT_M:
-        raise ScenarioError(scenario.path, field, f"heights {low:g}..{high:g} m are beyond "
-                                                  f"±{MAX_ABS_HEIGHT_M:g} m: not a terrain")
+        raise ScenarioError(
+            scenario.path, field, f"heights {low:g}..{high:g} m are beyond ±{MAX_ABS_HEIGHT_M:g} m: not a terrain"
+        )
     return terrain

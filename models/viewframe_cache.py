@@ -76,8 +76,9 @@ def _source_digest() -> str:
     return h.hexdigest()
 
 
-def cache_key(scenario: Any, terrain: Any, *, lod: Mapping[str, Any] | None = None,
-              renderer_version: int | None = None) -> str:
+def cache_key(
+    scenario: Any, terrain: Any, *, lod: Mapping[str, Any] | None = None, renderer_version: int | None = None
+) -> str:
     """The hex SHA-256 key of a scenario's viewframes (see the module docstring).
 
     ``scenario`` is a :class:`~models.scenario.Scenario`, ``terrain`` its loaded
@@ -204,8 +205,10 @@ class ViewframeCache:
             absent = meta.get("absent", {}).get(name) or [False] * n
             columns[name] = [None if absent[i] else np.asarray(stacked[i]) for i in range(n)]
         for name in meta["ragged"]:
-            columns[name] = [None if not ok else np.load(folder / f"{name}.{i}.npy", allow_pickle=False)
-                             for i, ok in enumerate(meta["ragged"][name])]
+            columns[name] = [
+                None if not ok else np.load(folder / f"{name}.{i}.npy", allow_pickle=False)
+                for i, ok in enumerate(meta["ragged"][name])
+            ]
         for name, values in meta["values"].items():
             columns[name] = [_decode(v, types.get(name, Any)) for v in values]
         missing = {f.name for f in dataclasses.fields(Viewframe)} - set(columns)
@@ -236,8 +239,14 @@ class ViewframeCache:
         return final
 
     def _write(self, folder: Path, viewframes: Sequence[Viewframe]) -> None:
-        meta: dict[str, Any] = {"format": _FORMAT, "count": len(viewframes), "arrays": [], "absent": {}, "ragged": {},
-                                "values": {}}
+        meta: dict[str, Any] = {
+            "format": _FORMAT,
+            "count": len(viewframes),
+            "arrays": [],
+            "absent": {},
+            "ragged": {},
+            "values": {},
+        }
         for f in dataclasses.fields(Viewframe):
             values = [getattr(vf, f.name) for vf in viewframes]
             arrays = [v for v in values if isinstance(v, np.ndarray)]

@@ -62,8 +62,11 @@ def main() -> int:
         for r in dp.evidence(data, reg):
             rows.append({**r, "case": case.name, "family": KIND_FAMILY.get(r["kind"], "outline")})
         names.append(case.name)
-        print(f"{case.name}: {len(data['questions'])} questions, {data['ambiguous']} ambiguous",
-              file=sys.stderr, flush=True)
+        print(
+            f"{case.name}: {len(data['questions'])} questions, {data['ambiguous']} ambiguous",
+            file=sys.stderr,
+            flush=True,
+        )
     out = {"cases": names, "features": LR_FEATURES, "families": {}}
     for family in sorted({r["family"] for r in rows}):
         rr = [r for r in rows if r["family"] == family]
@@ -74,17 +77,30 @@ def main() -> int:
         w[0] -= math.log(base / (1.0 - base))  # a likelihood ratio, not the training posterior
         llr = np.c_[np.ones(len(x)), x] @ w
         out["families"][family] = {
-            "calibration": [round(float(v), 4) for v in w], "questions": len(rr), "positives": int(y.sum()),
-            "auc": dp.roc_auc(llr, y), "auc_by_kind": {k: dp.roc_auc([v for v, r in zip(llr, rr) if r["kind"] == k],
-                                                                       [r["label"] for r in rr if r["kind"] == k])
-                                                        for k in sorted({r["kind"] for r in rr})}}
+            "calibration": [round(float(v), 4) for v in w],
+            "questions": len(rr),
+            "positives": int(y.sum()),
+            "auc": dp.roc_auc(llr, y),
+            "auc_by_kind": {
+                k: dp.roc_auc(
+                    [v for v, r in zip(llr, rr) if r["kind"] == k], [r["label"] for r in rr if r["kind"] == k]
+                )
+                for k in sorted({r["kind"] for r in rr})
+            },
+        }
     print(json.dumps(out, indent=1))
-    print("\n| family | questions | positives | bias | " + " | ".join(f"w_{f}" for f in LR_FEATURES)
-          + " | AUC (training) |")
+    print(
+        "\n| family | questions | positives | bias | "
+        + " | ".join(f"w_{f}" for f in LR_FEATURES)
+        + " | AUC (training) |"
+    )
     print("|---|---|---|---|" + "---|" * len(LR_FEATURES) + "---|")
     for fam, v in out["families"].items():
-        print(f"| {fam} | {v['questions']} | {v['positives']} | " + " | ".join(str(c) for c in v["calibration"])
-              + f" | {v['auc']:.3f} |")
+        print(
+            f"| {fam} | {v['questions']} | {v['positives']} | "
+            + " | ".join(str(c) for c in v["calibration"])
+            + f" | {v['auc']:.3f} |"
+        )
     return 0
 
 

@@ -6,4 +6,10 @@ from harness import prepare
 
 data = [prepare(f"scenarios/{s}.yaml", seed) for s in ("hills", "jacksboro", "contours") for seed in (101, 202)]
 pickle.dump(data, open("/tmp/tune_data.pkl", "wb"))
-print("prepared", [(d["name"], len(d["truth"]), sum(int(r.viewframes[0]) == t for r, t in zip(d["ranks"], d["truth"]))) for d in data])
+print(
+    "prepared",
+    [
+        (d["name"], len(d["truth"]), sum(int(r.viewframes[0]) == t for r, t in zip(d["ranks"], d["truth"])))
+        for d in data
+    ],
+)

@@ -14,8 +14,9 @@ from collections.abc import Callable
 __all__ = ["bounded_number"]
 
 
-def bounded_number(low: float, high: float, unit: str, *, integer: bool = False,
-                   low_inclusive: bool = False) -> Callable[[str], float]:
+def bounded_number(
+    low: float, high: float, unit: str, *, integer: bool = False, low_inclusive: bool = False
+) -> Callable[[str], float]:
     """An argparse ``type``: a finite number in ``(low, high]`` (``[low, high]`` with
     ``low_inclusive``), else one clear sentence (no inf, no NaN, no 1e-300 Hz)."""
     bracket = "[" if low_inclusive else "("
@@ -25,8 +26,9 @@ def bounded_number(low: float, high: float, unit: str, *, integer: bool = False,
         try:
             value = int(text) if integer else float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"must be {'an integer' if integer else 'a number'} in {span}, "
-                                             f"got {text!r}") from None
+            raise argparse.ArgumentTypeError(
+                f"must be {'an integer' if integer else 'a number'} in {span}, got {text!r}"
+            ) from None
         if not math.isfinite(value) or not (low <= value if low_inclusive else low < value) or value > high:
             raise argparse.ArgumentTypeError(f"must be in {span}, got {text}")
         return value

@@ -106,20 +106,41 @@ def _positive(text: str) -> float:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``mapinterp agent``."""
-    parser.add_argument("factory", metavar="FACTORY",
-                        help="the knowledge source class, module:Class "
-                             "(e.g. knowledge_sources.detector:LandmarkDetectorAgent)")
+    parser.add_argument(
+        "factory",
+        metavar="FACTORY",
+        help="the knowledge source class, module:Class (e.g. knowledge_sources.detector:LandmarkDetectorAgent)",
+    )
     parser.add_argument("--name", required=True, help="the agent's name in the run (e.g. detector-house)")
-    parser.add_argument("--run-id", required=True, type=run_id_argument, metavar="RUN", help="the run to join (mapinterp run --run-id)")
-    parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                        help="an option of the knowledge source; VALUE is JSON or text (repeatable)")
-    parser.add_argument("--secret", default=os.environ.get("MAPINTERP_SECRET"), metavar="SECRET",
-                        help="the run's secret, as mapinterp run printed it (default: $MAPINTERP_SECRET)")
-    parser.add_argument("--auth", action="store_true",
-                        help="authenticate to the run's router with the secret (default: when --connect "
-                             "is not a loopback address, as the run's router then asks for it)")
-    parser.add_argument("--connect-timeout", type=_positive, default=CONNECT_TIMEOUT_S, metavar="SECONDS",
-                        help=f"keep trying to reach the blackboard this long (default {CONNECT_TIMEOUT_S:g})")
+    parser.add_argument(
+        "--run-id", required=True, type=run_id_argument, metavar="RUN", help="the run to join (mapinterp run --run-id)"
+    )
+    parser.add_argument(
+        "--option",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an option of the knowledge source; VALUE is JSON or text (repeatable)",
+    )
+    parser.add_argument(
+        "--secret",
+        default=os.environ.get("MAPINTERP_SECRET"),
+        metavar="SECRET",
+        help="the run's secret, as mapinterp run printed it (default: $MAPINTERP_SECRET)",
+    )
+    parser.add_argument(
+        "--auth",
+        action="store_true",
+        help="authenticate to the run's router with the secret (default: when --connect "
+        "is not a loopback address, as the run's router then asks for it)",
+    )
+    parser.add_argument(
+        "--connect-timeout",
+        type=_positive,
+        default=CONNECT_TIMEOUT_S,
+        metavar="SECONDS",
+        help=f"keep trying to reach the blackboard this long (default {CONNECT_TIMEOUT_S:g})",
+    )
     add_zenoh_arguments(parser)
 
 
@@ -145,13 +166,18 @@ def main(args: argparse.Namespace) -> int:
     except ValueError as err:  # a bad name, a bad option value
         raise AgentError(args.name, str(err)) from None
     if not args.secret:
-        raise AgentError(args.name, "needs the run's secret: --secret SECRET (printed by mapinterp run) or "
-                                    "$MAPINTERP_SECRET")
+        raise AgentError(
+            args.name, "needs the run's secret: --secret SECRET (printed by mapinterp run) or $MAPINTERP_SECRET"
+        )
     # the run's router asks for the secret as password when it listens beyond this machine
     auth = args.auth or any(not is_loopback(ep) for ep in options.connect)
-    runner = AgentRunner(source, run_id=args.run_id, connect=options.connect, secret=args.secret,
-                         zenoh_options=ZenohOptions(config_file=options.config_file,
-                                                    password=args.secret if auth else None))
+    runner = AgentRunner(
+        source,
+        run_id=args.run_id,
+        connect=options.connect,
+        secret=args.secret,
+        zenoh_options=ZenohOptions(config_file=options.config_file, password=args.secret if auth else None),
+    )
     stop = threading.Event()
     handled = (signal.SIGTERM, signal.SIGINT)
     previous: dict[int, Any] = {}
@@ -164,8 +190,9 @@ def main(args: argparse.Namespace) -> int:
         while not runner.ended.wait(_POLL_S) and not stop.is_set():
             pass
         if runner.ended.is_set() and runner.node_lost:
-            raise TransportError(f"the blackboard node of run {args.run_id} at {where} went away "
-                                 "without ending the run")
+            raise TransportError(
+                f"the blackboard node of run {args.run_id} at {where} went away without ending the run"
+            )
         why = "the run ended" if runner.ended.is_set() else "interrupted"
         print(f"agent {args.name}: {why}; stopping", file=sys.stderr, flush=True)
         return 0

@@ -65,9 +65,17 @@ def main(args: argparse.Namespace) -> int:
         (out / "priors.json").write_text(json.dumps(priors, indent=1), encoding="utf-8")
         if not args.no_overview:
             bar.update(task, description=f"{scenario.name}: drawing overview.png", total=None)
-            draw_overview(env.terrain, env.landmarks, scenario.route, [vf.pose for vf in frames],
-                          out / "overview.png", title=scenario.name)
+            draw_overview(
+                env.terrain,
+                env.landmarks,
+                scenario.route,
+                [vf.pose for vf in frames],
+                out / "overview.png",
+                title=scenario.name,
+            )
     seen = sum(1 for vf in frames if vf.description.visible)
-    print(f"{scenario.name}: {len(frames)} viewframes in {dt:.2f} s ({len(frames) / dt:.1f}/s), "
-          f"{seen} with landmarks in view -> {out}")
+    print(
+        f"{scenario.name}: {len(frames)} viewframes in {dt:.2f} s ({len(frames) / dt:.1f}/s), "
+        f"{seen} with landmarks in view -> {out}"
+    )
     return 0

@@ -28,7 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("results", type=Path, nargs="+", help="results JSON from 'mapinterp run' (several: compared)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--scenario", type=Path, default=None, help="scenario file (default: from the results)")
-    parser.add_argument("--max-frames", type=bounded_number(0, 10_000, "", integer=True, low_inclusive=True), default=40, help="frame panels to draw at most (default 40)")
+    parser.add_argument(
+        "--max-frames",
+        type=bounded_number(0, 10_000, "", integer=True, low_inclusive=True),
+        default=40,
+        help="frame panels to draw at most (default 40)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:

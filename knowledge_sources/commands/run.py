@@ -38,39 +38,92 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scenario", type=Path, help="scenario YAML file")
     parser.add_argument("--out", type=Path, default=None, help="write the results JSON here")
     parser.add_argument("--trace", type=Path, default=None, help="record the blackboard trace here")
-    parser.add_argument("--strategy", choices=["associative", "prior"], default=None,
-                        help="scheduler strategy (default: the scenario's, normally associative)")
+    parser.add_argument(
+        "--strategy",
+        choices=["associative", "prior"],
+        default=None,
+        help="scheduler strategy (default: the scenario's, normally associative)",
+    )
     parser.add_argument("--processes", action="store_true", help="run each agent in its own OS process")
-    parser.add_argument("--no-track", action="store_true",
-                        help="no tracker: every frame localized alone (default: the scenario's tracking.enabled, "
-                             "normally on)")
-    parser.add_argument("--rate", type=bounded_number(0, MAX_RATE_HZ, "Hz"), default=None, metavar="HZ",
-                        help="the camera posts frames at this rate, as a real one would (default: all at once)")
-    parser.add_argument("--timeout", type=bounded_number(0, MAX_WAIT_S, "s"), default=None, metavar="SECONDS",
-                        help="give up (with an error naming the busy agents) after this long")
+    parser.add_argument(
+        "--no-track",
+        action="store_true",
+        help="no tracker: every frame localized alone (default: the scenario's tracking.enabled, normally on)",
+    )
+    parser.add_argument(
+        "--rate",
+        type=bounded_number(0, MAX_RATE_HZ, "Hz"),
+        default=None,
+        metavar="HZ",
+        help="the camera posts frames at this rate, as a real one would (default: all at once)",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=bounded_number(0, MAX_WAIT_S, "s"),
+        default=None,
+        metavar="SECONDS",
+        help="give up (with an error naming the busy agents) after this long",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--rerun", nargs="?", const="spawn", default=None, metavar="TARGET",
-                        help="stream the run to Rerun as frames are localized: a new viewer (no TARGET), "
-                             "a viewer's URL (rerun+http://127.0.0.1:9876/proxy) or a FILE.rrd "
-                             "(needs pip install 'mapinterp[rerun]')")
-    parser.add_argument("--run-id", default=None, type=run_id_argument, metavar="RUN",
-                        help="the run's id, which remote agents give to join it (default: random)")
-    parser.add_argument("--remote", action="append", default=[], metavar="AGENT",
-                        help="do not start this agent of the mission here; wait for it to join from "
-                             "elsewhere with `mapinterp agent` (repeatable; the commands are printed)")
-    parser.add_argument("--secret", default=os.environ.get("MAPINTERP_SECRET"), metavar="SECRET",
-                        help="the run's secret the --remote agents give to join (default: $MAPINTERP_SECRET, "
-                             "else a fresh one, printed in their commands)")
-    parser.add_argument("--auth", action="store_true", default=None,
-                        help="zenoh user/password authentication with the run's secret (default: on when "
-                             "--listen is not a loopback address)")
-    parser.add_argument("--wait-remote", type=bounded_number(0, MAX_WAIT_S, "s"), default=60.0, metavar="SECONDS",
-                        help="how long to wait for the --remote agents to join (default 60)")
+    parser.add_argument(
+        "--rerun",
+        nargs="?",
+        const="spawn",
+        default=None,
+        metavar="TARGET",
+        help="stream the run to Rerun as frames are localized: a new viewer (no TARGET), "
+        "a viewer's URL (rerun+http://127.0.0.1:9876/proxy) or a FILE.rrd "
+        "(needs pip install 'mapinterp[rerun]')",
+    )
+    parser.add_argument(
+        "--run-id",
+        default=None,
+        type=run_id_argument,
+        metavar="RUN",
+        help="the run's id, which remote agents give to join it (default: random)",
+    )
+    parser.add_argument(
+        "--remote",
+        action="append",
+        default=[],
+        metavar="AGENT",
+        help="do not start this agent of the mission here; wait for it to join from "
+        "elsewhere with `mapinterp agent` (repeatable; the commands are printed)",
+    )
+    parser.add_argument(
+        "--secret",
+        default=os.environ.get("MAPINTERP_SECRET"),
+        metavar="SECRET",
+        help="the run's secret the --remote agents give to join (default: $MAPINTERP_SECRET, "
+        "else a fresh one, printed in their commands)",
+    )
+    parser.add_argument(
+        "--auth",
+        action="store_true",
+        default=None,
+        help="zenoh user/password authentication with the run's secret (default: on when "
+        "--listen is not a loopback address)",
+    )
+    parser.add_argument(
+        "--wait-remote",
+        type=bounded_number(0, MAX_WAIT_S, "s"),
+        default=60.0,
+        metavar="SECONDS",
+        help="how long to wait for the --remote agents to join (default 60)",
+    )
     cache = parser.add_mutually_exclusive_group()
-    cache.add_argument("--no-cache", action="store_true",
-                       help="render every viewframe, neither reading nor filling the viewframe cache")
-    cache.add_argument("--cache-dir", type=Path, default=None, metavar="DIR",
-                       help="the viewframe cache folder (default: $MAPINTERP_CACHE, else ~/.cache/mapinterp)")
+    cache.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="render every viewframe, neither reading nor filling the viewframe cache",
+    )
+    cache.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="the viewframe cache folder (default: $MAPINTERP_CACHE, else ~/.cache/mapinterp)",
+    )
     add_zenoh_arguments(parser)
 
 
@@ -93,8 +146,17 @@ def render_summary(results: dict[str, Any]) -> Any:
 
     table = Table(title=f"{results['scenario']} — strategy {results['strategy']} ({results.get('mode', '')})")
     tracked = bool(results.get("tracking"))
-    cols = ("frame", "viewframe", "truth", "ok", "conf", *(("single", "state") if tracked else ()),
-            "queries", "backtracks", "ms")
+    cols = (
+        "frame",
+        "viewframe",
+        "truth",
+        "ok",
+        "conf",
+        *(("single", "state") if tracked else ()),
+        "queries",
+        "backtracks",
+        "ms",
+    )
     for col in cols:
         table.add_column(col, justify="right")
     for f in results["frames"]:
@@ -113,9 +175,11 @@ def render_summary(results: dict[str, Any]) -> Any:
     s = results["summary"]
     top1 = "n/a" if s["top1"] is None else f"{s['top1']:.1%}"
     err = "n/a" if s["mean_error_m"] is None else f"{s['mean_error_m']:.1f} m"
-    table.caption = (f"frames {s['frames']}, localized {s['localized']}, top-1 {top1}, mean error {err}, "
-                     f"mean queries {s['mean_queries']:.2f}, latency p50 {s['latency_ms_p50']:.0f} ms, "
-                     f"{s.get('frames_per_s') or 0:.1f} frames/s")
+    table.caption = (
+        f"frames {s['frames']}, localized {s['localized']}, top-1 {top1}, mean error {err}, "
+        f"mean queries {s['mean_queries']:.2f}, latency p50 {s['latency_ms_p50']:.0f} ms, "
+        f"{s.get('frames_per_s') or 0:.1f} frames/s"
+    )
     if tracked and s.get("top1_frame_only") is not None:
         table.caption += f"; tracked (single frame alone: top-1 {s['top1_frame_only']:.1%})"
     return table
@@ -131,8 +195,10 @@ def _single(frame: dict[str, Any]) -> str:
 
 def _print_remote(commands: dict[str, list[str]], wait_s: float) -> None:
     """The exact command line of each remote agent, one per line (plain print: never wrapped)."""
-    print(f"waiting up to {wait_s:g} s for the remote agents {', '.join(commands)}; "
-          "start each where it should run with:", file=sys.stderr)
+    print(
+        f"waiting up to {wait_s:g} s for the remote agents {', '.join(commands)}; start each where it should run with:",
+        file=sys.stderr,
+    )
     for argv in commands.values():
         print(f"  {shlex.join(argv)}", file=sys.stderr)
     if any(host in argv[argv.index("--connect") + 1] for argv in commands.values() for host in ("0.0.0.0", "[::]")):
@@ -171,9 +237,18 @@ def main(args: argparse.Namespace) -> int:
         from knowledge_sources.rerun_export import RerunLogger, open_stream, require_rerun
 
         require_rerun()  # before a long run: say at once when the extra is missing
-    with interrupt_on_signals(), Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                          TimeElapsedColumn(), console=console, disable=not show,
-                                          transient=True) as bar:
+    with (
+        interrupt_on_signals(),
+        Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+            disable=not show,
+            transient=True,
+        ) as bar,
+    ):
         if args.rerun is not None:
             from knowledge_sources.replay import replay
 
@@ -192,13 +267,24 @@ def main(args: argparse.Namespace) -> int:
             if live is not None:
                 live.on_hypothesis(level, body, t)
 
-        results = run_mission(scenario, strategy=args.strategy, processes=args.processes,
-                              zenoh=zenoh_options_from_args(args), trace_path=args.trace,
-                              timeout_s=args.timeout, progress=progress, frame_rate=args.rate,
-                              remote=args.remote, run_id=args.run_id, wait_remote_s=args.wait_remote,
-                              secret=args.secret, auth=args.auth,
-                              on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
-                              on_hypothesis=on_hypothesis, track=False if args.no_track else None)
+        results = run_mission(
+            scenario,
+            strategy=args.strategy,
+            processes=args.processes,
+            zenoh=zenoh_options_from_args(args),
+            trace_path=args.trace,
+            timeout_s=args.timeout,
+            progress=progress,
+            frame_rate=args.rate,
+            remote=args.remote,
+            run_id=args.run_id,
+            wait_remote_s=args.wait_remote,
+            secret=args.secret,
+            auth=args.auth,
+            on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
+            on_hypothesis=on_hypothesis,
+            track=False if args.no_track else None,
+        )
         # still under the handlers: a second Ctrl-C while the results are written exits at once
         if args.out is not None:
             write_results(args.out, results)
@@ -217,10 +303,16 @@ def main(args: argparse.Namespace) -> int:
     if results["interrupted"]:
         import signal
 
-        print(f"mapinterp run: interrupted by {results['interrupted']}: {s['localized']} of "
-              f"{s['frames_expected']} frames localized", file=sys.stderr)
+        print(
+            f"mapinterp run: interrupted by {results['interrupted']}: {s['localized']} of "
+            f"{s['frames_expected']} frames localized",
+            file=sys.stderr,
+        )
         return 128 + signal.Signals[results["interrupted"]].value
     if s["localized"] == 0:
-        raise RunFailed(f"no frame localized ({s['frames_expected']} expected, {s['posted']} posted"
-                        + (f"; {'; '.join(results['degraded'])}" if results["degraded"] else "") + ")")
+        raise RunFailed(
+            f"no frame localized ({s['frames_expected']} expected, {s['posted']} posted"
+            + (f"; {'; '.join(results['degraded'])}" if results["degraded"] else "")
+            + ")"
+        )
     return EXIT_DEGRADED if results["degraded"] else 0

@@ -63,7 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
-def error_variance_table(scenario, *, progress: Callable[[str, int, int], None] | None = None) -> tuple[list, list[TableRow]]:
+def error_variance_table(
+    scenario, *, progress: Callable[[str, int, int], None] | None = None
+) -> tuple[list, list[TableRow]]:
     """Render, store and rank: ``(viewframes, rows)`` for a loaded scenario with sensor frames.
 
     ``progress(phase, done, total)`` follows the rendering and the ranking.
@@ -75,7 +77,9 @@ def error_variance_table(scenario, *, progress: Callable[[str, int, int], None] 
     from models.world import World
 
     if scenario.sensor is None:
-        raise ScenarioError(scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate")
+        raise ScenarioError(
+            scenario.path, "sensor", "the table needs camera frames: add sensor.frames or sensor.simulate"
+        )
     viewframes_progress = None if progress is None else (lambda d, t: progress("rendering viewframes", d, t))
     with World(scenario, progress=viewframes_progress) as world:
         viewframes = world.viewframes
@@ -92,7 +96,9 @@ def error_variance_table(scenario, *, progress: Callable[[str, int, int], None] 
         truth = None
         if frame.truth is not None:
             truth = nearest_viewframe(frame.truth[0], frame.truth[1], scenario.route)
-        rows.append(TableRow(frame.index, frame.source, variances, int(ranking.viewframes[0]), ranking.reliability, truth))
+        rows.append(
+            TableRow(frame.index, frame.source, variances, int(ranking.viewframes[0]), ranking.reliability, truth)
+        )
         if progress is not None:
             progress("ranking camera frames", len(rows), len(frames))
     return viewframes, rows
@@ -130,8 +136,10 @@ def rich_table(scenario_name: str, viewframe_indices: list[int], rows: list[Tabl
     caption = None
     if judged:
         caption = f"{sum(bool(r.correct) for r in judged)}/{len(judged)} rows have their minimum on the truth viewframe"
-    table = Table(title=f"error variance x {size}^2 of the recall against each stored viewframe ({scenario_name}); "
-                        "* row minimum", caption=caption)
+    table = Table(
+        title=f"error variance x {size}^2 of the recall against each stored viewframe ({scenario_name}); * row minimum",
+        caption=caption,
+    )
     table.add_column("frame", justify="left")
     for v in viewframe_indices:
         table.add_column(f"V{v}", justify="right")
@@ -139,8 +147,10 @@ def rich_table(scenario_name: str, viewframe_indices: list[int], rows: list[Tabl
     table.add_column("truth", justify="left")
     for r in rows:
         name = Path(r.source).name if r.source != "simulated" else f"simulated {r.frame}"
-        cells = [f"[bold]{v * scale:.4f}*[/bold]" if j == r.best else f"{v * scale:.4f} "
-                 for j, v in zip(viewframe_indices, r.variances)]
+        cells = [
+            f"[bold]{v * scale:.4f}*[/bold]" if j == r.best else f"{v * scale:.4f} "
+            for j, v in zip(viewframe_indices, r.variances)
+        ]
         verdict = "-" if r.truth is None else (f"V{r.truth} ok" if r.correct else f"[red]V{r.truth} WRONG[/red]")
         table.add_row(name, *cells, f"{r.reliability:.2f}", verdict)
     return table
@@ -154,8 +164,11 @@ def main(args: argparse.Namespace) -> int:
     with progress_bar() as bar:
         task = bar.add_task(f"{scenario.name}: rendering viewframes", total=None)
         viewframes, rows = error_variance_table(
-            scenario, progress=lambda phase, done, total: bar.update(
-                task, description=f"{scenario.name}: {phase}", completed=done, total=total or None))
+            scenario,
+            progress=lambda phase, done, total: bar.update(
+                task, description=f"{scenario.name}: {phase}", completed=done, total=total or None
+            ),
+        )
     indices = [vf.index for vf in viewframes]
     if args.json:
         doc = {

@@ -8,8 +8,22 @@ from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
 __all__ = [
-    "Doubler", "Echo", "Asker", "Silent", "Failing", "Updater", "Recorder", "Exclusive", "BadSetup",
-    "LateCounter", "Burster", "Tally", "Bumper", "Rogue", "Slow", "Booster",
+    "Doubler",
+    "Echo",
+    "Asker",
+    "Silent",
+    "Failing",
+    "Updater",
+    "Recorder",
+    "Exclusive",
+    "BadSetup",
+    "LateCounter",
+    "Burster",
+    "Tally",
+    "Bumper",
+    "Rogue",
+    "Slow",
+    "Booster",
 ]
 
 
@@ -51,8 +65,13 @@ class Asker(KnowledgeSource):
 
     def act(self, event: Event, board: Board) -> None:
         body = event.hypothesis.body
-        board.post("query", {"q": body["q"]}, addressed_to=body["to"], deadline_s=body.get("deadline_s"),
-                   links=(event.hypothesis.id,))
+        board.post(
+            "query",
+            {"q": body["q"]},
+            addressed_to=body["to"],
+            deadline_s=body.get("deadline_s"),
+            links=(event.hypothesis.id,),
+        )
 
     def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
         board.post("timeout", {"reason": reason, "q": hypothesis.body["q"]}, links=(hypothesis.id,))

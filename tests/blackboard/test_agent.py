@@ -22,8 +22,19 @@ EXPECTED_KEYS = {
     "activation_start": _HEAD,
     "activation_finish": [*_HEAD, "duration_s"],
     "activation_obviated": [*_HEAD, "reason"],
-    "activation_error": ["seq", "t", "kind", "agent", "level", "id", "version", "event", "message", "traceback",
-                         "duration_s"],
+    "activation_error": [
+        "seq",
+        "t",
+        "kind",
+        "agent",
+        "level",
+        "id",
+        "version",
+        "event",
+        "message",
+        "traceback",
+        "duration_s",
+    ],
 }
 
 
@@ -91,13 +102,27 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
 
             def request(message: dict) -> dict:
                 payload = encode(message)
-                replies = list(raw.get(keys.request, payload=payload, timeout=10,
-                                       attachment=sign(agent_key, payload) if agent_key else None))
+                replies = list(
+                    raw.get(
+                        keys.request,
+                        payload=payload,
+                        timeout=10,
+                        attachment=sign(agent_key, payload) if agent_key else None,
+                    )
+                )
                 return decode(replies[0].ok.payload.to_bytes())
 
             rt.node.expect("old", "sekrit")  # a joined agent of this run, speaking for itself
-            joined = request({"op": "join", "agent": "old", "consumes": [], "produces": [], "exclusive": [],
-                              "proof": proof("sekrit", "join", run_id, "old")})
+            joined = request(
+                {
+                    "op": "join",
+                    "agent": "old",
+                    "consumes": [],
+                    "produces": [],
+                    "exclusive": [],
+                    "proof": proof("sekrit", "join", run_id, "old"),
+                }
+            )
             assert joined["ok"]
             agent_key = bytes.fromhex(joined["agent_key"])
             activity = [
@@ -108,10 +133,25 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
                 ["o", *head.values(), "superseded by version 2"],
                 ["?", *head.values(), None],  # unknown: ignored
             ]
-            status = encode({"agent": "old", "state": "busy", "recv": {}, "sent": 0, "timeouts": 0,
-                             "probe": None, "activity": activity, "reason": None, "seq": 1})
-            raw.put(keys.status, status, congestion_control=zenoh.CongestionControl.BLOCK,
-                    attachment=sign(agent_key, status))
+            status = encode(
+                {
+                    "agent": "old",
+                    "state": "busy",
+                    "recv": {},
+                    "sent": 0,
+                    "timeouts": 0,
+                    "probe": None,
+                    "activity": activity,
+                    "reason": None,
+                    "seq": 1,
+                }
+            )
+            raw.put(
+                keys.status,
+                status,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                attachment=sign(agent_key, status),
+            )
             assert request({"op": "leave", "agent": "old"})["ok"]
             rt.post("number", {"x": 1})
             outcome = rt.run(timeout_s=10)

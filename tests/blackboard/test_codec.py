@@ -59,16 +59,29 @@ def test_numpy_scalars_become_python_scalars() -> None:
     assert type(out["i"]) is int
 
 
-_leaf = st.one_of(st.none(), st.booleans(), st.integers(-(2**63), 2**64 - 1), st.floats(allow_nan=False),
-                  st.text(max_size=20), st.binary(max_size=20))
+_leaf = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(-(2**63), 2**64 - 1),
+    st.floats(allow_nan=False),
+    st.text(max_size=20),
+    st.binary(max_size=20),
+)
 _arrays = hnp.arrays(
-    dtype=st.one_of(hnp.integer_dtypes(), hnp.unsigned_integer_dtypes(), hnp.floating_dtypes(), hnp.boolean_dtypes(),
-                    hnp.complex_number_dtypes()),
+    dtype=st.one_of(
+        hnp.integer_dtypes(),
+        hnp.unsigned_integer_dtypes(),
+        hnp.floating_dtypes(),
+        hnp.boolean_dtypes(),
+        hnp.complex_number_dtypes(),
+    ),
     shape=hnp.array_shapes(min_dims=0, max_dims=3, min_side=0, max_side=4),
 )
-_values = st.recursive(st.one_of(_leaf, _arrays),
-                       lambda kids: st.one_of(st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=8), kids, max_size=4)),
-                       max_leaves=12)
+_values = st.recursive(
+    st.one_of(_leaf, _arrays),
+    lambda kids: st.one_of(st.lists(kids, max_size=4), st.dictionaries(st.text(max_size=8), kids, max_size=4)),
+    max_leaves=12,
+)
 
 
 @settings(max_examples=150, deadline=None)

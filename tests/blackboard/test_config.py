@@ -52,9 +52,12 @@ def test_client_never_listens() -> None:
 def test_flags_round_trip() -> None:
     parser = argparse.ArgumentParser()
     add_zenoh_arguments(parser)
-    args = parser.parse_args(["--connect", "tcp/127.0.0.1:7447", "--listen", "tcp/127.0.0.1:7448",
-                              "--zenoh-config", "z.json5"])
-    assert zenoh_options_from_args(args) == ZenohOptions(["tcp/127.0.0.1:7448"], ["tcp/127.0.0.1:7447"], Path("z.json5"))
+    args = parser.parse_args(
+        ["--connect", "tcp/127.0.0.1:7447", "--listen", "tcp/127.0.0.1:7448", "--zenoh-config", "z.json5"]
+    )
+    assert zenoh_options_from_args(args) == ZenohOptions(
+        ["tcp/127.0.0.1:7448"], ["tcp/127.0.0.1:7447"], Path("z.json5")
+    )
 
 
 @pytest.mark.parametrize("endpoint", ["127.0.0.1:7447", "tcp/127.0.0.1", "http://x:1", "", "tcp/a b:1"])
@@ -66,8 +69,10 @@ def test_bad_endpoints_are_refused(endpoint: str) -> None:
 def test_user_config_file(tmp_path: Path) -> None:
     port = free_port()
     path = tmp_path / "zenoh.json5"
-    path.write_text('{ mode: "peer", scouting: { multicast: { enabled: false } }, '
-                    f'listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }} }}')
+    path.write_text(
+        '{ mode: "peer", scouting: { multicast: { enabled: false } }, '
+        f'listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }} }}'
+    )
     config = zenoh_config(ZenohOptions(config_file=path), mode="router")
     assert _get(config, "listen/endpoints") == [f"tcp/127.0.0.1:{port}"]
     session = open_session(config)

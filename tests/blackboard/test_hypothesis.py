@@ -16,11 +16,25 @@ _names = st.from_regex(r"[A-Za-z0-9_-]{1,20}", fullmatch=True)
 
 
 @settings(max_examples=100, deadline=None)
-@given(level=_names, source=_names, credibility=st.floats(0, 1), links=st.lists(_names, max_size=4),
-       x=st.integers(-1000, 1000), addressed=st.none() | _names, deadline=st.none() | st.floats(0.01, 100))
+@given(
+    level=_names,
+    source=_names,
+    credibility=st.floats(0, 1),
+    links=st.lists(_names, max_size=4),
+    x=st.integers(-1000, 1000),
+    addressed=st.none() | _names,
+    deadline=st.none() | st.floats(0.01, 100),
+)
 def test_record_round_trip(level, source, credibility, links, x, addressed, deadline) -> None:
-    h = Hypothesis.new(level, {"x": x, "a": np.arange(3)}, source=source, credibility=credibility,
-                       links=links, addressed_to=addressed, deadline_s=deadline)
+    h = Hypothesis.new(
+        level,
+        {"x": x, "a": np.arange(3)},
+        source=source,
+        credibility=credibility,
+        links=links,
+        addressed_to=addressed,
+        deadline_s=deadline,
+    )
     back = Hypothesis.from_record(decode(encode(h.to_record())))
     assert back == h  # compares everything but the body
     assert back.body["x"] == x and back.body["a"].tolist() == [0, 1, 2]
@@ -47,14 +61,30 @@ BAD = {
 
 @pytest.mark.parametrize("change", BAD.values(), ids=BAD.keys())
 def test_invalid_fields_are_refused(change: dict) -> None:
-    fields = {"id": "h1", "level": "answer", "source": "s", "credibility": 0.5, "links": (), "version": 1,
-              "timestamp": 0.0, "body": {}, **change}
+    fields = {
+        "id": "h1",
+        "level": "answer",
+        "source": "s",
+        "credibility": 0.5,
+        "links": (),
+        "version": 1,
+        "timestamp": 0.0,
+        "body": {},
+        **change,
+    }
     with pytest.raises(ValueError):
         Hypothesis(**fields)
 
 
-@pytest.mark.parametrize("record", [None, [], {"id": "h"}, {"id": "h", "level": "l", "source": "s", "credibility": 2,
-                                                            "version": 1, "timestamp": 0, "body": {}}])
+@pytest.mark.parametrize(
+    "record",
+    [
+        None,
+        [],
+        {"id": "h"},
+        {"id": "h", "level": "l", "source": "s", "credibility": 2, "version": 1, "timestamp": 0, "body": {}},
+    ],
+)
 def test_from_record_refuses_malformed(record: object) -> None:
     with pytest.raises(CodecError) as info:
         Hypothesis.from_record(record, key="k/e/y")
@@ -92,8 +122,17 @@ def test_run_keys() -> None:
 @pytest.mark.parametrize("change", BAD.values(), ids=BAD.keys())
 def test_from_record_refuses_what_the_constructor_refuses(change: dict) -> None:
     """The fast path of from_record validates exactly as the constructor, with the same message."""
-    fields = {"id": "h1", "level": "answer", "source": "s", "credibility": 0.5, "links": (), "version": 1,
-              "timestamp": 0.0, "body": {}, **change}
+    fields = {
+        "id": "h1",
+        "level": "answer",
+        "source": "s",
+        "credibility": 0.5,
+        "links": (),
+        "version": 1,
+        "timestamp": 0.0,
+        "body": {},
+        **change,
+    }
     with pytest.raises(ValueError) as direct:
         Hypothesis(**fields)
     with pytest.raises(CodecError) as fast:

@@ -27,8 +27,13 @@ def test_hypothesis_keys() -> None:
 
 @pytest.mark.parametrize(
     ("key", "pattern"),
-    [("mapinterp/r1/answer/h-1", ("answer", "h-1")), ("mapinterp/r1/*/h-1", ("*", "h-1")),
-     ("mapinterp/r1/*/*", ("*", "*")), ("mapinterp/r1/a/h-$*", None), ("mapinterp/r1/**", None)],
+    [
+        ("mapinterp/r1/answer/h-1", ("answer", "h-1")),
+        ("mapinterp/r1/*/h-1", ("*", "h-1")),
+        ("mapinterp/r1/*/*", ("*", "*")),
+        ("mapinterp/r1/a/h-$*", None),
+        ("mapinterp/r1/**", None),
+    ],
 )
 def test_hypothesis_pattern(key: str, pattern: tuple[str, str] | None) -> None:
     assert KEYS.hypothesis_pattern(key) == pattern

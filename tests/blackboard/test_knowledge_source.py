@@ -30,8 +30,9 @@ BAD_LEVELS = {
 
 
 @pytest.mark.parametrize(("level", "error"), BAD_LEVELS.values(), ids=BAD_LEVELS.keys())
-def test_post_refuses_a_bad_level_before_and_after_good_posts(session: zenoh.Session, run_id: str,
-                                                              level: object, error: type[Exception]) -> None:
+def test_post_refuses_a_bad_level_before_and_after_good_posts(
+    session: zenoh.Session, run_id: str, level: object, error: type[Exception]
+) -> None:
     board = Board(session, RunKeys(run_id), "agent", produces=("item",))
     for attempt in range(3):
         with pytest.raises(error):

@@ -10,8 +10,9 @@ from blackboard.membership import AgentState, JoinRefused, Membership, gone_phra
 
 
 def _join(m: Membership, name: str, *, produces=(), exclusive=(), consumes=()) -> AgentState | JoinRefused:
-    return m.join(name, {"consumes": list(consumes), "produces": list(produces), "exclusive": list(exclusive),
-                         "pid": 42})
+    return m.join(
+        name, {"consumes": list(consumes), "produces": list(produces), "exclusive": list(exclusive), "pid": 42}
+    )
 
 
 def test_join_records_the_declarations() -> None:
@@ -92,7 +93,13 @@ def test_gone_waiters_wait_for_every_token() -> None:
     assert gone.is_set()
 
 
-@pytest.mark.parametrize(("state", "phrase"), [("dead: left (liveliness token dropped)", "left"),
-                                               ("dead: 3 failures", "is dead: 3 failures"), ("stopped", "stopped")])
+@pytest.mark.parametrize(
+    ("state", "phrase"),
+    [
+        ("dead: left (liveliness token dropped)", "left"),
+        ("dead: 3 failures", "is dead: 3 failures"),
+        ("stopped", "stopped"),
+    ],
+)
 def test_gone_phrase(state: str, phrase: str) -> None:
     assert gone_phrase(state) == phrase

@@ -152,8 +152,9 @@ def test_an_answered_query_does_not_time_out() -> None:
     assert bb.hypotheses("timeout") == []
 
 
-@pytest.mark.parametrize(("addressee", "reason"), [("silent", "went idle without answering"),
-                                                    ("nobody", "is not on the board")])
+@pytest.mark.parametrize(
+    ("addressee", "reason"), [("silent", "went idle without answering"), ("nobody", "is not on the board")]
+)
 def test_an_unanswered_query_times_out_to_its_poster(addressee: str, reason: str) -> None:
     bb = MemoryBlackboard()
     bb.add(Asker("asker"))

@@ -38,8 +38,16 @@ def test_malformed_and_oversized_messages_are_rejected_and_traced(run_id: str, t
             put(keys.hypothesis("number", "garbage"), b"\xc1\x00garbage")
             put(keys.hypothesis("number", "huge"), encode({"op": "post", "x": bytes(limit + 1)}))
             put(keys.hypothesis("number", "no-op"), encode({"hello": 1}))
-            record = {"id": "other", "level": "number", "source": "x", "credibility": 1.0, "links": [],
-                      "version": 1, "timestamp": 0.0, "body": {"x": 1}}
+            record = {
+                "id": "other",
+                "level": "number",
+                "source": "x",
+                "credibility": 1.0,
+                "links": [],
+                "version": 1,
+                "timestamp": 0.0,
+                "body": {"x": 1},
+            }
             put(keys.hypothesis("number", "mismatch"), encode({"op": "post", "hyp": record, "sender": "x"}))
             put(keys.status, b"\xff\xfe")
             rt.post("number", {"x": 21})
@@ -60,8 +68,10 @@ def test_malformed_and_oversized_messages_are_rejected_and_traced(run_id: str, t
 
 def test_two_runs_on_one_network_are_isolated(run_id: str) -> None:
     endpoint = loopback_endpoint()
-    with Runtime(run_id=f"{run_id}-a", zenoh=ZenohOptions(listen=[endpoint])) as a, \
-            Runtime(run_id=f"{run_id}-b", zenoh=ZenohOptions(connect=[endpoint])) as b:
+    with (
+        Runtime(run_id=f"{run_id}-a", zenoh=ZenohOptions(listen=[endpoint])) as a,
+        Runtime(run_id=f"{run_id}-b", zenoh=ZenohOptions(connect=[endpoint])) as b,
+    ):
         a.add(f"{AGENTS}:Doubler", name="doubler")
         b.add(f"{AGENTS}:Doubler", name="doubler")  # same agent name, other run: no conflict
         for x in range(5):
@@ -85,11 +95,16 @@ def test_burst_of_10000_posts_loses_nothing(run_id: str, tmp_path: Path) -> None
         tally = rt.source("tally")
         stored = len(rt.hypotheses("item"))
         if tally.seen != set(range(n)) or tally.activations != n:  # say why, not only that
-            errors = [r for r in read_trace(tmp_path / "t.trace")
-                      if r["kind"] in ("activation_error", "rejected", "agent_dead", "timeout")]
-            pytest.fail(f"tally saw {len(tally.seen)} of {n} items ({tally.activations} activations), "
-                        f"{stored} stored, outcome {outcome.quiescent=} {outcome.agents=} {outcome.stats=}; "
-                        f"errors in the trace: {errors[:5]}")
+            errors = [
+                r
+                for r in read_trace(tmp_path / "t.trace")
+                if r["kind"] in ("activation_error", "rejected", "agent_dead", "timeout")
+            ]
+            pytest.fail(
+                f"tally saw {len(tally.seen)} of {n} items ({tally.activations} activations), "
+                f"{stored} stored, outcome {outcome.quiescent=} {outcome.agents=} {outcome.stats=}; "
+                f"errors in the trace: {errors[:5]}"
+            )
         assert stored == n and outcome.stats["post"] == n + 1
     records = read_trace(tmp_path / "t.trace")
     assert sum(r["kind"] == "post" for r in records) == n + 1

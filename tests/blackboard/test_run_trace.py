@@ -18,25 +18,39 @@ def test_records_and_counts(tmp_path: Path, caplog: pytest.LogCaptureFixture) ->
     trace.hypothesis(TraceKind.POST, hyp)
     with caplog.at_level(logging.WARNING):
         trace.reject("mapinterp/r/number/bad", "malformed message", size=3)
-    trace.activity("doubler", [
-        ["s", "number", "n-1", 1, "posted", 1.0, 10.0, None],
-        ["f", "number", "n-1", 1, "posted", 1.0, 11.0, 0.5],
-        ["o", "number", "n-2", 1, "posted", 1.0, 12.0, "superseded by version 2"],
-        ["?", "number", "n-3", 1, "posted", 1.0, 12.0, None],  # unknown code: ignored
-        {"kind": "activation_error", "t": 13.0, "level": "number", "id": "n-1", "message": "boom"},
-        {"kind": "not-a-kind"},
-    ])
+    trace.activity(
+        "doubler",
+        [
+            ["s", "number", "n-1", 1, "posted", 1.0, 10.0, None],
+            ["f", "number", "n-1", 1, "posted", 1.0, 11.0, 0.5],
+            ["o", "number", "n-2", 1, "posted", 1.0, 12.0, "superseded by version 2"],
+            ["?", "number", "n-3", 1, "posted", 1.0, 12.0, None],  # unknown code: ignored
+            {"kind": "activation_error", "t": 13.0, "level": "number", "id": "n-1", "message": "boom"},
+            {"kind": "not-a-kind"},
+        ],
+    )
     trace.close()
     records = read_trace(tmp_path / "t.trace")
     kinds = [r["kind"] for r in records]
-    assert kinds == ["post", "rejected", "activation_start", "activation_finish", "activation_obviated",
-                     "activation_error"]
+    assert kinds == [
+        "post",
+        "rejected",
+        "activation_start",
+        "activation_finish",
+        "activation_obviated",
+        "activation_error",
+    ]
     post = records[0]
     assert (post["id"], post["level"], post["agent"], post["body"]) == ("n-1", "number", "user", {"x": 1})
     assert records[3]["duration_s"] == 0.5 and records[4]["reason"] == "superseded by version 2"
     assert all(r["agent"] == "doubler" for r in records[2:])
-    assert trace.stats == {"rejected": 1, "activation_start": 1, "activation_finish": 1, "activation_obviated": 1,
-                           "activation_error": 1}
+    assert trace.stats == {
+        "rejected": 1,
+        "activation_start": 1,
+        "activation_finish": 1,
+        "activation_obviated": 1,
+        "activation_error": 1,
+    }
     assert "malformed message" in caplog.text
 
 

@@ -225,8 +225,9 @@ def test_post_to_an_already_dead_agent_times_out(run_id: str) -> None:
         assert [h.body["reason"] for h in rt.hypotheses("timeout")] == ["agent 'det' left"]
 
 
-@pytest.mark.parametrize("call", [lambda rt: rt.add(f"{AGENTS}:Doubler", name="d"), lambda rt: rt.post("number", {})],
-                         ids=["add", "post"])
+@pytest.mark.parametrize(
+    "call", [lambda rt: rt.add(f"{AGENTS}:Doubler", name="d"), lambda rt: rt.post("number", {})], ids=["add", "post"]
+)
 def test_runtime_needs_to_be_started(run_id: str, call) -> None:
     with pytest.raises(BlackboardError, match="context manager"):
         call(Runtime(run_id=run_id))

@@ -99,7 +99,7 @@ def test_a_large_message_is_held_once_and_encoded_again_for_a_read() -> None:
     store.put(big, big_data, sender="renderer")
     store.put(small, small_data, sender="src")
     assert store.kept_bytes() == len(small_data)  # the image is held once: in the hypothesis
-    (_, again), = store.select(KEYS, KEYS.hypothesis("viewframe", "vf-1"))
+    ((_, again),) = store.select(KEYS, KEYS.hypothesis("viewframe", "vf-1"))
     assert again == big_data  # the read gets the very message that was posted
     np.testing.assert_array_equal(Hypothesis.from_record(decode(again)["hyp"]).body["image"], image)
     assert store.select(KEYS, KEYS.hypothesis("a", "x-1"))[0][1] is small_data

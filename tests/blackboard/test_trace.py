@@ -15,7 +15,9 @@ from blackboard.trace import TraceKind, TraceWriter, read_trace, summarise
 def _write(path: Path, n: int) -> None:
     writer = TraceWriter(path)
     for i in range(n):
-        writer.write(TraceKind.POST, agent="a", level="l", id=f"h{i}", version=1, body={"i": i, "img": np.ones((50, 50))})
+        writer.write(
+            TraceKind.POST, agent="a", level="l", id=f"h{i}", version=1, body={"i": i, "img": np.ones((50, 50))}
+        )
     writer.close()
 
 
@@ -25,8 +27,9 @@ def test_write_read(tmp_path: Path) -> None:
     records = read_trace(path)
     assert [r["id"] for r in records] == [f"h{i}" for i in range(5)]
     assert [r["seq"] for r in records] == [1, 2, 3, 4, 5]
-    assert records[0]["body"]["img"] == {"__array__": {"shape": [50, 50], "dtype": "<f8", "min": 1.0, "max": 1.0,
-                                                       "digest": _digest(np.ones((50, 50)))}}
+    assert records[0]["body"]["img"] == {
+        "__array__": {"shape": [50, 50], "dtype": "<f8", "min": 1.0, "max": 1.0, "digest": _digest(np.ones((50, 50)))}
+    }
 
 
 def test_every_truncation_reads_up_to_the_last_complete_record(tmp_path: Path) -> None:
@@ -78,10 +81,22 @@ def test_large_arrays_are_a_digest_not_their_bytes(tmp_path: Path) -> None:
 
 SUMMARIES = {
     "small array inline": (np.arange(3), [0, 1, 2]),
-    "large array": (np.zeros((4, 5), np.uint8), {"__array__": {"shape": [4, 5], "dtype": "|u1", "min": 0.0, "max": 0.0,
-                                                                  "digest": _digest(np.zeros((4, 5), np.uint8))}}),
-    "string array": (np.array(["a", "b"]), {"__array__": {"shape": [2], "dtype": "<U1",
-                                                           "digest": _digest(np.array(["a", "b"]))}}),
+    "large array": (
+        np.zeros((4, 5), np.uint8),
+        {
+            "__array__": {
+                "shape": [4, 5],
+                "dtype": "|u1",
+                "min": 0.0,
+                "max": 0.0,
+                "digest": _digest(np.zeros((4, 5), np.uint8)),
+            }
+        },
+    ),
+    "string array": (
+        np.array(["a", "b"]),
+        {"__array__": {"shape": [2], "dtype": "<U1", "digest": _digest(np.array(["a", "b"]))}},
+    ),
     "small bytes": (b"ab", b"ab"),
     "large bytes": (bytes(1000), {"__bytes__": 1000}),
     "nested": ({"a": [np.float32(2.5), None]}, {"a": [2.5, None]}),

@@ -19,8 +19,18 @@ from blackboard.trace_view import (
 
 
 def _post(seq: int, agent: str, level: str, id: str, links: tuple[str, ...] = (), **body: object) -> dict:
-    return {"seq": seq, "t": 100.0 + seq, "kind": "post", "agent": agent, "level": level, "id": id, "version": 1,
-            "links": list(links), "credibility": 1.0, "body": body}
+    return {
+        "seq": seq,
+        "t": 100.0 + seq,
+        "kind": "post",
+        "agent": agent,
+        "level": level,
+        "id": id,
+        "version": 1,
+        "links": list(links),
+        "credibility": 1.0,
+        "body": body,
+    }
 
 
 RECORDS = [
@@ -32,10 +42,27 @@ RECORDS = [
     _post(6, "det", "detection", "d2", ("f2",), what="tree"),
     _post(7, "ranker", "ranking", "r1", ("d1", "d2")),
     _post(8, "ranker", "position", "p1", ("r1", "ghost")),
-    {"seq": 9, "t": 109.0, "kind": "activation_finish", "agent": "det", "level": "sensor_frame", "id": "f1",
-     "version": 1, "duration_s": 0.25},
-    {"seq": 10, "t": 110.0, "kind": "activation_error", "agent": "det", "level": "sensor_frame", "id": "f2",
-     "version": 1, "duration_s": 0.5, "message": "act raised ValueError: x"},
+    {
+        "seq": 9,
+        "t": 109.0,
+        "kind": "activation_finish",
+        "agent": "det",
+        "level": "sensor_frame",
+        "id": "f1",
+        "version": 1,
+        "duration_s": 0.25,
+    },
+    {
+        "seq": 10,
+        "t": 110.0,
+        "kind": "activation_error",
+        "agent": "det",
+        "level": "sensor_frame",
+        "id": "f2",
+        "version": 1,
+        "duration_s": 0.5,
+        "message": "act raised ValueError: x",
+    },
     {"seq": 11, "t": 111.0, "kind": "timeout", "agent": "ranker", "id": "q1", "reason": "agent 'det' left"},
     {"seq": 12, "t": 112.0, "kind": "rejected", "key": "mapinterp/r1/x/y", "message": "malformed message"},
 ]

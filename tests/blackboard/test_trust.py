@@ -27,8 +27,12 @@ Forgery = Callable[[zenoh.Session, RunKeys, Runtime], None]
 
 
 def _put(session: zenoh.Session, key: str, message: object, attachment: bytes | None = None) -> None:
-    session.put(key, message if isinstance(message, bytes) else encode(message, max_bytes=1 << 30),
-                congestion_control=zenoh.CongestionControl.BLOCK, attachment=attachment)
+    session.put(
+        key,
+        message if isinstance(message, bytes) else encode(message, max_bytes=1 << 30),
+        congestion_control=zenoh.CongestionControl.BLOCK,
+        attachment=attachment,
+    )
 
 
 def _request(session: zenoh.Session, keys: RunKeys, message: dict) -> dict:
@@ -37,85 +41,127 @@ def _request(session: zenoh.Session, keys: RunKeys, message: dict) -> dict:
 
 
 def _record(level: str, hyp_id: str, source: str, body: dict, **extra) -> dict:
-    return {"id": hyp_id, "level": level, "source": source, "credibility": 1.0, "links": [], "version": 1,
-            "timestamp": time.time(), "body": body, **extra}
+    return {
+        "id": hyp_id,
+        "level": level,
+        "source": source,
+        "credibility": 1.0,
+        "links": [],
+        "version": 1,
+        "timestamp": time.time(),
+        "body": body,
+        **extra,
+    }
 
 
 def _post(session, keys, level, hyp_id, source, body, **extra) -> None:
-    _put(session, keys.hypothesis(level, hyp_id),
-         {"op": "post", "hyp": _record(level, hyp_id, source, body, **extra), "sender": source, "n": 1})
+    _put(
+        session,
+        keys.hypothesis(level, hyp_id),
+        {"op": "post", "hyp": _record(level, hyp_id, source, body, **extra), "sender": source, "n": 1},
+    )
 
 
 def _status(agent: str, **fields) -> dict:
-    return {"agent": agent, "state": "idle", "recv": {}, "sent": 0, "timeouts": 0, "probe": None,
-            "activity": [], "reason": None, "seq": 10**6, **fields}
+    return {
+        "agent": agent,
+        "state": "idle",
+        "recv": {},
+        "sent": 0,
+        "timeouts": 0,
+        "probe": None,
+        "activity": [],
+        "reason": None,
+        "seq": 10**6,
+        **fields,
+    }
 
 
 #: case -> (the forgery, a fragment of the trace's "rejected" message it must leave)
 FORGERIES: dict[str, tuple[Forgery, str]] = {
     "answer-as-unjoined-agent": (
         lambda s, k, rt: [_post(s, k, "answer", f"a-{i}", "detector-x", {"present": False}) for i in range(5)],
-        "not signed by a joined agent 'detector-x'"),
+        "not signed by a joined agent 'detector-x'",
+    ),
     "post-under-a-real-agents-name": (
         lambda s, k, rt: _post(s, k, "doubled", "fake-1", "doubler", {"x": 999}),
-        "not signed by a joined agent 'doubler'"),
+        "not signed by a joined agent 'doubler'",
+    ),
     "wrong-typed-posts-under-a-real-name": (
-        lambda s, k, rt: [_post(s, k, "doubled", f"bad-{i}", "doubler", {"x": [["not", "a", "number"]]})
-                          for i in range(3)],
-        "not signed by a joined agent 'doubler'"),
+        lambda s, k, rt: [
+            _post(s, k, "doubled", f"bad-{i}", "doubler", {"x": [["not", "a", "number"]]}) for i in range(3)
+        ],
+        "not signed by a joined agent 'doubler'",
+    ),
     "squat-an-id": (
         lambda s, k, rt: _post(s, k, "echo", "echo-squat", "echo", {"x": 0}),
-        "not signed by a joined agent 'echo'"),
+        "not signed by a joined agent 'echo'",
+    ),
     "deadline-1e300": (
-        lambda s, k, rt: _post(s, k, "doubled", "dl-1", "doubler", {"x": 1}, deadline_s=1e300,
-                               addressed_to="echo"),
-        "not signed by a joined agent 'doubler'"),
+        lambda s, k, rt: _post(s, k, "doubled", "dl-1", "doubler", {"x": 1}, deadline_s=1e300, addressed_to="echo"),
+        "not signed by a joined agent 'doubler'",
+    ),
     "malformed-post-under-a-real-name": (
         lambda s, k, rt: _put(s, k.hypothesis("doubled", "m-1"), {"op": "post", "sender": "doubler", "hyp": 7}),
-        "not signed by a joined agent 'doubler'"),
+        "not signed by a joined agent 'doubler'",
+    ),
     "status-whose-recv-is-a-list": (
         lambda s, k, rt: _put(s, k.status, _status("doubler", recv=[1, 2, 3])),
-        "recv: must map level names to counts"),
+        "recv: must map level names to counts",
+    ),
     "status-dead": (
         lambda s, k, rt: _put(s, k.status, _status("doubler", state="dead", reason="forged")),
-        "not signed by agent 'doubler'"),
+        "not signed by agent 'doubler'",
+    ),
     "status-stopped": (
         lambda s, k, rt: _put(s, k.status, _status("echo", state="stopped")),
-        "not signed by agent 'echo'"),
+        "not signed by agent 'echo'",
+    ),
     "fake-activity-records": (
-        lambda s, k, rt: _put(s, k.status, _status("doubler", state="busy", activity=[
-            ["s", "number", "h-1", 1, "posted", 1.0, 1.0, None]] * 50)),
-        "not signed by agent 'doubler'"),
+        lambda s, k, rt: _put(
+            s,
+            k.status,
+            _status("doubler", state="busy", activity=[["s", "number", "h-1", 1, "posted", 1.0, 1.0, None]] * 50),
+        ),
+        "not signed by agent 'doubler'",
+    ),
     "leave": (
         lambda s, k, rt: _request(s, k, {"op": "leave", "agent": "doubler"}),
-        "leave not signed by agent 'doubler'"),
+        "leave not signed by agent 'doubler'",
+    ),
     "retract": (
         lambda s, k, rt: _request(s, k, {"op": "retract", "agent": "doubler", "id": "x"}),
-        "retract not signed by agent 'doubler'"),
+        "retract not signed by agent 'doubler'",
+    ),
     "join-unexpected-name": (
         lambda s, k, rt: _request(s, k, {"op": "join", "agent": "intruder", "produces": ["doubled"]}),
-        "agent 'intruder' is not an agent of this run"),
+        "agent 'intruder' is not an agent of this run",
+    ),
     "join-expected-name-without-proof": (
-        lambda s, k, rt: (rt.node.expect("remote-1", "the-real-secret"),
-                          _request(s, k, {"op": "join", "agent": "remote-1", "proof": "guess"})),
-        "agent 'remote-1' did not prove it is the one this run started"),
+        lambda s, k, rt: (
+            rt.node.expect("remote-1", "the-real-secret"),
+            _request(s, k, {"op": "join", "agent": "remote-1", "proof": "guess"}),
+        ),
+        "agent 'remote-1' did not prove it is the one this run started",
+    ),
     "join-a-live-name": (
         lambda s, k, rt: _request(s, k, {"op": "join", "agent": "doubler"}),
-        "agent 'doubler' did not prove"),
-    "run-end": (
-        lambda s, k, rt: _put(s, k.run_end, {"op": "end", "run_id": k.run_id}),
-        "forged node message"),
-    "probe": (
-        lambda s, k, rt: _put(s, k.probe, {"probe": 10**9}),
-        "forged node message"),
+        "agent 'doubler' did not prove",
+    ),
+    "run-end": (lambda s, k, rt: _put(s, k.run_end, {"op": "end", "run_id": k.run_id}), "forged node message"),
+    "probe": (lambda s, k, rt: _put(s, k.probe, {"probe": 10**9}), "forged node message"),
     "timeout-to-an-inbox": (
-        lambda s, k, rt: _put(s, k.inbox("echo"), {"op": "timeout", "hyp": _record("query", "q", "echo", {}),
-                                                   "reason": "forged"}),
-        "forged node message"),
+        lambda s, k, rt: _put(
+            s, k.inbox("echo"), {"op": "timeout", "hyp": _record("query", "q", "echo", {}), "reason": "forged"}
+        ),
+        "forged node message",
+    ),
     "large-valid-posts": (
-        lambda s, k, rt: [_post(s, k, "doubled", f"big-{i}", "doubler", {"x": 1, "pad": bytes(5 * 1024**2)})
-                          for i in range(10)],
-        "not signed by a joined agent 'doubler'"),
+        lambda s, k, rt: [
+            _post(s, k, "doubled", f"big-{i}", "doubler", {"x": 1, "pad": bytes(5 * 1024**2)}) for i in range(10)
+        ],
+        "not signed by a joined agent 'doubler'",
+    ),
 }
 
 
@@ -167,8 +213,9 @@ def test_the_truth_is_for_the_runs_own_user_side_only(run_id: str, tmp_path: Pat
         assert set(body) == {"__sealed__"} and b"123.25" not in payload and "pose" not in body
     records = read_trace(trace)
     assert any("read of a private level refused" in r.get("message", "") for r in records)
-    assert [r["body"]["pose"] for r in records if r["kind"] == "post" and r.get("level") == "truth"] == \
-        [[123.25, 456.5, 7.75]]  # the trace, the user's own file, has it
+    assert [r["body"]["pose"] for r in records if r["kind"] == "post" and r.get("level") == "truth"] == [
+        [123.25, 456.5, 7.75]
+    ]  # the trace, the user's own file, has it
 
 
 def test_the_runs_memory_budget_refuses_posts_with_a_trace_record(run_id: str, tmp_path: Path) -> None:
@@ -196,13 +243,78 @@ def test_seal_and_tags() -> None:
 
 # -- fuzz -----------------------------------------------------------------------------------------------
 
-_FIELDS = ["op", "agent", "sender", "hyp", "n", "state", "recv", "sent", "timeouts", "probe", "activity",
-           "reason", "seq", "id", "level", "source", "credibility", "links", "version", "timestamp", "body",
-           "addressed_to", "deadline_s", "consumes", "produces", "exclusive", "pid", "host", "proof", "after",
-           "input_error", "kind"]
-_ATOMS = [None, True, False, 0, 1, -1, 2**63, -(2**70), 1e300, -1e300, math.inf, -math.inf, math.nan, 0.5,
-          "", "doubler", "echo", "@node", "post", "join", "leave", "update", "retract", "idle", "dead", "stopped",
-          "number", "doubled", "truth", "a/b", "*", "x" * 300, b"", b"\x00\xff", [], {}]
+_FIELDS = [
+    "op",
+    "agent",
+    "sender",
+    "hyp",
+    "n",
+    "state",
+    "recv",
+    "sent",
+    "timeouts",
+    "probe",
+    "activity",
+    "reason",
+    "seq",
+    "id",
+    "level",
+    "source",
+    "credibility",
+    "links",
+    "version",
+    "timestamp",
+    "body",
+    "addressed_to",
+    "deadline_s",
+    "consumes",
+    "produces",
+    "exclusive",
+    "pid",
+    "host",
+    "proof",
+    "after",
+    "input_error",
+    "kind",
+]
+_ATOMS = [
+    None,
+    True,
+    False,
+    0,
+    1,
+    -1,
+    2**63,
+    -(2**70),
+    1e300,
+    -1e300,
+    math.inf,
+    -math.inf,
+    math.nan,
+    0.5,
+    "",
+    "doubler",
+    "echo",
+    "@node",
+    "post",
+    "join",
+    "leave",
+    "update",
+    "retract",
+    "idle",
+    "dead",
+    "stopped",
+    "number",
+    "doubled",
+    "truth",
+    "a/b",
+    "*",
+    "x" * 300,
+    b"",
+    b"\x00\xff",
+    [],
+    {},
+]
 
 
 def _value(rng: random.Random, depth: int = 0) -> object:
@@ -217,14 +329,30 @@ def _value(rng: random.Random, depth: int = 0) -> object:
 def _message(rng: random.Random) -> dict:
     """A plausible message with some fields spoiled: mostly valid shapes, so the checks deep
     inside are reached, not only the first one."""
-    base = rng.choice([
-        {"op": "post", "sender": "doubler", "n": 1, "hyp": _record("doubled", f"f{rng.randrange(10**6)}", "doubler",
-                                                                     {"x": 1})},
-        _status(rng.choice(["doubler", "echo", "nobody"]), activity=[["s", "number", "h-1", 1, "posted", 1.0, 1.0,
-                                                                     None]]),
-        {"op": rng.choice(["join", "leave", "update", "retract", "?"]), "agent": "doubler", "sent": 0,
-         "after": {"echo": 1}, "id": "h-1", "body": {}, "produces": ["doubled"], "proof": "x"},
-    ])
+    base = rng.choice(
+        [
+            {
+                "op": "post",
+                "sender": "doubler",
+                "n": 1,
+                "hyp": _record("doubled", f"f{rng.randrange(10**6)}", "doubler", {"x": 1}),
+            },
+            _status(
+                rng.choice(["doubler", "echo", "nobody"]),
+                activity=[["s", "number", "h-1", 1, "posted", 1.0, 1.0, None]],
+            ),
+            {
+                "op": rng.choice(["join", "leave", "update", "retract", "?"]),
+                "agent": "doubler",
+                "sent": 0,
+                "after": {"echo": 1},
+                "id": "h-1",
+                "body": {},
+                "produces": ["doubled"],
+                "proof": "x",
+            },
+        ]
+    )
     for _ in range(rng.randrange(0, 4)):
         target = base
         if "hyp" in base and isinstance(base["hyp"], dict) and rng.random() < 0.5:
@@ -258,13 +386,19 @@ def test_fuzzed_control_and_hypothesis_messages_never_crash_or_stall_the_node(ru
             for i in range(n_bus):
                 message = _message(rng) if rng.random() < 0.8 else _value(rng)
                 try:
-                    data = encode(message, max_bytes=1 << 20) if rng.random() < 0.95 else rng.randbytes(rng.randrange(64))
+                    data = (
+                        encode(message, max_bytes=1 << 20) if rng.random() < 0.95 else rng.randbytes(rng.randrange(64))
+                    )
                 except CodecError:  # not even msgpack (an integer beyond 64 bits): send raw bytes
                     data = rng.randbytes(rng.randrange(64))
                 where = rng.random()
                 if where < 0.45:
-                    _put(outsider, keys.hypothesis(rng.choice(["doubled", "number", "echo", "truth"]), f"z{i}"), data,
-                         attachment=rng.choice([None, rng.randbytes(32), rng.randbytes(64)]))
+                    _put(
+                        outsider,
+                        keys.hypothesis(rng.choice(["doubled", "number", "echo", "truth"]), f"z{i}"),
+                        data,
+                        attachment=rng.choice([None, rng.randbytes(32), rng.randbytes(64)]),
+                    )
                 elif where < 0.75:
                     _put(outsider, keys.status, data, attachment=rng.choice([None, rng.randbytes(32)]))
                 elif where < 0.85:
@@ -272,9 +406,12 @@ def test_fuzzed_control_and_hypothesis_messages_never_crash_or_stall_the_node(ru
                 elif where < 0.95:
                     outsider.get(keys.request, payload=data, timeout=0.001, handler=lambda reply: None)
                 else:
-                    outsider.get(f"{keys.level('doubled')}?agent=doubler;sent={rng.randrange(-5, 10**9)};"
-                                 f"after=echo:{rng.randrange(10**9)};tag=00", timeout=0.001,
-                                 handler=lambda reply: None)
+                    outsider.get(
+                        f"{keys.level('doubled')}?agent=doubler;sent={rng.randrange(-5, 10**9)};"
+                        f"after=echo:{rng.randrange(10**9)};tag=00",
+                        timeout=0.001,
+                        handler=lambda reply: None,
+                    )
             for x in (1, 2, 3):
                 rt.post("number", {"x": x})
             outcome = rt.run(timeout_s=60)
@@ -321,12 +458,15 @@ def test_auth_is_on_by_default_beyond_loopback_only() -> None:
     assert not Runtime(zenoh=ZenohOptions(listen=["tcp/127.0.0.1:7447"])).auth
 
 
-@pytest.mark.parametrize("text, listen, multicast", [
-    ("{}", ["tcp/127.0.0.1:0"], False),  # says nothing: our defaults, never zenoh's (every interface, scouting)
-    ('{transport: {link: {tx: {lease: 10000}}}}', ["tcp/127.0.0.1:0"], False),
-    ('{listen: {endpoints: ["tcp/127.0.0.1:7999"]}}', ["tcp/127.0.0.1:7999"], False),
-    ('{scouting: {multicast: {enabled: true}}}', ["tcp/127.0.0.1:0"], True),  # said explicitly: the user's choice
-])
+@pytest.mark.parametrize(
+    "text, listen, multicast",
+    [
+        ("{}", ["tcp/127.0.0.1:0"], False),  # says nothing: our defaults, never zenoh's (every interface, scouting)
+        ("{transport: {link: {tx: {lease: 10000}}}}", ["tcp/127.0.0.1:0"], False),
+        ('{listen: {endpoints: ["tcp/127.0.0.1:7999"]}}', ["tcp/127.0.0.1:7999"], False),
+        ("{scouting: {multicast: {enabled: true}}}", ["tcp/127.0.0.1:0"], True),  # said explicitly: the user's choice
+    ],
+)
 def test_a_user_config_never_widens_the_defaults(tmp_path: Path, text: str, listen: list[str], multicast: bool) -> None:
     import json
 

@@ -37,8 +37,6 @@ def small(tmp_path) -> Path:
     return path
 
 
-
-
 @pytest.fixture(scope="session")
 def small_rendered(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """SMALL rendered once by the map renderer on an in-memory board: ``{"path", "viewframes", "map"}``

@@ -1,6 +1,7 @@
 """The scene-analysis rule of the first version of mapinterp (commit 11d7ded), frozen verbatim: the
 reference that ``backtracking: hard`` with ``questions: probability`` must equal exactly
 (tests/knowledge_sources/test_scene_analysis.py). Not used by the product."""
+
 from __future__ import annotations
 
 import math
@@ -206,8 +207,13 @@ class SceneAnalysis:
             raise ValueError(f"answer to {question} does not match the pending question {self._pending}")
         self._pending = None
         self._asked.add(question.landmark)
-        step = {"landmark": question.landmark, "viewframe": question.viewframe,
-                "p": round(question.probability, 6), "present": present, "score": score}
+        step = {
+            "landmark": question.landmark,
+            "viewframe": question.viewframe,
+            "p": round(question.probability, 6),
+            "present": present,
+            "score": score,
+        }
         self._queries += 1  # every question asked counts, answered or not
         if present is None:
             step["effect"] = "no evidence"
@@ -228,6 +234,7 @@ class SceneAnalysis:
         self._steps.append(step)
 
     def _decide(self, viewframe: int | None, confidence: float, reason: str) -> None:
-        self._decision = Decision(viewframe, float(confidence), self._queries, self._backtracks,
-                                  reason, tuple(self._steps))
+        self._decision = Decision(
+            viewframe, float(confidence), self._queries, self._backtracks, reason, tuple(self._steps)
+        )
         return None

@@ -34,6 +34,7 @@ def _dem(array, name: str = "dem.npy") -> Mutate:
     def apply(data: dict, tmp: Path) -> None:
         np.save(tmp / name, array, allow_pickle=True)
         data["terrain"] = {"cell_size": 10.0, "dem": name}
+
     return apply
 
 
@@ -41,6 +42,7 @@ def _dem_bytes(content: bytes, name: str = "dem.npy") -> Mutate:
     def apply(data: dict, tmp: Path) -> None:
         (tmp / name).write_bytes(content)
         data["terrain"] = {"cell_size": 10.0, "dem": name}
+
     return apply
 
 
@@ -48,6 +50,7 @@ def _contours(doc, raw: str | None = None) -> Mutate:
     def apply(data: dict, tmp: Path) -> None:
         (tmp / "c.geojson").write_text(raw if raw is not None else json.dumps(doc))
         data["terrain"] = {"cell_size": 10.0, "contours": "c.geojson"}
+
     return apply
 
 
@@ -67,6 +70,7 @@ def _frame_file(write: Callable[[Path], None], name: str = "f0.png", truth: dict
         if truth is not None:
             frame["truth"] = truth
         data["sensor"] = {"frames": [frame]}
+
     return apply
 
 
@@ -76,6 +80,7 @@ def _png(h: int, w: int) -> Callable[[Path], None]:
 
 def _set(path: str, value) -> Mutate:
     """Set a dotted field path (``terrain.cell_size``, ``landmarks.0.x``) to ``value``."""
+
     def apply(data: dict, tmp: Path) -> None:
         *head, last = path.split(".")
         node = data
@@ -85,6 +90,7 @@ def _set(path: str, value) -> Mutate:
             node[int(last)] = value
         else:
             node[last] = value
+
     return apply
 
 
@@ -94,9 +100,11 @@ def _drop(key: str) -> Mutate:
 
 def _raw(text: str) -> Mutate:
     """Replace the whole scenario file by ``text``."""
+
     def apply(data: dict, tmp: Path) -> None:
         data.clear()
         data["__raw__"] = text
+
     return apply
 
 
@@ -104,6 +112,7 @@ def _both(*steps: Mutate) -> Mutate:
     def apply(data: dict, tmp: Path) -> None:
         for step in steps:
             step(data, tmp)
+
     return apply
 
 
@@ -151,18 +160,41 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("contours-no-features", _contours(_fc()), "at least one feature"),
     ("contours-no-elevation", _contours(_fc(_line([[0, 0], [900, 0]], None))), "properties.elevation"),
     ("contours-text-elevation", _contours(_fc(_line([[0, 0], [900, 0]], "high"))), "properties.elevation"),
-    ("contours-one-elevation", _contours(_fc(_line([[0, 0], [900, 0]], 5), _line([[0, 900], [900, 900]], 5))),
-     "two or more elevations"),
-    ("contours-negative", _contours(_fc(_line([[-50, 0], [900, 0]], 5), _line([[0, 900], [900, 900]], 9))),
-     "must be >= 0"),
-    ("contours-point", _contours(_fc({"type": "Feature", "properties": {"elevation": 1},
-                                      "geometry": {"type": "Point", "coordinates": [1, 2]}})), "LineString"),
-    ("contours-one-point-line", _contours(_fc(_line([[0, 0]], 5), _line([[0, 900], [900, 900]], 9))),
-     "at least 2 finite"),
+    (
+        "contours-one-elevation",
+        _contours(_fc(_line([[0, 0], [900, 0]], 5), _line([[0, 900], [900, 900]], 5))),
+        "two or more elevations",
+    ),
+    (
+        "contours-negative",
+        _contours(_fc(_line([[-50, 0], [900, 0]], 5), _line([[0, 900], [900, 900]], 9))),
+        "must be >= 0",
+    ),
+    (
+        "contours-point",
+        _contours(
+            _fc(
+                {
+                    "type": "Feature",
+                    "properties": {"elevation": 1},
+                    "geometry": {"type": "Point", "coordinates": [1, 2]},
+                }
+            )
+        ),
+        "LineString",
+    ),
+    (
+        "contours-one-point-line",
+        _contours(_fc(_line([[0, 0]], 5), _line([[0, 900], [900, 900]], 9))),
+        "at least 2 finite",
+    ),
     # landmarks
     ("landmark-outside", _set("landmarks.0.x", 5000), "landmarks[0]: 'H1' at (5000, 330) is outside the terrain"),
-    ("landmark-footprint-outside", _both(_set("landmarks.0.x", 945), _set("landmarks.0.width", 60)),
-     "landmarks[0]: footprint of 'H1' is outside the terrain"),
+    (
+        "landmark-footprint-outside",
+        _both(_set("landmarks.0.x", 945), _set("landmarks.0.width", 60)),
+        "landmarks[0]: footprint of 'H1' is outside the terrain",
+    ),
     ("landmark-x-inf", _set("landmarks.0.x", float("inf")), "landmarks[0].x: must be a finite number"),
     ("landmark-y-nan", _set("landmarks.1.y", float("nan")), "landmarks[1].y: must be a finite number"),
     ("landmark-x-1e300", _set("landmarks.0.x", 1e300), "landmarks[0].x: must be <="),
@@ -172,8 +204,11 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("landmark-duplicate-id", _set("landmarks.1.id", "H1"), "duplicate landmark id 'H1'"),
     ("landmark-unknown-field", _set("landmarks.0.colour", "red"), "landmarks[0].colour: unknown field"),
     ("landmark-empty-kind", _set("landmarks.0.kind", ""), "landmarks[0].kind: must not be empty"),
-    ("landmark-kinds-collide", _both(_set("landmarks.0.kind", "big house"), _set("landmarks.2.kind", "big_house")),
-     "both name the detector agent 'detector-big_house'"),
+    (
+        "landmark-kinds-collide",
+        _both(_set("landmarks.0.kind", "big house"), _set("landmarks.2.kind", "big_house")),
+        "both name the detector agent 'detector-big_house'",
+    ),
     # route
     ("route-outside", _set("route.2", [5000, 300]), "route[2]: (5000, 300) is outside the terrain"),
     ("route-inf", _set("route.1", [float("inf"), 3]), "route[1][0]: must be a finite number"),
@@ -194,7 +229,11 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("sensor-both", _set("sensor.frames", [{"image": "x.png"}]), "sensor"),
     ("jitter-inf", _set("sensor.simulate.jitter_m", float("inf")), "sensor.simulate.jitter_m: must be a finite"),
     ("jitter-1e300", _set("sensor.simulate.jitter_m", 1e300), "sensor.simulate.jitter_m: must be <= 1000"),
-    ("jitter-deg-nan", _set("sensor.simulate.jitter_deg", float("nan")), "sensor.simulate.jitter_deg: must be a finite"),
+    (
+        "jitter-deg-nan",
+        _set("sensor.simulate.jitter_deg", float("nan")),
+        "sensor.simulate.jitter_deg: must be a finite",
+    ),
     ("per-point-zero", _set("sensor.simulate.per_point", 0), "sensor.simulate.per_point: must be >= 1"),
     ("advance-one", _set("sensor.simulate.advance", 1.0), "sensor.simulate.advance: must be < 1"),
     ("lighting-five", _set("sensor.simulate.lighting", 5), "sensor.simulate.lighting: must be <= 1"),
@@ -203,16 +242,26 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("frames-empty", _set("sensor", {"frames": []}), "sensor.frames: needs at least 1 items"),
     ("frame-not-image", _frame_file(lambda p: p.write_text("hello")), "sensor.frames[0].image"),
     ("frame-zero-bytes", _frame_file(lambda p: p.write_bytes(b"")), "not a readable image"),
-    ("frame-npy", _frame_file(lambda p: np.save(p, np.zeros((120, 160, 3), np.uint8)), name="f0.npy"),
-     "not a readable image"),
+    (
+        "frame-npy",
+        _frame_file(lambda p: np.save(p, np.zeros((120, 160, 3), np.uint8)), name="f0.npy"),
+        "not a readable image",
+    ),
     ("frame-1x1", _frame_file(_png(1, 1)), "image is 1x1 pixels; at least 8x8 needed"),
-    ("frame-truth-inf", _frame_file(_png(120, 160), truth={"x": float("inf"), "y": 1, "heading_deg": 0}),
-     "sensor.frames[0].truth.x: must be a finite number"),
+    (
+        "frame-truth-inf",
+        _frame_file(_png(120, 160), truth={"x": float("inf"), "y": 1, "heading_deg": 0}),
+        "sensor.frames[0].truth.x: must be a finite number",
+    ),
     # memory, scheduler, expect
     ("memory-size-100", _set("memory", {"size": 100}), "memory.size: must be a power of two"),
     ("memory-shift-20", _set("memory", {"max_shift": [20, 1]}), "memory.max_shift: must be two integers in 0..16"),
     ("memory-blur-inf", _set("memory", {"blur_sigma": float("inf")}), "memory.blur_sigma: must be a finite"),
-    ("query-timeout-inf", _set("scheduler.query_timeout_s", float("inf")), "scheduler.query_timeout_s: must be a finite"),
+    (
+        "query-timeout-inf",
+        _set("scheduler.query_timeout_s", float("inf")),
+        "scheduler.query_timeout_s: must be a finite",
+    ),
     ("query-timeout-1e300", _set("scheduler.query_timeout_s", 1e300), "scheduler.query_timeout_s: must be <= 3600"),
     ("query-timeout-zero", _set("scheduler.query_timeout_s", 0), "scheduler.query_timeout_s: must be >= 0.01"),
     ("thresholds-crossed", _set("scheduler.absent_threshold", 0.9), "absent_threshold must be <= detector_threshold"),
@@ -265,10 +314,23 @@ def test_malformed_scenario_exits_2_with_one_line(case, mutate, fragment, small_
 
 
 def _results_file(tmp: Path, change: Callable[[dict], None] | None = None, raw: str | None = None) -> str:
-    doc = {"scenario": "small", "strategy": "associative", "scenario_path": None,
-           "frames": [{"frame": 0, "viewframe": 1, "position": [1.0, 2.0], "ranking": [[1, 0.5]],
-                       "truth": None, "truth_viewframe": None, "correct": None}],
-           "summary": {"frames": 1, "top1": None, "mean_queries": 0.0, "mean_error_m": None, "latency_ms_p50": 0.0}}
+    doc = {
+        "scenario": "small",
+        "strategy": "associative",
+        "scenario_path": None,
+        "frames": [
+            {
+                "frame": 0,
+                "viewframe": 1,
+                "position": [1.0, 2.0],
+                "ranking": [[1, 0.5]],
+                "truth": None,
+                "truth_viewframe": None,
+                "correct": None,
+            }
+        ],
+        "summary": {"frames": 1, "top1": None, "mean_queries": 0.0, "mean_error_m": None, "latency_ms_p50": 0.0},
+    }
     if change is not None:
         change(doc)
     path = tmp / "r.json"
@@ -288,8 +350,11 @@ COMMAND_LINES: list[tuple[str, Callable[[str, Path], list[str]], str]] = [
     ("rate-inf", lambda s, t: ["run", s, "--rate", "inf"], "argument --rate: must be in"),
     ("rate-text", lambda s, t: ["run", s, "--rate", "fast"], "argument --rate: must be a number"),
     ("rate-1e-300", lambda s, t: ["run", s, "--rate", "1e-300"], "--rate: 8 frames at 1e-300 Hz take"),
-    ("rate-too-slow-for-timeout", lambda s, t: ["run", s, "--rate", "0.1", "--timeout", "30"],
-     "longer than the run's timeout of 30 s"),
+    (
+        "rate-too-slow-for-timeout",
+        lambda s, t: ["run", s, "--rate", "0.1", "--timeout", "30"],
+        "longer than the run's timeout of 30 s",
+    ),
     ("timeout-inf", lambda s, t: ["run", s, "--timeout", "inf"], "argument --timeout: must be in"),
     ("timeout-zero", lambda s, t: ["run", s, "--timeout", "0"], "argument --timeout: must be in (0,"),
     ("timeout-negative", lambda s, t: ["run", s, "--timeout", "-5"], "argument --timeout: must be in"),
@@ -307,58 +372,121 @@ COMMAND_LINES: list[tuple[str, Callable[[str, Path], list[str]], str]] = [
     ("run-id-bad", lambda s, t: ["run", s, "--run-id", "my run!"], "run id must be 1-128 characters"),
     ("remote-unknown", lambda s, t: ["run", s, "--remote", "detector-church"], "--remote names no agent"),
     ("listen-garbage", lambda s, t: ["run", s, "--listen", "everywhere"], "--listen endpoint must look like"),
-    ("zenoh-config-missing", lambda s, t: ["run", s, "--zenoh-config", str(t / "none.json5")],
-     "cannot load zenoh config"),
+    (
+        "zenoh-config-missing",
+        lambda s, t: ["run", s, "--zenoh-config", str(t / "none.json5")],
+        "cannot load zenoh config",
+    ),
     ("scenario-missing", lambda s, t: ["run", str(t / "none.yaml")], "none.yaml: file not found"),
     ("scenario-directory", lambda s, t: ["run", str(t)], "cannot read"),
     ("scenario-absent", lambda s, t: ["run"], "the following arguments are required: scenario"),
     ("unknown-option", lambda s, t: ["run", s, "--fast"], "unrecognized arguments: --fast"),
     ("unknown-command", lambda s, t: ["fly", s], "argument COMMAND: invalid choice: 'fly'"),
-    ("report-wrong-typed-viewframe", lambda s, t: ["report", _results_file(t, lambda d: _frames(d, viewframe="x")),
-                                                   "--out", str(t / "rep")], "frames[0].viewframe: must be an integer"),
-    ("report-wrong-typed-position", lambda s, t: ["report", _results_file(t, lambda d: _frames(d, position="here")),
-                                                  "--out", str(t / "rep")], "frames[0].position"),
-    ("report-frames-not-list", lambda s, t: ["report", _results_file(t, lambda d: d.update(frames=3)),
-                                             "--out", str(t / "rep")], "frames: must be a list"),
-    ("report-top1-text", lambda s, t: ["report", _results_file(t, lambda d: d["summary"].update(top1="high")),
-                                       "--out", str(t / "rep")], "summary.top1: must be a number"),
-    ("report-infinity", lambda s, t: ["report", _results_file(t, raw='{"scenario": "s", "strategy": "a", '
-                                                              '"frames": [], "summary": {"frames": Infinity}}'),
-                                      "--out", str(t / "rep")], "summary.frames"),
-    ("report-not-json", lambda s, t: ["report", _results_file(t, raw="{oops"), "--out", str(t / "rep")],
-     "not a JSON results file"),
-    ("report-missing-field", lambda s, t: ["report", _results_file(t, lambda d: d.pop("summary")),
-                                           "--out", str(t / "rep")], "missing field 'summary'"),
-    ("report-missing-file", lambda s, t: ["report", str(t / "none.json"), "--out", str(t / "rep")],
-     "results file not found"),
-    ("report-max-frames-negative", lambda s, t: ["report", _results_file(t), "--out", str(t / "rep"),
-                                                 "--max-frames", "-1"], "argument --max-frames: must be in"),
+    (
+        "report-wrong-typed-viewframe",
+        lambda s, t: ["report", _results_file(t, lambda d: _frames(d, viewframe="x")), "--out", str(t / "rep")],
+        "frames[0].viewframe: must be an integer",
+    ),
+    (
+        "report-wrong-typed-position",
+        lambda s, t: ["report", _results_file(t, lambda d: _frames(d, position="here")), "--out", str(t / "rep")],
+        "frames[0].position",
+    ),
+    (
+        "report-frames-not-list",
+        lambda s, t: ["report", _results_file(t, lambda d: d.update(frames=3)), "--out", str(t / "rep")],
+        "frames: must be a list",
+    ),
+    (
+        "report-top1-text",
+        lambda s, t: ["report", _results_file(t, lambda d: d["summary"].update(top1="high")), "--out", str(t / "rep")],
+        "summary.top1: must be a number",
+    ),
+    (
+        "report-infinity",
+        lambda s, t: [
+            "report",
+            _results_file(t, raw='{"scenario": "s", "strategy": "a", "frames": [], "summary": {"frames": Infinity}}'),
+            "--out",
+            str(t / "rep"),
+        ],
+        "summary.frames",
+    ),
+    (
+        "report-not-json",
+        lambda s, t: ["report", _results_file(t, raw="{oops"), "--out", str(t / "rep")],
+        "not a JSON results file",
+    ),
+    (
+        "report-missing-field",
+        lambda s, t: ["report", _results_file(t, lambda d: d.pop("summary")), "--out", str(t / "rep")],
+        "missing field 'summary'",
+    ),
+    (
+        "report-missing-file",
+        lambda s, t: ["report", str(t / "none.json"), "--out", str(t / "rep")],
+        "results file not found",
+    ),
+    (
+        "report-max-frames-negative",
+        lambda s, t: ["report", _results_file(t), "--out", str(t / "rep"), "--max-frames", "-1"],
+        "argument --max-frames: must be in",
+    ),
     ("trace-missing", lambda s, t: ["trace", str(t / "none.trace")], "none.trace"),
-    ("agent-connect-timeout-nan", lambda s, t: ["agent", "x:Y", "--name", "a", "--run-id", "r",
-                                                "--connect-timeout", "nan"], "argument --connect-timeout: must be in"),
+    (
+        "agent-connect-timeout-nan",
+        lambda s, t: ["agent", "x:Y", "--name", "a", "--run-id", "r", "--connect-timeout", "nan"],
+        "argument --connect-timeout: must be in",
+    ),
     ("agent-run-id-bad", lambda s, t: ["agent", "x:Y", "--name", "a", "--run-id", "r/x"], "run id must be"),
 ]
 
 
 @pytest.mark.parametrize("case, argv, fragment", COMMAND_LINES, ids=[c[0] for c in COMMAND_LINES])
 def test_bad_command_line_exits_2_with_one_line(case, argv, fragment, small, tmp_path, capsys) -> None:
-    assert main([*argv(str(small), tmp_path), "--no-progress"] if argv(str(small), tmp_path)[:1] == ["run"]
-                else argv(str(small), tmp_path)) == 2
+    assert (
+        main(
+            [*argv(str(small), tmp_path), "--no-progress"]
+            if argv(str(small), tmp_path)[:1] == ["run"]
+            else argv(str(small), tmp_path)
+        )
+        == 2
+    )
     _one_line_error(capsys.readouterr().err, fragment)
 
 
 # -- a subset as real processes: exit status, stderr, no traceback, no hang ------------------------------
 
-_SUBPROCESS_SCENARIOS = ["dem-strings", "contours-one-elevation", "landmark-outside", "frame-1x1",
-                         "query-timeout-inf", "cell-size-inf", "jitter-inf", "route-1e300"]
-_SUBPROCESS_COMMANDS = ["rate-nan", "rate-1e-300", "timeout-inf", "out-directory", "trace-proc",
-                        "report-wrong-typed-viewframe"]
+_SUBPROCESS_SCENARIOS = [
+    "dem-strings",
+    "contours-one-elevation",
+    "landmark-outside",
+    "frame-1x1",
+    "query-timeout-inf",
+    "cell-size-inf",
+    "jitter-inf",
+    "route-1e300",
+]
+_SUBPROCESS_COMMANDS = [
+    "rate-nan",
+    "rate-1e-300",
+    "timeout-inf",
+    "out-directory",
+    "trace-proc",
+    "report-wrong-typed-viewframe",
+]
 
 
 def _mapinterp(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.getcwd(), *sys.path])}
-    return subprocess.run([sys.executable, "-m", "knowledge_sources.cli", *argv], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "knowledge_sources.cli", *argv],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 @pytest.mark.slow

@@ -26,8 +26,16 @@ def long_trace(tmp_path_factory: pytest.TempPathFactory) -> Path:
     writer = TraceWriter(path)
     writer.write(TraceKind.RUN_START, t=999.0, run_id="long")  # the timeline is in time order
     for i in range(5000):
-        writer.write(TraceKind.POST, t=1000.0 + i, agent="camera", level="sensor_frame", id=f"sf-{i:06d}",
-                     version=1, links=[], body={"frame": i})
+        writer.write(
+            TraceKind.POST,
+            t=1000.0 + i,
+            agent="camera",
+            level="sensor_frame",
+            id=f"sf-{i:06d}",
+            version=1,
+            links=[],
+            body={"frame": i},
+        )
     writer.write(TraceKind.RUN_END, t=6000.0, stats={})
     writer.close()
     return path
@@ -42,8 +50,13 @@ def test_python_m_runs_the_dispatcher() -> None:
 @pytest.mark.parametrize("read_lines", [0, 1], ids=["reader-gone-at-once", "reader-stops-after-a-line"])
 def test_reader_closing_the_pipe_ends_quietly(long_trace: Path, read_lines: int) -> None:
     """``mapinterp trace FILE --timeline | head``: no traceback, status 141 (as after SIGPIPE)."""
-    proc = subprocess.Popen(_cli("trace", str(long_trace), "--timeline"), cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        _cli("trace", str(long_trace), "--timeline"),
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout is not None and proc.stderr is not None
     lines = [proc.stdout.readline() for _ in range(read_lines)]
     proc.stdout.close()
@@ -55,8 +68,9 @@ def test_reader_closing_the_pipe_ends_quietly(long_trace: Path, read_lines: int)
 
 
 def test_complete_output_still_exits_0(long_trace: Path) -> None:
-    done = subprocess.run(_cli("trace", str(long_trace), "--timeline"), cwd=ROOT, capture_output=True, text=True,
-                          timeout=60)
+    done = subprocess.run(
+        _cli("trace", str(long_trace), "--timeline"), cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
     assert done.returncode == 0 and done.stderr == ""
     assert len(done.stdout.splitlines()) == 5002
 
@@ -78,8 +92,10 @@ def test_global_flags_after_the_sub_command(long_trace: Path) -> None:
     done = subprocess.run(_cli("trace", str(missing)), cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2 and "Traceback" not in done.stderr
     for argv in (("-vv", "schema"), ("schema", "-vv")):
-        code = ("import logging, sys; from knowledge_sources.cli import main; "
-                f"main({list(argv)!r}); print(logging.getLogger().level, file=sys.stderr)")
+        code = (
+            "import logging, sys; from knowledge_sources.cli import main; "
+            f"main({list(argv)!r}); print(logging.getLogger().level, file=sys.stderr)"
+        )
         done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
         assert done.stderr.strip().splitlines()[-1] == str(10), (argv, done.stderr)
 

@@ -45,8 +45,15 @@ class Proc:
     def __init__(self, argv: list[str], *, cwd: Path) -> None:
         self.lines: queue.SimpleQueue[str | None] = queue.SimpleQueue()
         self.stderr: list[str] = []
-        self.proc = subprocess.Popen(argv, cwd=cwd, env=ENV, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True)
+        self.proc = subprocess.Popen(
+            argv,
+            cwd=cwd,
+            env=ENV,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
@@ -115,8 +122,18 @@ def _remote_commands(run: Proc, n: int) -> list[list[str]]:
 
 # -- options on the command line ---------------------------------------------------------------------
 
-VALUES = {"float": 0.55, "int": 3, "bool": True, "none": None, "text": "associative", "digits-text": "7",
-          "list": [1, 2], "map": {"a": 1}, "equals-text": "a=b", "empty": ""}
+VALUES = {
+    "float": 0.55,
+    "int": 3,
+    "bool": True,
+    "none": None,
+    "text": "associative",
+    "digits-text": "7",
+    "list": [1, 2],
+    "map": {"a": 1},
+    "equals-text": "a=b",
+    "empty": "",
+}
 
 
 @pytest.mark.parametrize("value", VALUES.values(), ids=VALUES.keys())
@@ -148,8 +165,21 @@ def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_pa
             stack.callback(router.close)
         rt = stack.enter_context(Runtime(run_id=run_id, zenoh=options, trace_path=trace))
         rt.expect_remote(["doubler"])
-        agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint, "--secret", rt.secret), ROOT)
+        agent = procs(
+            _cli(
+                "agent",
+                f"{AGENTS}:Doubler",
+                "--name",
+                "doubler",
+                "--run-id",
+                run_id,
+                "--connect",
+                endpoint,
+                "--secret",
+                rt.secret,
+            ),
+            ROOT,
+        )
         rt.add(f"{AGENTS}:Echo", name="echo")
         rt.wait_joined(["doubler"], timeout_s=PATIENCE_S)
         for x in (1, 2, 3):
@@ -172,8 +202,21 @@ def test_killed_remote_agent_is_detected_and_its_questions_time_out(procs, tmp_p
     endpoint, run_id = loopback_endpoint(), _run_id()
     with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=tmp_path / "run.trace") as rt:
         rt.expect_remote(["echo"])
-        echo = procs(_cli("agent", f"{AGENTS}:Echo", "--name", "echo", "--run-id", run_id, "--connect", endpoint,
-                          "--secret", rt.secret), ROOT)
+        echo = procs(
+            _cli(
+                "agent",
+                f"{AGENTS}:Echo",
+                "--name",
+                "echo",
+                "--run-id",
+                run_id,
+                "--connect",
+                endpoint,
+                "--secret",
+                rt.secret,
+            ),
+            ROOT,
+        )
         rt.add(f"{AGENTS}:Asker", name="asker")
         rt.wait_joined(["echo"], timeout_s=PATIENCE_S)
         echo.proc.kill()  # kill -9: no goodbye, only its liveliness token disappears
@@ -192,8 +235,21 @@ def test_signal_stops_the_agent_cleanly(procs, tmp_path: Path, signum: int) -> N
     trace = tmp_path / "run.trace"
     with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=trace) as rt:
         rt.expect_remote(["doubler"])
-        agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint, "--secret", rt.secret), ROOT)
+        agent = procs(
+            _cli(
+                "agent",
+                f"{AGENTS}:Doubler",
+                "--name",
+                "doubler",
+                "--run-id",
+                run_id,
+                "--connect",
+                endpoint,
+                "--secret",
+                rt.secret,
+            ),
+            ROOT,
+        )
         agent.wait_line(lambda s: "joined run" in s)
         rt.wait_joined(["doubler"], timeout_s=PATIENCE_S)
         agent.proc.send_signal(signum)
@@ -216,12 +272,26 @@ time.sleep(600)
 
 def test_agent_whose_node_crashes_exits_with_an_error(procs, tmp_path: Path) -> None:
     endpoint, run_id = loopback_endpoint(), _run_id()
-    node = subprocess.Popen([sys.executable, "-c", _NODE_ONLY, run_id, endpoint], cwd=ROOT, env=ENV,
-                            stdout=subprocess.PIPE, text=True)
+    node = subprocess.Popen(
+        [sys.executable, "-c", _NODE_ONLY, run_id, endpoint], cwd=ROOT, env=ENV, stdout=subprocess.PIPE, text=True
+    )
     try:
         assert node.stdout is not None and node.stdout.readline() == "up\n"
-        agent = procs(_cli("agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id,
-                           "--connect", endpoint, "--secret", "s3cret"), ROOT)
+        agent = procs(
+            _cli(
+                "agent",
+                f"{AGENTS}:Doubler",
+                "--name",
+                "doubler",
+                "--run-id",
+                run_id,
+                "--connect",
+                endpoint,
+                "--secret",
+                "s3cret",
+            ),
+            ROOT,
+        )
         agent.wait_line(lambda s: "joined run" in s)
     finally:
         node.kill()  # kill -9: no run end announced
@@ -245,12 +315,26 @@ CANNOT_JOIN = {
 
 
 @pytest.mark.parametrize(("extra", "needs_node", "expected"), CANNOT_JOIN.values(), ids=CANNOT_JOIN.keys())
-def test_agent_that_cannot_join_fails_clearly(procs, tmp_path: Path, extra: list[str], needs_node: bool,
-                                              expected: str) -> None:
+def test_agent_that_cannot_join_fails_clearly(
+    procs, tmp_path: Path, extra: list[str], needs_node: bool, expected: str
+) -> None:
     endpoint, run_id = loopback_endpoint(), _run_id()
     factory = "no.such.module:Agent" if "--name" in extra else f"{AGENTS}:Doubler"
-    argv = _cli("agent", factory, "--name", "doubler", "--run-id", run_id, "--connect", endpoint,
-                "--connect-timeout", "1", "--secret", "s3cret", *extra)
+    argv = _cli(
+        "agent",
+        factory,
+        "--name",
+        "doubler",
+        "--run-id",
+        run_id,
+        "--connect",
+        endpoint,
+        "--connect-timeout",
+        "1",
+        "--secret",
+        "s3cret",
+        *extra,
+    )
     started = time.monotonic()
     if needs_node:
         with Runtime(run_id=f"{run_id}-other", zenoh=ZenohOptions(listen=[endpoint])):
@@ -274,20 +358,40 @@ def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path, agents_fi
     endpoint, run_id = loopback_endpoint(), _run_id()
     out, trace = tmp_path / "r.json", tmp_path / "run.trace"
     secret = "a-secret-agreed-on-beforehand"
-    run_argv = _cli("run", str(small), "--listen", endpoint, "--run-id", run_id, "--remote", "detector-house",
-                    "--remote", "detector-tower", "--out", str(out), "--trace", str(trace), "--no-progress",
-                    *(["--secret", secret] if agents_first else []))
+    run_argv = _cli(
+        "run",
+        str(small),
+        "--listen",
+        endpoint,
+        "--run-id",
+        run_id,
+        "--remote",
+        "detector-house",
+        "--remote",
+        "detector-tower",
+        "--out",
+        str(out),
+        "--trace",
+        str(trace),
+        "--no-progress",
+        *(["--secret", secret] if agents_first else []),
+    )
     if agents_first:  # started before the run: they keep trying to reach it
-        commands = [_cli(*command_line(factory, name, options, run_id=run_id, connect=endpoint, secret=secret)[1:])
-                    for factory, name, options in agent_plan(load_scenario(small)) if name.startswith("detector-")]
+        commands = [
+            _cli(*command_line(factory, name, options, run_id=run_id, connect=endpoint, secret=secret)[1:])
+            for factory, name, options in agent_plan(load_scenario(small))
+            if name.startswith("detector-")
+        ]
         agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
         run = procs(run_argv, tmp_path)
         assert _remote_commands(run, 2) == commands  # what the run prints is what was started
     else:
         run = procs(run_argv, tmp_path)
         commands = _remote_commands(run, 2)  # copied from what the run printed
-        assert all(argv[argv.index("--run-id") + 1] == run_id and argv[argv.index("--connect") + 1] == endpoint
-                   for argv in commands)
+        assert all(
+            argv[argv.index("--run-id") + 1] == run_id and argv[argv.index("--connect") + 1] == endpoint
+            for argv in commands
+        )
         agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
     assert set(agents) == {"detector-house", "detector-tower"}
     assert run.wait() == 0, run.text
@@ -312,8 +416,22 @@ def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path, agents_fi
 @pytest.mark.slow
 def test_run_fails_when_a_remote_agent_never_joins(procs, small: Path, tmp_path: Path) -> None:
     wait_s = 3.0
-    run = procs(_cli("run", str(small), "--listen", loopback_endpoint(), "--remote", "detector-house",
-                     "--remote", "detector-tower", "--wait-remote", str(wait_s), "--no-progress"), tmp_path)
+    run = procs(
+        _cli(
+            "run",
+            str(small),
+            "--listen",
+            loopback_endpoint(),
+            "--remote",
+            "detector-house",
+            "--remote",
+            "detector-tower",
+            "--wait-remote",
+            str(wait_s),
+            "--no-progress",
+        ),
+        tmp_path,
+    )
     commands = _remote_commands(run, 2)
     house = procs(next(argv for argv in commands if "detector-house" in argv), tmp_path)  # the tower never starts
     house.wait_line(lambda s: "joined run" in s)

@@ -19,8 +19,10 @@ SMALL = {
     "name": "small",
     "seed": 4,
     "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
-    "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8},
-                  {"id": "T1", "kind": "tower", "x": 500.0, "y": 100.0, "width": 4, "depth": 4, "height": 30}],
+    "landmarks": [
+        {"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8},
+        {"id": "T1", "kind": "tower", "x": 500.0, "y": 100.0, "width": 4, "depth": 4, "height": 30},
+    ],
     "route": [[200, 300], [240, 310], [300, 300]],
     "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
 }
@@ -50,17 +52,21 @@ def test_render_writes_frames_descriptions_priors_and_overview(tmp_path, capsys)
     assert overview is not None and overview.shape[0] > 300 and overview.shape[1] > 300
 
 
-@pytest.mark.parametrize(("change", "message"), [
-    ({"landmarks": [{**SMALL["landmarks"][0], "height": 0}]}, "landmarks[0].height: must be > 0"),
-    ({"route": [[200, 300], [2000, 300]]}, "route[1]: (2000, 300) is outside the terrain"),
-    ({"terrain": {"cell_size": 10.0, "contours": "nowhere.geojson"}}, "terrain.contours: file not found"),
-])
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"landmarks": [{**SMALL["landmarks"][0], "height": 0}]}, "landmarks[0].height: must be > 0"),
+        ({"route": [[200, 300], [2000, 300]]}, "route[1]: (2000, 300) is outside the terrain"),
+        ({"terrain": {"cell_size": 10.0, "contours": "nowhere.geojson"}}, "terrain.contours: file not found"),
+    ],
+)
 def test_user_mistakes_are_one_line_errors(tmp_path, capsys, change, message):
     path = _scenario(tmp_path, {**SMALL, **change})
     assert main(["render", str(path), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"mapinterp render: error: {path}: {message}" or err.startswith(
-        f"mapinterp render: error: {path}: {message}")
+        f"mapinterp render: error: {path}: {message}"
+    )
     assert "\n" not in err
 
 
@@ -76,8 +82,13 @@ def test_render_bundled_hills_scenario_from_the_console_script(tmp_path):
     out = tmp_path / "hills"
     exe = Path(sys.executable).with_name("mapinterp")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "knowledge_sources.cli"]
-    proc = subprocess.run([*cmd, "render", str(ROOT / "scenarios" / "hills.yaml"), "--out", str(out)],
-                          capture_output=True, text=True, timeout=300, check=False)
+    proc = subprocess.run(
+        [*cmd, "render", str(ROOT / "scenarios" / "hills.yaml"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert proc.returncode == 0, proc.stderr
     frames = sorted(out.glob("vf_*.png"))
     assert len(frames) == 30 and (out / "overview.png").exists()

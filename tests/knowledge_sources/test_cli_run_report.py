@@ -29,8 +29,14 @@ def test_run_then_report(small, tmp_path, capsys):
     from knowledge_sources.html_report import frame_order
 
     detailed = [f["frame"] for f in frame_order(results["frames"])[:3]]  # wrong frames first
-    for name in ("positions.png", "track.png", "belief.png", "rankings.png", "queries.png",
-                  *(f"frames/frame_{i:03d}.png" for i in detailed)):
+    for name in (
+        "positions.png",
+        "track.png",
+        "belief.png",
+        "rankings.png",
+        "queries.png",
+        *(f"frames/frame_{i:03d}.png" for i in detailed),
+    ):
         img = cv2.imread(str(report / name))
         assert img is not None and img.shape[0] > 200 and img.std() > 5, name  # a real, non-blank figure
     left_out = sorted(set(range(8)) - set(detailed))

@@ -21,8 +21,9 @@ def _visible_landmark(small_rendered: dict) -> tuple[levels.Viewframe, dict]:
 def _ask(bb: MemoryBlackboard, vf: levels.Viewframe, lm: dict, image: np.ndarray, *, to: str) -> levels.Query:
     bb.post(levels.VIEWFRAME, vf.to_body(), id=vf.id())
     levels.post(bb.user, levels.SensorFrame(frame=0, image=image, source="test"))
-    q = levels.Query(frame=0, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"],
-                     viewframe=vf.index, p=0.5)
+    q = levels.Query(
+        frame=0, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"], viewframe=vf.index, p=0.5
+    )
     levels.post(bb.user, q, addressed_to=to, deadline_s=5.0)
     return q
 
@@ -85,8 +86,9 @@ def test_a_query_about_a_frame_not_on_the_board_fails_and_times_out(small_render
     vf, lm = _visible_landmark(small_rendered)
     bb = MemoryBlackboard(raise_errors=False)
     bb.add(LandmarkDetectorAgent("detector-x"))
-    q = levels.Query(frame=9, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"],
-                     viewframe=vf.index, p=0.5)
+    q = levels.Query(
+        frame=9, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"], viewframe=vf.index, p=0.5
+    )
     levels.post(bb.user, q, addressed_to="detector-x")
     bb.run()
     ((_, _, err),) = bb.errors

@@ -56,7 +56,9 @@ def test_frames_before_the_map_wait_and_late_viewframes_are_read_back(small_rend
     assert bb.hypotheses(levels.RANKING) == []  # waiting for the map
     _repost(bb, small_rendered["map"])
     bb.run()
-    best = {r.frame: r.viewframes[0] for r in (levels.Ranking.from_hypothesis(h) for h in bb.hypotheses(levels.RANKING))}
+    best = {
+        r.frame: r.viewframes[0] for r in (levels.Ranking.from_hypothesis(h) for h in bb.hypotheses(levels.RANKING))
+    }
     assert best == {2: 2, 5: 5}
 
 

@@ -24,31 +24,100 @@ def _image(h: int = 6, w: int = 8) -> np.ndarray:
 #: one valid message of every level
 SAMPLES: list[levels.Message] = [
     levels.Scenario(path="/tmp/s.yaml", strategy="associative"),
-    levels.Viewframe(index=7, pose=[1.0, 2.0, 3.0, 90.0, 0.0], image=_image(),
-                     mask=np.full((6, 8), -1, np.int16), description={"visible": ["H1"]},
-                     skyline=np.array([0.5, 1.5, 2.0], np.float32)),
-    levels.Map(scenario="s", path="/tmp/s.yaml", viewframes=2, priors={"H1": 0.5},
-               landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
-               route=[[0.0, 0.0], [10.0, 0.0]], poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
-               visible={"0": {"H1": 80}, "1": {}}, memory={"size": 64}),
+    levels.Viewframe(
+        index=7,
+        pose=[1.0, 2.0, 3.0, 90.0, 0.0],
+        image=_image(),
+        mask=np.full((6, 8), -1, np.int16),
+        description={"visible": ["H1"]},
+        skyline=np.array([0.5, 1.5, 2.0], np.float32),
+    ),
+    levels.Map(
+        scenario="s",
+        path="/tmp/s.yaml",
+        viewframes=2,
+        priors={"H1": 0.5},
+        landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
+        route=[[0.0, 0.0], [10.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
+        visible={"0": {"H1": 80}, "1": {}},
+        memory={"size": 64},
+    ),
     levels.Index(shard=1, shards=3, viewframes=12),
     levels.SensorFrame(frame=4, image=_image(), source="simulated"),
     levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
-    levels.Ranking(frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[2, 0], variances=[1e-5, 2e-4], reliability=3.0),
-    levels.Ranking(frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[0, 2], variances=[0.2, 1.1],
-                   reliability=2.0, source="skyline", shifts=[[1.5, -0.5], [0.0, 0.0]]),
+    levels.Ranking(
+        frame=4, frame_time=1.5, shard=0, shards=1, viewframes=[2, 0], variances=[1e-5, 2e-4], reliability=3.0
+    ),
+    levels.Ranking(
+        frame=4,
+        frame_time=1.5,
+        shard=0,
+        shards=1,
+        viewframes=[0, 2],
+        variances=[0.2, 1.1],
+        reliability=2.0,
+        source="skyline",
+        shifts=[[1.5, -0.5], [0.0, 0.0]],
+    ),
     levels.Query(frame=4, number=2, landmark="H1", landmark_index=0, kind="house", viewframe=2, p=0.7),
-    levels.Answer(query="q-000004-2", frame=4, landmark="H1", viewframe=2, present=None, score=0.3, location=None,
-                  detector="edges", reason="undecided"),
-    levels.Position(frame=4, viewframe=2, position=[1.0, 2.0], heading_deg=90.0, confidence=0.9, queries=1,
-                    backtracks=0, latency_ms=12.0, ranking=[[2, 1e-5]], reason="accepted", degraded=[], steps=[],
-                    strategy="associative"),
-    levels.Pose(frame=4, position="pos-000004", viewframe=2, x=1.5, y=2.5, heading_deg=91.0, pitch_deg=0.5,
-                sigma_along_m=2.0, sigma_across_m=1.0, sigma_heading_deg=0.2, score=0.4, start_score=0.8, renders=40,
-                route_position=[1.0, 2.0], route_heading_deg=90.0),
-    levels.Track(frame=4, route_point=2, arc_m=81.5, position=[80.0, 3.0], heading_deg=0.0, confidence=0.7,
-                 state="tracking", evidence=True, belief=np.array([0.1, 0.2, 0.7], np.float32),
-                 prior_next=np.array([0.05, 0.15, 0.8], np.float32), loglik=np.zeros(9, np.float32), dt=None),
+    levels.Answer(
+        query="q-000004-2",
+        frame=4,
+        landmark="H1",
+        viewframe=2,
+        present=None,
+        score=0.3,
+        location=None,
+        detector="edges",
+        reason="undecided",
+    ),
+    levels.Position(
+        frame=4,
+        viewframe=2,
+        position=[1.0, 2.0],
+        heading_deg=90.0,
+        confidence=0.9,
+        queries=1,
+        backtracks=0,
+        latency_ms=12.0,
+        ranking=[[2, 1e-5]],
+        reason="accepted",
+        degraded=[],
+        steps=[],
+        strategy="associative",
+    ),
+    levels.Pose(
+        frame=4,
+        position="pos-000004",
+        viewframe=2,
+        x=1.5,
+        y=2.5,
+        heading_deg=91.0,
+        pitch_deg=0.5,
+        sigma_along_m=2.0,
+        sigma_across_m=1.0,
+        sigma_heading_deg=0.2,
+        score=0.4,
+        start_score=0.8,
+        renders=40,
+        route_position=[1.0, 2.0],
+        route_heading_deg=90.0,
+    ),
+    levels.Track(
+        frame=4,
+        route_point=2,
+        arc_m=81.5,
+        position=[80.0, 3.0],
+        heading_deg=0.0,
+        confidence=0.7,
+        state="tracking",
+        evidence=True,
+        belief=np.array([0.1, 0.2, 0.7], np.float32),
+        prior_next=np.array([0.05, 0.15, 0.8], np.float32),
+        loglik=np.zeros(9, np.float32),
+        dt=None,
+    ),
 ]
 
 
@@ -99,12 +168,27 @@ def test_arrays_are_not_copied() -> None:
         (levels.SensorFrame, {"frame": 1, "image": np.zeros((4, 4), np.uint8), "source": "x"}, "image", "dimensions"),
         (levels.SensorFrame, {"frame": 1, "image": np.zeros((4, 4, 3), np.float32), "source": "x"}, "image", "dtype"),
         (levels.SensorFrame, {"frame": 1, "image": [[0]], "source": "x"}, "image", "numpy array"),
-        (levels.Answer, {"query": "q", "frame": 1, "landmark": "H", "viewframe": 0, "present": "yes", "score": 0.1,
-                         "location": None, "detector": "d", "reason": ""}, "present", "true or false"),
+        (
+            levels.Answer,
+            {
+                "query": "q",
+                "frame": 1,
+                "landmark": "H",
+                "viewframe": 0,
+                "present": "yes",
+                "score": 0.1,
+                "location": None,
+                "detector": "d",
+                "reason": "",
+            },
+            "present",
+            "true or false",
+        ),
     ],
 )
-def test_bad_bodies_name_level_field_and_hypothesis(cls: type[levels.Message], body: dict, field: str,
-                                                    problem: str) -> None:
+def test_bad_bodies_name_level_field_and_hypothesis(
+    cls: type[levels.Message], body: dict, field: str, problem: str
+) -> None:
     with pytest.raises(levels.MessageError) as info:
         cls.from_body(body, hypothesis_id="h-1")
     err = info.value
@@ -162,6 +246,7 @@ def test_a_new_level_must_say_who_posts_it_and_its_ids() -> None:
         @dataclasses.dataclass(frozen=True, slots=True)
         class Track(levels.Message):
             level = "track-test"  # type: ignore[misc]
+
     assert "track-test" not in levels.MESSAGES
 
 
@@ -193,7 +278,9 @@ def test_readme_levels_table_is_the_generated_one() -> None:
     text = README.read_text()
     m = re.search(r"<!-- levels table: generated -->\n(.*?)\n<!-- end levels table -->", text, re.DOTALL)
     assert m is not None, "README.md lacks the generated levels table"
-    assert m.group(1).strip() == levels.levels_table(), "README levels table drifted: run python -m knowledge_sources.levels"
+    assert m.group(1).strip() == levels.levels_table(), (
+        "README levels table drifted: run python -m knowledge_sources.levels"
+    )
 
 
 def test_table_lists_every_field_of_every_level() -> None:

@@ -17,9 +17,17 @@ from models.scenario import SchedulerSpec, load_scenario
 pytestmark = pytest.mark.slow
 
 CONTRACT = {
-    "frame": int, "viewframe": (int, type(None)), "position": (list, type(None)), "heading_deg": (float, type(None)),
-    "confidence": float, "queries": int, "backtracks": int, "latency_ms": (float, type(None)),
-    "ranking": list, "truth_viewframe": (int, type(None)), "correct": (bool, type(None)),
+    "frame": int,
+    "viewframe": (int, type(None)),
+    "position": (list, type(None)),
+    "heading_deg": (float, type(None)),
+    "confidence": float,
+    "queries": int,
+    "backtracks": int,
+    "latency_ms": (float, type(None)),
+    "ranking": list,
+    "truth_viewframe": (int, type(None)),
+    "correct": (bool, type(None)),
 }
 
 
@@ -82,8 +90,9 @@ def test_associative_asks_fewer_questions_than_prior(small):
 def test_killed_detector_gives_degraded_result_and_complete_trace(small, small_data, tmp_path):
     SMALL = small_data
     trace = tmp_path / "killed.trace"
-    results = run_mission(small, processes=True, trace_path=trace, kill_after=("detector-house", "sensor_frame", 1),
-                          timeout_s=120)
+    results = run_mission(
+        small, processes=True, trace_path=trace, kill_after=("detector-house", "sensor_frame", 1), timeout_s=120
+    )
     assert results["agents"]["detector-house"].startswith("dead"), results["agents"]
     assert len(results["frames"]) == len(SMALL["route"])  # every frame still decided: no hang, no loss
     records = read_trace(trace)

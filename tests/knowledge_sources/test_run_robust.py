@@ -33,10 +33,17 @@ pytest_plugins = ["pytester"]
 #: the rankings alone, would localize every frame)
 NOTHING_LOCALIZED = {
     "tracking": {"enabled": False},
-    "scheduler": {"backtracking": "hard", "detector_threshold": 1.0, "absent_threshold": 1.0, "candidates": 8,
-                  "min_pixels": 1, "query_timeout_s": 3.0},
-    "landmarks": [{"id": "W1", "kind": "wall", "x": 700, "y": 560, "width": 300, "depth": 20, "height": 150,
-                   "yaw_deg": -60}],
+    "scheduler": {
+        "backtracking": "hard",
+        "detector_threshold": 1.0,
+        "absent_threshold": 1.0,
+        "candidates": 8,
+        "min_pixels": 1,
+        "query_timeout_s": 3.0,
+    },
+    "landmarks": [
+        {"id": "W1", "kind": "wall", "x": 700, "y": 560, "width": 300, "depth": 20, "height": 150, "yaw_deg": -60}
+    ],
 }
 
 
@@ -78,18 +85,27 @@ def _alive(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("mode, signum", [("inprocess", signal.SIGINT), ("inprocess", signal.SIGTERM),
-                                           ("processes", signal.SIGINT), ("processes", signal.SIGTERM)])
+@pytest.mark.parametrize(
+    "mode, signum",
+    [
+        ("inprocess", signal.SIGINT),
+        ("inprocess", signal.SIGTERM),
+        ("processes", signal.SIGINT),
+        ("processes", signal.SIGTERM),
+    ],
+)
 def test_a_signal_stops_the_run_within_2s_keeping_what_is_done(mode, signum, small, tmp_path) -> None:
     out, trace = tmp_path / "r.json", tmp_path / "t.trace"
     argv = ["run", str(small), "--no-progress", "--out", str(out), "--trace", str(trace), "--rate", "1"]
     if mode == "processes":
         argv.append("--processes")
-    proc = subprocess.Popen(_cli(*argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
-                            cwd=tmp_path)
+    proc = subprocess.Popen(
+        _cli(*argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path
+    )
     try:
-        records = _wait_for(trace, proc, lambda rs: any(r["kind"] == "post" and r.get("level") == levels.SENSOR_FRAME
-                                                         for r in rs))
+        records = _wait_for(
+            trace, proc, lambda rs: any(r["kind"] == "post" and r.get("level") == levels.SENSOR_FRAME for r in rs)
+        )
         children = [r["pid"] for r in records if r["kind"] == "agent_join" and r.get("pid") != proc.pid]
         assert (len(children) >= 5) == (mode == "processes")
         sent = time.monotonic()
@@ -116,8 +132,14 @@ def test_a_signal_stops_the_run_within_2s_keeping_what_is_done(mode, signum, sma
 
 def test_a_second_ctrl_c_exits_at_once(small, tmp_path) -> None:
     trace = tmp_path / "t.trace"
-    proc = subprocess.Popen(_cli("run", str(small), "--no-progress", "--processes", "--trace", str(trace)),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(), cwd=tmp_path)
+    proc = subprocess.Popen(
+        _cli("run", str(small), "--no-progress", "--processes", "--trace", str(trace)),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=_env(),
+        cwd=tmp_path,
+    )
     try:
         # while the agents start: the first Ctrl-C's clean-up is slowest there
         records = _wait_for(trace, proc, lambda rs: sum(r["kind"] == "agent_join" for r in rs) >= 2)
@@ -204,14 +226,19 @@ def test_an_input_error_met_during_a_run_exits_2_with_one_line(small_data, tmp_p
     def spoil(commands: dict) -> None:  # called once the pre-run check passed
         image.write_text("not an image any more")
         argv = commands["camera"]
-        spoil.proc = subprocess.Popen([sys.executable, "-m", "knowledge_sources.cli", *argv[1:]], env=_env(),
-                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        spoil.proc = subprocess.Popen(
+            [sys.executable, "-m", "knowledge_sources.cli", *argv[1:]],
+            env=_env(),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
 
     endpoint = loopback_endpoint()
     try:
         with pytest.raises(AgentInputError) as err:
-            run_mission(path, remote=["camera"], zenoh=ZenohOptions(listen=[endpoint]), on_wait_remote=spoil,
-                        timeout_s=120)
+            run_mission(
+                path, remote=["camera"], zenoh=ZenohOptions(listen=[endpoint]), on_wait_remote=spoil, timeout_s=120
+            )
     finally:
         if hasattr(spoil, "proc"):
             spoil.proc.wait(timeout=30)

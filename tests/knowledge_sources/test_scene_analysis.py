@@ -57,8 +57,9 @@ def test_weights_reject_bad_input(bad):
 @pytest.mark.parametrize("truth", sorted(VISIBLE))
 @pytest.mark.parametrize("strategy", ["associative", "prior"])
 def test_perfect_detectors_find_truth_when_ranked_first(truth, strategy):
-    sa = SceneAnalysis(_ranking(truth), VISIBLE, strategy=strategy,
-                       priors={"H1": 0.25, "T1": 0.25, "H2": 0.25, "H3": 0.25})
+    sa = SceneAnalysis(
+        _ranking(truth), VISIBLE, strategy=strategy, priors={"H1": 0.25, "T1": 0.25, "H2": 0.25, "H3": 0.25}
+    )
     decision, _ = _run(sa, truth)
     assert decision.viewframe == truth
     assert 0.0 < decision.confidence <= 1.0
@@ -95,8 +96,9 @@ def test_associative_asks_fewer_questions_than_prior():
     for strategy in ("associative", "prior"):
         n = 0
         for truth in VISIBLE:
-            sa = SceneAnalysis(_ranking(truth), VISIBLE, strategy=strategy,
-                               priors={"H1": 0.25, "T1": 0.25, "H2": 0.25, "H3": 0.25})
+            sa = SceneAnalysis(
+                _ranking(truth), VISIBLE, strategy=strategy, priors={"H1": 0.25, "T1": 0.25, "H2": 0.25, "H3": 0.25}
+            )
             decision, _ = _run(sa, truth)
             n += decision.queries
         totals[strategy] = n
@@ -177,7 +179,10 @@ def test_no_track_prior_is_the_blind_rule():
     a = SceneAnalysis(ranking, VISIBLE, candidates=4)
     b = SceneAnalysis(ranking, VISIBLE, candidates=4, track_prior=None)
     assert a.posterior() == b.posterior()
+
+
 # -- hard backtracking is the seed paper's rule, exactly ------------------------------------------
+
 
 def _random_case(rng: np.random.Generator) -> tuple[list[tuple[int, float]], dict[int, set[str]], dict]:
     n = int(rng.integers(2, 14))
@@ -188,9 +193,14 @@ def _random_case(rng: np.random.Generator) -> tuple[list[tuple[int, float]], dic
         variances[: n // 2] = 1.0  # ties
     order = np.argsort(variances, kind="stable")
     ranking = [(int(k), float(variances[k])) for k in order]
-    options = {"strategy": str(rng.choice(["associative", "prior"])), "candidates": int(rng.integers(1, 9)),
-               "accept": float(rng.choice([0.5, 0.6, 0.75, 0.9, 1.0])), "reliability": float(rng.uniform(0.55, 0.95)),
-               "beta": float(rng.uniform(0.5, 5.0)), "priors": {lm: float(rng.random()) for lm in names}}
+    options = {
+        "strategy": str(rng.choice(["associative", "prior"])),
+        "candidates": int(rng.integers(1, 9)),
+        "accept": float(rng.choice([0.5, 0.6, 0.75, 0.9, 1.0])),
+        "reliability": float(rng.uniform(0.55, 0.95)),
+        "beta": float(rng.uniform(0.5, 5.0)),
+        "priors": {lm: float(rng.random()) for lm in names},
+    }
     return ranking, visible, options
 
 
@@ -292,6 +302,7 @@ def test_soft_llr_is_clipped_and_never_discards_the_best():
 
 
 # -- question choice -----------------------------------------------------------------------------
+
 
 def test_information_gain_is_largest_for_an_even_split():
     gains = [information_gain(p, reliability=0.8) for p in (0.05, 0.3, 0.5, 0.7, 0.99)]

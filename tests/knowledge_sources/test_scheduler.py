@@ -10,13 +10,23 @@ from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
 from knowledge_sources.scheduler import Scheduler, detector_name
 
-POSES = [[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 90.0, 0.0], [20.0, 5.0, 2.0, 180.0, 0.0],
-         [30.0, 5.0, 2.0, 270.0, 0.0]]
+POSES = [
+    [0.0, 0.0, 2.0, 0.0, 0.0],
+    [10.0, 0.0, 2.0, 90.0, 0.0],
+    [20.0, 5.0, 2.0, 180.0, 0.0],
+    [30.0, 5.0, 2.0, 270.0, 0.0],
+]
 MAP = levels.Map(
-    scenario="synthetic", path="/nonexistent/synthetic.yaml", viewframes=4, priors={"H1": 0.75, "T1": 0.5},
-    landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 5.0, "y": 5.0},
-               {"id": "T1", "kind": "tower", "index": 1, "x": 25.0, "y": 10.0}],
-    route=[p[:2] for p in POSES], poses=POSES,
+    scenario="synthetic",
+    path="/nonexistent/synthetic.yaml",
+    viewframes=4,
+    priors={"H1": 0.75, "T1": 0.5},
+    landmarks=[
+        {"id": "H1", "kind": "house", "index": 0, "x": 5.0, "y": 5.0},
+        {"id": "T1", "kind": "tower", "index": 1, "x": 25.0, "y": 10.0},
+    ],
+    route=[p[:2] for p in POSES],
+    poses=POSES,
     visible={"0": {"H1": 500}, "1": {"T1": 500}, "2": {"H1": 500, "T1": 30}, "3": {"H1": 400}},
     memory={},
 )
@@ -24,17 +34,39 @@ MAP = levels.Map(
 
 def _rank(bb: MemoryBlackboard, frame: int, shards: dict[int, list[tuple[int, float]]]) -> None:
     for shard, entries in shards.items():
-        levels.post(bb.user, levels.Ranking(frame=frame, frame_time=0.0, shard=shard, shards=len(shards),
-                                            viewframes=[k for k, _ in entries], variances=[v for _, v in entries],
-                                            reliability=3.0))
+        levels.post(
+            bb.user,
+            levels.Ranking(
+                frame=frame,
+                frame_time=0.0,
+                shard=shard,
+                shards=len(shards),
+                viewframes=[k for k, _ in entries],
+                variances=[v for _, v in entries],
+                reliability=3.0,
+            ),
+        )
 
 
-def _answer(bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None,
-            llr: float | None = None) -> None:
-    levels.post(bb.board("user"), levels.Answer(query=query_id, frame=query.frame, landmark=query.landmark,
-                                                viewframe=query.viewframe, present=present,
-                                                score=0.9 if present else 0.0, location=None, detector="test",
-                                                reason="scripted", llr=llr), links=(query_id,))
+def _answer(
+    bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None, llr: float | None = None
+) -> None:
+    levels.post(
+        bb.board("user"),
+        levels.Answer(
+            query=query_id,
+            frame=query.frame,
+            landmark=query.landmark,
+            viewframe=query.viewframe,
+            present=present,
+            score=0.9 if present else 0.0,
+            location=None,
+            detector="test",
+            reason="scripted",
+            llr=llr,
+        ),
+        links=(query_id,),
+    )
 
 
 def _board(**options: object) -> MemoryBlackboard:
@@ -53,12 +85,20 @@ SHARDS = {0: [(2, 1e-5), (0, 8e-5)], 1: [(3, 6e-5), (1, 9e-5)]}
 
 def test_waits_for_the_rankings_of_every_shard() -> None:
     bb = _board()
-    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, shard=0, shards=2, viewframes=[2, 0],
-                                        variances=[1e-5, 8e-5], reliability=3.0))
+    levels.post(
+        bb.user,
+        levels.Ranking(
+            frame=4, frame_time=0.0, shard=0, shards=2, viewframes=[2, 0], variances=[1e-5, 8e-5], reliability=3.0
+        ),
+    )
     bb.run()  # only shard 0 of 2 reported: nothing to decide on yet
     assert _queries(bb) == [] and bb.hypotheses(levels.POSITION) == []
-    levels.post(bb.user, levels.Ranking(frame=4, frame_time=0.0, shard=1, shards=2, viewframes=[3, 1],
-                                        variances=[6e-5, 9e-5], reliability=3.0))
+    levels.post(
+        bb.user,
+        levels.Ranking(
+            frame=4, frame_time=0.0, shard=1, shards=2, viewframes=[3, 1], variances=[6e-5, 9e-5], reliability=3.0
+        ),
+    )
     bb.run(timeouts=False)
     assert len(_queries(bb)) == 1
 
@@ -178,10 +218,23 @@ def test_unknown_strategy() -> None:
 def _track(bb: MemoryBlackboard, frame: int, state: str, prior_next: list[float]) -> None:
     import numpy as np
 
-    levels.post(bb.board("user"), levels.Track(
-        frame=frame, route_point=1, arc_m=10.0, position=[10.0, 0.0], heading_deg=0.0, confidence=0.9, state=state,
-        evidence=True, belief=np.asarray(prior_next, np.float32), prior_next=np.asarray(prior_next, np.float32),
-        loglik=None, dt=None))
+    levels.post(
+        bb.board("user"),
+        levels.Track(
+            frame=frame,
+            route_point=1,
+            arc_m=10.0,
+            position=[10.0, 0.0],
+            heading_deg=0.0,
+            confidence=0.9,
+            state=state,
+            evidence=True,
+            belief=np.asarray(prior_next, np.float32),
+            prior_next=np.asarray(prior_next, np.float32),
+            loglik=None,
+            dt=None,
+        ),
+    )
 
 
 def test_tracked_frames_wait_for_the_previous_track_and_are_conditioned_on_it() -> None:

@@ -55,7 +55,9 @@ def test_fft_write_and_read_equal_the_direct_sums() -> None:
         mem.write(p, i)
     keys = [make_key(p, seed=4).astype(np.float64) for p in pats]
     m_direct = sum(_conv(k, p.astype(np.float64)) for k, p in zip(keys, pats))
-    assert np.allclose(np.fft.irfft2(mem.spectrum, s=(n, n)), m_direct, atol=1e-5)  # the spectrum is complex64 (SPECTRUM_DTYPE)
+    assert np.allclose(
+        np.fft.irfft2(mem.spectrum, s=(n, n)), m_direct, atol=1e-5
+    )  # the spectrum is complex64 (SPECTRUM_DTYPE)
     q = pats[1]
     assert np.allclose(mem.recall(q), _corr(keys[1], m_direct), atol=1e-5)
 
@@ -121,7 +123,10 @@ def test_top1_under_perturbation(case: str, shift: float, noise: float, gain: fl
     images = [scene(rng) for _ in range(12)]
     mem = BankedMemory(128)
     mem.write_many([preprocess(im) for im in images], range(12))
-    hits = [mem.rank(preprocess(_perturb(im, rng, shift=shift, noise=noise, gain=gain))).best == i for i, im in enumerate(images)]
+    hits = [
+        mem.rank(preprocess(_perturb(im, rng, shift=shift, noise=noise, gain=gain))).best == i
+        for i, im in enumerate(images)
+    ]
     assert all(hits), f"{case}: top-1 failed for {[i for i, h in enumerate(hits) if not h]}"
 
 
@@ -164,7 +169,9 @@ def test_state_round_trips_through_msgpack() -> None:
         assert back.rank(q).to_dict() == mem.rank(q).to_dict()
     with pytest.raises(AssociativeMemoryError, match="already stored"):
         back.write(pats[0], 12)
-    single = HolographicMemory.from_state(msgpack.unpackb(msgpack.packb(mem.banks[0].state(), default=pack), object_hook=unpack))
+    single = HolographicMemory.from_state(
+        msgpack.unpackb(msgpack.packb(mem.banks[0].state(), default=pack), object_hook=unpack)
+    )
     assert single.rank(pats[1]).to_dict() == mem.banks[0].rank(pats[1]).to_dict()
 
 
@@ -261,7 +268,8 @@ def test_shift_search_on_the_best_candidates_matches_the_full_search(monkeypatch
         assert f.best == g.best == i
         assert f.top(1)[0][1] == pytest.approx(g.top(1)[0][1], rel=1e-6)
         # the search only lowers variances: the refined ones agree, the others are upper bounds
-        fv = dict(zip(f.viewframes.tolist(), f.variances)); gv = dict(zip(g.viewframes.tolist(), g.variances))  # noqa: E702
+        fv = dict(zip(f.viewframes.tolist(), f.variances))
+        gv = dict(zip(g.viewframes.tolist(), g.variances))  # noqa: E702
         assert all(fv[k] >= gv[k] * (1 - 1e-5) for k in fv)
 
 

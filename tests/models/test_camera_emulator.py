@@ -63,8 +63,9 @@ def test_box_projects_to_the_hand_computed_rectangle(flat):
         np.testing.assert_allclose(view.depth[row, [3, 150]], 2.0 * F / (row - 59.5), rtol=2e-3)
 
 
-@pytest.mark.parametrize(("heading", "visible"), [(0.0, True), (90.0, False), (180.0, False), (-20.0, True),
-                                                  (40.0, False), (20.0, True)])
+@pytest.mark.parametrize(
+    ("heading", "visible"), [(0.0, True), (90.0, False), (180.0, False), (-20.0, True), (40.0, False), (20.0, True)]
+)
 def test_heading_is_counterclockwise_from_east(flat, heading, visible):
     view = flat.render(Pose(100.0, 500.0, 2.0, heading))
     assert (view.mask == 0).any() == visible
@@ -151,8 +152,13 @@ def hills():
     from models.terrain import procedural_terrain
 
     terrain = procedural_terrain(size=128, relief=60.0, cell_size=10.0, rng=4)
-    lms = place_landmarks(terrain, [LandmarkSpec(id="H", kind="house", x=700, y=640, width=20, depth=12, height=8),
-                                    LandmarkSpec(id="T", kind="tower", x=900, y=700, width=4, depth=4, height=30)])
+    lms = place_landmarks(
+        terrain,
+        [
+            LandmarkSpec(id="H", kind="house", x=700, y=640, width=20, depth=12, height=8),
+            LandmarkSpec(id="T", kind="tower", x=900, y=700, width=4, depth=4, height=30),
+        ],
+    )
     return terrain, lms
 
 
@@ -175,8 +181,10 @@ def test_level_of_detail_follows_distance_and_culls_behind(hills):
 
 def test_level_of_detail_keeps_the_picture(hills):
     terrain, lms = hills
-    with CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16), CAMERA) as lod, \
-            CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16, levels=1), CAMERA) as full:
+    with (
+        CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16), CAMERA) as lod,
+        CameraEmulator(EnvironmentModel(terrain, lms, tile_cells=16, levels=1), CAMERA) as full,
+    ):
         for x, y, h in [(600, 600, 20.0), (650, 560, 60.0), (300, 900, -30.0)]:
             a, b = lod.render(lod.pose_at(x, y, h)), full.render(full.pose_at(x, y, h))
             assert lod.triangles_last < full.triangles_last

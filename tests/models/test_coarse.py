@@ -16,25 +16,43 @@ from models.world import World
 
 def _route(n: int) -> list[list[float]]:
     per_row = 40
-    return [[150.0 + (i % per_row if (i // per_row) % 2 == 0 else per_row - 1 - i % per_row) * 25.0,
-             150.0 + (i // per_row) * 200.0 + 15.0 * math.sin((i % per_row) / 6.0)] for i in range(n)]
+    return [
+        [
+            150.0 + (i % per_row if (i // per_row) % 2 == 0 else per_row - 1 - i % per_row) * 25.0,
+            150.0 + (i // per_row) * 200.0 + 15.0 * math.sin((i % per_row) / 6.0),
+        ]
+        for i in range(n)
+    ]
 
 
 @pytest.mark.slow
 def test_coarse_candidates_contain_the_full_rankings_best():
     n = 240
     rng = np.random.default_rng(8)
-    landmarks = [{"id": f"L{j}", "kind": "house" if j % 3 else "tower",
-                  "x": float(150 + rng.uniform(0, 975)), "y": float(160 + rng.uniform(0, 1000)),
-                  "width": 16, "depth": 12, "height": 8 if j % 3 else 30} for j in range(40)]
-    scenario = scenario_from_dict({
-        "name": "coarse", "seed": 6,
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 140, "relief": 120.0, "seed": 6}},
-        "landmarks": landmarks, "route": _route(n),
-        "camera": {"width": 80, "height": 60, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 4000.0},
-        "sensor": {"simulate": {"stride": 8}},
-        "memory": {"size": 64},
-    })
+    landmarks = [
+        {
+            "id": f"L{j}",
+            "kind": "house" if j % 3 else "tower",
+            "x": float(150 + rng.uniform(0, 975)),
+            "y": float(160 + rng.uniform(0, 1000)),
+            "width": 16,
+            "depth": 12,
+            "height": 8 if j % 3 else 30,
+        }
+        for j in range(40)
+    ]
+    scenario = scenario_from_dict(
+        {
+            "name": "coarse",
+            "seed": 6,
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 140, "relief": 120.0, "seed": 6}},
+            "landmarks": landmarks,
+            "route": _route(n),
+            "camera": {"width": 80, "height": 60, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 4000.0},
+            "sensor": {"simulate": {"stride": 8}},
+            "memory": {"size": 64},
+        }
+    )
     with World(scenario, cache=None) as world:
         viewframes, frames = world.viewframes, world.sensor_frames
     full = ViewframeIndex(scenario.memory)

@@ -56,14 +56,20 @@ def _write(tmp_path, doc) -> object:
 
 
 def _line(coords, elevation=10.0, kind="LineString"):
-    return {"type": "Feature", "properties": {"elevation": elevation}, "geometry": {"type": kind, "coordinates": coords}}
+    return {
+        "type": "Feature",
+        "properties": {"elevation": elevation},
+        "geometry": {"type": kind, "coordinates": coords},
+    }
 
 
 BAD = [
     ("{not json", "not valid GeoJSON"),
     ({"type": "FeatureCollection", "features": []}, "at least one feature"),
-    ({"features": [{"geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}, "properties": {}}]},
-     r"features\[0\]: needs a geometry and a numeric properties.elevation"),
+    (
+        {"features": [{"geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}, "properties": {}}]},
+        r"features\[0\]: needs a geometry and a numeric properties.elevation",
+    ),
     ({"features": [_line([[0, 0], [1, 1]], elevation="high")]}, r"features\[0\]: needs a geometry"),
     ({"features": [_line([[0, 0], [1, 1]]), _line([[0, 0]], 20.0)]}, r"features\[1\]: a line needs at least 2"),
     ({"features": [_line([0, 0], kind="Point")]}, r"features\[0\]: geometry must be a LineString"),
@@ -110,8 +116,9 @@ def test_georeferenced_contour_files_give_the_local_dem_and_a_map_frame(tmp_path
     local, frame = read_contours(tmp_path / "local.geojson")
     assert frame is None
     lo = np.concatenate([p for p, _ in lines]).min(axis=0)
-    path = write_contour_vector(tmp_path / f"utm{suffix}", [(p + (X0, Y0), e) for p, e in lines], crs=UTM,
-                                attribute="ELEV")
+    path = write_contour_vector(
+        tmp_path / f"utm{suffix}", [(p + (X0, Y0), e) for p, e in lines], crs=UTM, attribute="ELEV"
+    )
     geo, frame = read_contours(path, attribute="ELEV")
     assert frame is not None and frame.name == UTM
     np.testing.assert_allclose(frame.origin, (X0 + lo[0], Y0 + lo[1]), atol=1e-6)
@@ -129,8 +136,9 @@ def test_georeferenced_contour_files_give_the_local_dem_and_a_map_frame(tmp_path
 def test_contour_attribute_errors_list_the_fields(tmp_path):
     from tests.models.geofiles import UTM, write_contour_vector
 
-    path = write_contour_vector(tmp_path / "c.gpkg", [(np.array([[0.0, 0], [10, 10]]), 5.0)], crs=UTM,
-                                attribute="hoehe")
+    path = write_contour_vector(
+        tmp_path / "c.gpkg", [(np.array([[0.0, 0], [10, 10]]), 5.0)], crs=UTM, attribute="hoehe"
+    )
     with pytest.raises(InputError, match=r"c.gpkg: no attribute 'elevation'.*the file has: id, hoehe"):
         load_contours(path)
     (tmp_path / "junk.shp").write_bytes(b"nope")
@@ -144,11 +152,17 @@ def test_multilinestring_and_local_metres_from_a_vector_file_without_crs(tmp_pat
     from models.contours import read_contours
     from tests.models.geofiles import wkb_multilinestring
 
-    geometry = np.array([wkb_multilinestring([np.array([[0.0, 0], [50, 0]]), np.array([[0.0, 10], [50, 10]])]),
-                         wkb_multilinestring([np.array([[0.0, 40], [50, 40]])])], dtype=object)
+    geometry = np.array(
+        [
+            wkb_multilinestring([np.array([[0.0, 0], [50, 0]]), np.array([[0.0, 10], [50, 10]])]),
+            wkb_multilinestring([np.array([[0.0, 40], [50, 40]])]),
+        ],
+        dtype=object,
+    )
     with pytest.warns(UserWarning, match="'crs' was not provided"):
-        pyogrio.raw.write(tmp_path / "m.gpkg", geometry, [np.array([1.0, 9.0])], ["elevation"],
-                          geometry_type="MultiLineString")
+        pyogrio.raw.write(
+            tmp_path / "m.gpkg", geometry, [np.array([1.0, 9.0])], ["elevation"], geometry_type="MultiLineString"
+        )
     lines, frame = read_contours(tmp_path / "m.gpkg")
     assert frame is None and [e for _, e in lines] == [1.0, 1.0, 9.0]
     np.testing.assert_array_equal(lines[1][0], [[0.0, 10.0], [50.0, 10.0]])

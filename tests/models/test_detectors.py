@@ -23,22 +23,33 @@ SPEC = SchedulerSpec()
 
 def _registry(**kw) -> DetectorRegistry:
     """The registry with the scenario schema's defaults (thresholds, calibration)."""
-    opts = {"threshold": SPEC.detector_threshold, "absent_threshold": SPEC.absent_threshold,
-            "calibration": SPEC.calibration,
-            "align_px": align_pixels(height=120, fov_y_deg=45.0, tolerance_deg=SPEC.align_deg)}
+    opts = {
+        "threshold": SPEC.detector_threshold,
+        "absent_threshold": SPEC.absent_threshold,
+        "calibration": SPEC.calibration,
+        "align_px": align_pixels(height=120, fov_y_deg=45.0, tolerance_deg=SPEC.align_deg),
+    }
     return default_registry(**{**opts, **kw})
+
 
 H, W = 120, 160
 
 
-def _scene(rng: np.random.Generator, *, box: tuple[int, int, int, int] | None, noise: float = 3.0,
-           sky: float = 180.0, wall: float = 90.0, shift: tuple[int, int] = (0, 0)) -> np.ndarray:
+def _scene(
+    rng: np.random.Generator,
+    *,
+    box: tuple[int, int, int, int] | None,
+    noise: float = 3.0,
+    sky: float = 180.0,
+    wall: float = 90.0,
+    shift: tuple[int, int] = (0, 0),
+) -> np.ndarray:
     """A gray sky over ground with an optional dark box (row0, col0, row1, col1), as RGB uint8."""
     img = np.full((H, W), sky, np.float32)
     img[80:, :] = 120.0
     if box is not None:
         r0, c0, r1, c1 = box
-        img[r0 + shift[0]:r1 + shift[0], c0 + shift[1]:c1 + shift[1]] = wall
+        img[r0 + shift[0] : r1 + shift[0], c0 + shift[1] : c1 + shift[1]] = wall
     img += rng.normal(0.0, noise, img.shape)
     img = np.clip(img, 0, 255).astype(np.uint8)
     return np.repeat(img[..., None], 3, axis=2)
@@ -49,7 +60,7 @@ BOX = (50, 60, 80, 90)
 
 def _view(rng) -> CandidateView:
     sil = np.zeros((H, W), bool)
-    sil[BOX[0]:BOX[2], BOX[1]:BOX[3]] = True
+    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
     return CandidateView(_scene(rng, box=BOX, noise=0.0), sil)
 
 
@@ -86,7 +97,9 @@ def test_tiny_silhouette_is_undecided():
     rng = np.random.default_rng(6)
     sil = np.zeros((H, W), bool)
     sil[60:63, 70:72] = True
-    result = EdgeTemplateDetector(min_pixels=24).detect(_scene(rng, box=BOX), view=CandidateView(_scene(rng, box=BOX), sil))
+    result = EdgeTemplateDetector(min_pixels=24).detect(
+        _scene(rng, box=BOX), view=CandidateView(_scene(rng, box=BOX), sil)
+    )
     assert result.present is None
     assert "pixels" in result.reason
 
@@ -131,7 +144,8 @@ def test_rendered_house_found_from_its_viewframe_and_not_elsewhere():
     from models.sensor import degrade
 
     data = {
-        "name": "detector-test", "seed": 1,
+        "name": "detector-test",
+        "seed": 1,
         "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
         "landmarks": [{"id": "H1", "kind": "house", "x": 300, "y": 300, "width": 20, "depth": 12, "height": 8}],
         "route": [[240, 300], [300, 240]],
@@ -202,7 +216,8 @@ def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
 
     size = {"house": {"width": 20, "depth": 12, "height": 8}, "tower": {"width": 4, "depth": 4, "height": 30}}[kind]
     data = {
-        "name": "lr-test", "seed": 1,
+        "name": "lr-test",
+        "seed": 1,
         "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
         "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": 300, **size}],
         "route": [[240, 300], [300, 240]],

@@ -12,8 +12,18 @@ from models.preprocess import preprocess
 from models.scenario import MemorySpec
 from models.synthetic import scene
 
-SETTINGS = [{}, {"size": 64, "edge": "canny", "blur_sigma": 3.0, "whiten": False, "bank_size": 3, "max_shift": (1, 4),
-             "key": "quantized"}]
+SETTINGS = [
+    {},
+    {
+        "size": 64,
+        "edge": "canny",
+        "blur_sigma": 3.0,
+        "whiten": False,
+        "bank_size": 3,
+        "max_shift": (1, 4),
+        "key": "quantized",
+    },
+]
 
 
 @pytest.mark.parametrize("settings", SETTINGS)
@@ -23,7 +33,12 @@ def test_the_index_reads_every_memory_setting(settings) -> None:
         index = ViewframeIndex(given, seed=5)
         mem = index.memory
         assert (mem.size, mem.bank_size, mem.key_method, mem.max_shift, mem.seed) == (
-            spec.size, spec.bank_size, spec.key, tuple(spec.max_shift), 5)
+            spec.size,
+            spec.bank_size,
+            spec.key,
+            tuple(spec.max_shift),
+            5,
+        )
         assert index.settings == spec
 
 
@@ -56,13 +71,16 @@ def test_ranking_equals_the_memory_built_by_hand() -> None:
     assert index.rank_pattern(index.pattern(query)).viewframes.tolist() == got.viewframes.tolist()
 
 
-@pytest.mark.parametrize(("settings", "field"), [
-    ({"size": 100}, "size"),
-    ({"max_shift": [2, 40]}, "max_shift"),
-    ({"key": "linear"}, "key"),
-    ({"bank_size": 0}, "bank_size"),
-    ({"colour": True}, "colour"),
-])
+@pytest.mark.parametrize(
+    ("settings", "field"),
+    [
+        ({"size": 100}, "size"),
+        ({"max_shift": [2, 40]}, "max_shift"),
+        ({"key": "linear"}, "key"),
+        ({"bank_size": 0}, "bank_size"),
+        ({"colour": True}, "colour"),
+    ],
+)
 def test_malformed_settings_name_the_field(settings, field) -> None:
     with pytest.raises(AssociativeMemoryError, match=rf"memory settings: {field}"):
         ViewframeIndex({**MemorySpec().model_dump(), **settings})

@@ -15,11 +15,14 @@ def _plane(a: float, b: float, n: int = 41, cell: float = 5.0) -> Terrain:
     return Terrain(heights=100 + a * x + b * y, cell_size=cell)
 
 
-@pytest.mark.parametrize(("yaw", "expected"), [
-    (0.0, [[90, 94], [110, 94], [110, 106], [90, 106]]),
-    (90.0, [[106, 90], [106, 110], [94, 110], [94, 90]]),
-    (180.0, [[110, 106], [90, 106], [90, 94], [110, 94]]),
-])
+@pytest.mark.parametrize(
+    ("yaw", "expected"),
+    [
+        (0.0, [[90, 94], [110, 94], [110, 106], [90, 106]]),
+        (90.0, [[106, 90], [106, 110], [94, 110], [94, 90]]),
+        (180.0, [[110, 106], [90, 106], [90, 94], [110, 94]]),
+    ],
+)
 def test_corners_follow_width_depth_and_ccw_yaw(yaw, expected):
     lm = Landmark("H", "house", 100.0, 100.0, 20.0, 12.0, 8.0, yaw, 3.0)
     np.testing.assert_allclose(lm.corners(), expected, atol=1e-9)
@@ -33,8 +36,9 @@ def test_corners_follow_width_depth_and_ccw_yaw(yaw, expected):
 @pytest.mark.parametrize(("a", "b", "yaw"), [(0.1, 0.0, 0.0), (-0.2, 0.05, 30.0), (0.0, 0.3, 75.0)])
 def test_base_is_the_lowest_of_corners_and_centre(a, b, yaw):
     t = _plane(a, b)
-    (lm,) = place_landmarks(t, [LandmarkSpec(id="H", kind="house", x=100, y=90, width=20, depth=12, height=8,
-                                             yaw_deg=yaw)])
+    (lm,) = place_landmarks(
+        t, [LandmarkSpec(id="H", kind="house", x=100, y=90, width=20, depth=12, height=8, yaw_deg=yaw)]
+    )
     pts = np.vstack([lm.corners(), [[100, 90]]])
     expected = min(100 + a * x + b * y for x, y in pts)
     assert lm.z0 == pytest.approx(expected)
@@ -43,9 +47,13 @@ def test_base_is_the_lowest_of_corners_and_centre(a, b, yaw):
 
 def test_raised_dem_lifts_exactly_the_cells_inside_footprints():
     t = _plane(0.0, 0.0, n=21, cell=10.0)
-    lms = place_landmarks(t, [LandmarkSpec(id="A", kind="house", x=100, y=100, width=30, depth=10, height=5),
-                              LandmarkSpec(id="B", kind="tower", x=40, y=150, width=4, depth=4, height=40,
-                                           yaw_deg=45)])
+    lms = place_landmarks(
+        t,
+        [
+            LandmarkSpec(id="A", kind="house", x=100, y=100, width=30, depth=10, height=5),
+            LandmarkSpec(id="B", kind="tower", x=40, y=150, width=4, depth=4, height=40, yaw_deg=45),
+        ],
+    )
     f = raised_dem(t, lms)
     raised = f.heights > t.heights
     # A covers x 85..115, y 95..105: cell centres x 90, 100, 110 at y 100

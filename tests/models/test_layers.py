@@ -88,7 +88,7 @@ def test_models_have_no_import_cycle():
         stack.append(node)
         for nxt in sorted(graph[node]):
             if state.get(nxt) == 1:
-                cycle = stack[stack.index(nxt):] + [nxt]
+                cycle = stack[stack.index(nxt) :] + [nxt]
                 pytest.fail("import cycle in models/: " + " -> ".join(cycle))
             if nxt not in state:
                 visit(nxt)

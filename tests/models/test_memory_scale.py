@@ -35,22 +35,39 @@ def _rss_kb() -> float:
 
 def _route(n: int) -> list[list[float]]:
     per_row = 50
-    return [[100.0 + (i % per_row if (i // per_row) % 2 == 0 else per_row - 1 - i % per_row) * 20.0,
-             100.0 + (i // per_row) * 60.0 + 5.0 * math.sin(i / 5.0)] for i in range(n)]
+    return [
+        [
+            100.0 + (i % per_row if (i // per_row) % 2 == 0 else per_row - 1 - i % per_row) * 20.0,
+            100.0 + (i // per_row) * 60.0 + 5.0 * math.sin(i / 5.0),
+        ]
+        for i in range(n)
+    ]
 
 
 def measure() -> dict:
     """Build the route in this process; resident growth and payload per viewframe (KB)."""
-    scenario = scenario_from_dict({
-        "name": "memory",
-        "seed": 3,
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 144, "relief": 60.0, "seed": 5}},
-        "landmarks": [{"id": f"H{j}", "kind": "house", "x": 120.0 + 40.0 * (j % 25), "y": 130.0 + 120.0 * (j // 25),
-                       "width": 16, "depth": 10, "height": 8} for j in range(100)],
-        "route": _route(N_VIEWFRAMES),
-        "camera": {"width": 48, "height": 32, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 3000.0},
-        "memory": {"size": 32},
-    })
+    scenario = scenario_from_dict(
+        {
+            "name": "memory",
+            "seed": 3,
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 144, "relief": 60.0, "seed": 5}},
+            "landmarks": [
+                {
+                    "id": f"H{j}",
+                    "kind": "house",
+                    "x": 120.0 + 40.0 * (j % 25),
+                    "y": 130.0 + 120.0 * (j // 25),
+                    "width": 16,
+                    "depth": 10,
+                    "height": 8,
+                }
+                for j in range(100)
+            ],
+            "route": _route(N_VIEWFRAMES),
+            "camera": {"width": 48, "height": 32, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 3000.0},
+            "memory": {"size": 32},
+        }
+    )
     world = World(scenario, cache=None)
     _ = world.environment, world.emulator, world.poses  # the fixed costs: terrain, meshes, renderer
     world.emulator.render(world.poses[0])
@@ -63,15 +80,25 @@ def measure() -> dict:
     store = {}
     for vf in viewframes:
         p = vf.pose
-        msg = levels.Viewframe(index=vf.index, pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
-                               image=np.ascontiguousarray(vf.image), mask=vf.mask.astype(np.int16),
-                               description=vf.description.to_dict())
+        msg = levels.Viewframe(
+            index=vf.index,
+            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+            image=np.ascontiguousarray(vf.image),
+            mask=vf.mask.astype(np.int16),
+            description=vf.description.to_dict(),
+        )
         store[vf.index] = encode(msg.to_body())
     gc.collect()
     growth_kb = (_rss_kb() - before) / N_VIEWFRAMES
     world.close()
-    payload_kb = (sum(vf.image.nbytes + vf.depth.nbytes + vf.mask.nbytes for vf in viewframes)
-                  + sum(len(b) for b in store.values())) / 1024.0 / N_VIEWFRAMES
+    payload_kb = (
+        (
+            sum(vf.image.nbytes + vf.depth.nbytes + vf.mask.nbytes for vf in viewframes)
+            + sum(len(b) for b in store.values())
+        )
+        / 1024.0
+        / N_VIEWFRAMES
+    )
     return {"growth_kb": growth_kb, "payload_kb": payload_kb, "stored": len(index)}
 
 
@@ -79,8 +106,14 @@ def measure() -> dict:
 def test_resident_memory_per_viewframe_is_bounded():
     code = f"import json, runpy; print(json.dumps(runpy.run_path({str(Path(__file__))!r})['measure']()))"
     env = {**os.environ, "PYOPENGL_PLATFORM": "egl"}
-    done = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], env=env,
-                          capture_output=True, text=True, timeout=1800)
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=Path(__file__).resolve().parents[2],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1800,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     m = json.loads(done.stdout.strip().splitlines()[-1])
     assert m["stored"] == N_VIEWFRAMES

@@ -14,7 +14,9 @@ def _scene(seed: int, shape: tuple[int, int] = (120, 160)) -> np.ndarray:
     img = np.full(shape, 100, np.uint8)
     for _ in range(8):
         x, y = int(rng.integers(0, shape[1])), int(rng.integers(0, shape[0]))
-        cv2.rectangle(img, (x, y), (x + int(rng.integers(8, 50)), y + int(rng.integers(8, 40))), int(rng.integers(0, 256)), -1)
+        cv2.rectangle(
+            img, (x, y), (x + int(rng.integers(8, 50)), y + int(rng.integers(8, 40))), int(rng.integers(0, 256)), -1
+        )
     return img
 
 

@@ -69,7 +69,7 @@ def test_bundled_lonlat_scenario_lies_on_its_geotiff():
         z, west, north, d = raw["elevation"], float(raw["xmin"]), float(raw["ymin"]), float(raw["dx"])
     r, c = (north - float(lat)) / d - 0.5, (float(lon) - west) / d - 0.5
     r0, c0 = int(r), int(c)
-    near = z[r0:r0 + 2, c0:c0 + 2].astype(float)
+    near = z[r0 : r0 + 2, c0 : c0 + 2].astype(float)
     assert near.min() - 1 <= t.height_at(*s.route[0]) <= near.max() + 1
 
 
@@ -131,8 +131,9 @@ MALFORMED = [
 ]
 
 
-@pytest.mark.parametrize(("field", "value", "message"), MALFORMED, ids=[m[2].split(":")[0] + "-" + str(i)
-                                                                      for i, m in enumerate(MALFORMED)])
+@pytest.mark.parametrize(
+    ("field", "value", "message"), MALFORMED, ids=[m[2].split(":")[0] + "-" + str(i) for i, m in enumerate(MALFORMED)]
+)
 def test_malformed_scenario_names_file_field_and_problem(tmp_path, field, value, message):
     path = tmp_path / "bad.yaml"
     path.write_text(yaml.safe_dump(_with(field, value)))
@@ -149,10 +150,13 @@ def test_duplicate_landmark_ids(tmp_path):
         scenario_from_dict(data, path=tmp_path / "x.yaml")
 
 
-@pytest.mark.parametrize("terrain", [
-    {"cell_size": 10.0},
-    {"cell_size": 10.0, "sample": "jacksboro", "procedural": {"size": 32, "relief": 1.0}},
-])
+@pytest.mark.parametrize(
+    "terrain",
+    [
+        {"cell_size": 10.0},
+        {"cell_size": 10.0, "sample": "jacksboro", "procedural": {"size": 32, "relief": 1.0}},
+    ],
+)
 def test_terrain_needs_exactly_one_source(terrain):
     with pytest.raises(ScenarioError, match=r"^terrain: needs exactly one of dem, procedural, contours, sample"):
         scenario_from_dict(_with("terrain", terrain))
@@ -173,11 +177,14 @@ def test_relative_paths_resolve_against_the_scenario_folder(tmp_path, monkeypatc
     assert s.sensor.frames[0].truth.heading_deg == 3.0
 
 
-@pytest.mark.parametrize(("text", "message"), [
-    ("name: [unclosed", "invalid YAML"),
-    ("- just\n- a list\n", "must be a mapping at the top level, not list"),
-    ("", "must be a mapping at the top level, not NoneType"),
-])
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("name: [unclosed", "invalid YAML"),
+        ("- just\n- a list\n", "must be a mapping at the top level, not list"),
+        ("", "must be a mapping at the top level, not NoneType"),
+    ],
+)
 def test_unparsable_files(tmp_path, text, message):
     path = tmp_path / "s.yaml"
     path.write_text(text)
@@ -213,7 +220,7 @@ def test_every_problem_is_listed_at_once_with_did_you_mean(tmp_path):
         load_scenario(path)
     lines = str(info.value).splitlines()
     assert all(line.startswith(f"{path}: ") for line in lines)
-    got = {line[len(f"{path}: "):] for line in lines}
+    got = {line[len(f"{path}: ") :] for line in lines}
     assert got == {
         "terrain.cell_sise: unknown field (did you mean cell_size?)",
         "camera.pich_deg: unknown field (did you mean pitch_deg?)",
@@ -221,7 +228,7 @@ def test_every_problem_is_listed_at_once_with_did_you_mean(tmp_path):
         "landmarks[0].height: must be > 0",
         "landmarks[0].colour: unknown field (known: id, kind, x, y, width, depth, height, yaw_deg)",
     }
-    assert len(info.value.problems) == 5 and info.value.field == lines[0][len(f"{path}: "):].split(":")[0]
+    assert len(info.value.problems) == 5 and info.value.field == lines[0][len(f"{path}: ") :].split(":")[0]
 
 
 def test_json_schema_covers_the_bundled_scenarios():

@@ -17,7 +17,8 @@ CAMERA = {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near
 
 def _scenario(tmp_path: Path, sensor: dict, **extra):
     data = {
-        "name": "sensor-test", "seed": 5,
+        "name": "sensor-test",
+        "seed": 5,
         "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
         "landmarks": [{"id": "H1", "kind": "house", "x": 330, "y": 300, "width": 20, "depth": 12, "height": 8}],
         "route": [[200, 300], [250, 300], [300, 320]],
@@ -132,8 +133,9 @@ def test_simulated_frames_near_route_points_and_reproducible(tmp_path):
 @pytest.mark.slow
 @pytest.mark.parametrize("stride, per_point, points", [(1, 1, [0, 1, 2]), (2, 1, [0, 2]), (2, 3, [0, 0, 0, 2, 2, 2])])
 def test_simulate_stride_and_per_point(tmp_path, stride, per_point, points):
-    scenario = _scenario(tmp_path, {"simulate": {"stride": stride, "per_point": per_point, "jitter_m": 0.0,
-                                                 "advance": 0.0}})
+    scenario = _scenario(
+        tmp_path, {"simulate": {"stride": stride, "per_point": per_point, "jitter_m": 0.0, "advance": 0.0}}
+    )
     with World(scenario) as world:
         frames = world.sensor_frames
     assert [f.index for f in frames] == list(range(len(points)))
@@ -145,10 +147,15 @@ def test_sensor_frames_from_files_with_truth(tmp_path):
     (tmp_path / "frames").mkdir()
     for i in range(2):
         cv2.imwrite(str(tmp_path / "frames" / f"f{i}.png"), np.full((60, 80), 100 + i, np.uint8))
-    scenario = _scenario(tmp_path, {"frames": [
-        {"image": "frames/f0.png", "truth": {"x": 1.0, "y": 2.0, "heading_deg": 3.0}},
-        {"image": "frames/f1.png"},
-    ]})
+    scenario = _scenario(
+        tmp_path,
+        {
+            "frames": [
+                {"image": "frames/f0.png", "truth": {"x": 1.0, "y": 2.0, "heading_deg": 3.0}},
+                {"image": "frames/f1.png"},
+            ]
+        },
+    )
     world = World(scenario)
     frames = world.sensor_frames
     assert "environment" not in vars(world), "frames on file need no environment model or renderer"
@@ -202,7 +209,9 @@ def test_drive_kidnapping_jumps_far():
 
 
 def test_drive_frames_are_rendered_with_their_times(tmp_path):
-    sc = _scenario(tmp_path, {"simulate": {"drive": {"interval_s": 0.5, "speed_mps": [20, 30], "p_stop": 0, "frames": 4}}})
+    sc = _scenario(
+        tmp_path, {"simulate": {"drive": {"interval_s": 0.5, "speed_mps": [20, 30], "p_stop": 0, "frames": 4}}}
+    )
     with World(sc) as world:
         frames = world.sensor_frames
     assert [f.time for f in frames] == [0.0, 0.5, 1.0, 1.5]
@@ -218,5 +227,6 @@ def test_frame_files_carry_times_in_order(tmp_path):
     sc = _scenario(tmp_path, {"frames": [{"image": "a.png", "time": 1.0}, {"image": "b.png", "time": 2.5}]})
     assert [f.time for f in World(sc).sensor_frames] == [1.0, 2.5]
     from models.errors import ScenarioError
+
     with pytest.raises(ScenarioError, match=r"frames\[1\].time"):
         _scenario(tmp_path, {"frames": [{"image": "a.png", "time": 3.0}, {"image": "b.png", "time": 2.5}]})

@@ -29,11 +29,11 @@ def world():
     h[:, 40:43] = 30.0
     terrain = Terrain(heights=h, cell_size=10.0)
     specs = [
-        _lm("A", 200, 500, 10, 20, 10),          # in the open, 100 m ahead
+        _lm("A", 200, 500, 10, 20, 10),  # in the open, 100 m ahead
         _lm("B", 150, 505, 4, 10, 20, "tower"),  # in front of A's left (north) half
-        _lm("C", 600, 500, 20, 20, 10),          # behind the ridge: hidden
-        _lm("D", 140, 515, 6, 6, 1),             # low and near, to the left
-        _lm("E", 450, 470, 10, 10, 6),           # far, right, also behind the ridge
+        _lm("C", 600, 500, 20, 20, 10),  # behind the ridge: hidden
+        _lm("D", 140, 515, 6, 6, 1),  # low and near, to the left
+        _lm("E", 450, 470, 10, 10, 6),  # far, right, also behind the ridge
     ]
     env = EnvironmentModel(terrain, place_landmarks(terrain, specs))
     with CameraEmulator(env, CAMERA) as cam:
@@ -95,11 +95,14 @@ def test_round_trip_through_json(world):
     assert back.graph.nodes["A"]["bbox"] == desc.graph.nodes["A"]["bbox"]
 
 
-@pytest.mark.parametrize("data", [
-    {"nodes": {}},
-    {"nodes": {"A": {"kind": "house"}}, "edges": []},
-    {"nodes": {}, "edges": [["A", "B", ["near"]]]},
-])
+@pytest.mark.parametrize(
+    "data",
+    [
+        {"nodes": {}},
+        {"nodes": {"A": {"kind": "house"}}, "edges": []},
+        {"nodes": {}, "edges": [["A", "B", ["near"]]]},
+    ],
+)
 def test_from_dict_rejects_malformed(data):
     with pytest.raises(ValueError):
         SymbolicDescription.from_dict(data)
@@ -115,11 +118,22 @@ def test_describe_validates_its_input(world):
 
 def test_landmark_priors_count_occurrences():
     def d(*ids):
-        return SymbolicDescription.from_dict({
-            "nodes": {i: {"kind": "house", "pixels": 9, "fraction": 1.0, "bbox": [0, 0, 2, 2],
-                          "centroid": [1, 1], "range_m": 10.0} for i in ids},
-            "edges": [],
-        })
+        return SymbolicDescription.from_dict(
+            {
+                "nodes": {
+                    i: {
+                        "kind": "house",
+                        "pixels": 9,
+                        "fraction": 1.0,
+                        "bbox": [0, 0, 2, 2],
+                        "centroid": [1, 1],
+                        "range_m": 10.0,
+                    }
+                    for i in ids
+                },
+                "edges": [],
+            }
+        )
 
     descs = [d("A"), d("A", "B"), d(), d("B", "C")]
     assert landmark_priors(descs) == {"A": 0.5, "B": 0.5, "C": 0.25}

@@ -29,7 +29,7 @@ def test_bilinear_between_posts(ramp):
     h = ramp.heights
     # a quarter of the way east and three quarters north inside cell (1, 2)
     x, y = 2 * 10 + 2.5, 1 * 10 + 7.5
-    expected = (h[1, 2] * 0.75 * 0.25 + h[1, 3] * 0.25 * 0.25 + h[2, 2] * 0.75 * 0.75 + h[2, 3] * 0.25 * 0.75)
+    expected = h[1, 2] * 0.75 * 0.25 + h[1, 3] * 0.25 * 0.25 + h[2, 2] * 0.75 * 0.75 + h[2, 3] * 0.25 * 0.75
     assert ramp.height_at(x, y) == pytest.approx(expected)
     # on an edge, linear between the two posts
     assert ramp.height_at(35.0, 40.0) == pytest.approx((h[4, 3] + h[4, 4]) / 2)

@@ -70,12 +70,16 @@ def test_a_second_world_reads_the_viewframes_without_rendering(tmp_path):
     _same(rendered, World(scenario_from_dict(_data()), cache=cache).viewframes)
 
 
-@pytest.mark.parametrize("change", [
-    {"landmarks": [{"id": "H1", "kind": "house", "x": 262.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}]},
-    {"camera": {"width": 64, "height": 48, "fov_y_deg": 50, "eye_height": 2.0, "near": 1.0, "far": 2000.0}},
-    {"route": [[200, 300], [240, 310], [280, 305], [301, 300]]},
-    {"terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 41.0, "seed": 2}}},
-], ids=["landmark", "camera", "route", "terrain"])
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"landmarks": [{"id": "H1", "kind": "house", "x": 262.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}]},
+        {"camera": {"width": 64, "height": 48, "fov_y_deg": 50, "eye_height": 2.0, "near": 1.0, "far": 2000.0}},
+        {"route": [[200, 300], [240, 310], [280, 305], [301, 300]]},
+        {"terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 41.0, "seed": 2}}},
+    ],
+    ids=["landmark", "camera", "route", "terrain"],
+)
 def test_any_change_of_the_map_is_a_miss(change):
     base = scenario_from_dict(_data())
     changed = scenario_from_dict(_data(**change))
@@ -151,8 +155,17 @@ def test_two_processes_share_a_cache_at_once(tmp_path):
     path.write_text(yaml.safe_dump(_data()))
     cache = tmp_path / "cache"
     env = {**os.environ, "MAPINTERP_CACHE": str(cache), "PYOPENGL_PLATFORM": "egl"}
-    procs = [subprocess.Popen([sys.executable, "-c", _CHILD, str(path)], cwd=ROOT, env=env,
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", _CHILD, str(path)],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
     outs = []
     for p in procs:
         out, err = p.communicate(timeout=300)
@@ -161,8 +174,9 @@ def test_two_processes_share_a_cache_at_once(tmp_path):
     assert outs[0]["digest"] == outs[1]["digest"] and outs[0]["n"] == 4
     entries = list(cache.iterdir())
     assert len(entries) == 1 and not entries[0].name.startswith(".")  # one entry, no temporary left
-    third = subprocess.run([sys.executable, "-c", _CHILD, str(path)], cwd=ROOT, env=env,
-                           capture_output=True, text=True, timeout=300)
+    third = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(path)], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300
+    )
     assert third.returncode == 0, third.stderr
     result = json.loads(third.stdout.strip().splitlines()[-1])
     assert result["digest"] == outs[0]["digest"] and result["rendered"] is False

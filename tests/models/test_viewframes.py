@@ -15,15 +15,24 @@ from models.world import World
 
 
 def _scenario(route, **extra):
-    return scenario_from_dict({
-        "name": "vf",
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
-        "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
-        "route": route,
-        "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "pitch_deg": 1.5,
-                   "near": 1.0, "far": 2000.0},
-        **extra,
-    })
+    return scenario_from_dict(
+        {
+            "name": "vf",
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
+            "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
+            "route": route,
+            "camera": {
+                "width": 160,
+                "height": 120,
+                "fov_y_deg": 45,
+                "eye_height": 2.0,
+                "pitch_deg": 1.5,
+                "near": 1.0,
+                "far": 2000.0,
+            },
+            **extra,
+        }
+    )
 
 
 def test_headings_point_to_the_next_point_and_the_last_keeps_its_own():

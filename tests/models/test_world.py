@@ -16,15 +16,17 @@ from models.world import World
 
 
 def _scenario(**extra):
-    return scenario_from_dict({
-        "name": "world",
-        "seed": 4,
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
-        "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
-        "route": [[200, 300], [240, 310], [300, 300]],
-        "camera": {"width": 96, "height": 72, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
-        **extra,
-    })
+    return scenario_from_dict(
+        {
+            "name": "world",
+            "seed": 4,
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 40.0, "seed": 2}},
+            "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
+            "route": [[200, 300], [240, 310], [300, 300]],
+            "camera": {"width": 96, "height": 72, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
+            **extra,
+        }
+    )
 
 
 @pytest.mark.slow
