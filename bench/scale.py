@@ -113,6 +113,8 @@ def components(path: Path, cache_dir: Path) -> dict:
             image=np.ascontiguousarray(vf.image),
             mask=vf.mask.astype(np.int16),
             description=vf.description.to_dict(),
+            skyline=vf.skyline,
+            background=None if vf.background is None else np.ascontiguousarray(vf.background),
         )
         sizes.append(len(encode(msg.to_body())))
     out["message_bytes_per_viewframe"] = float(np.mean(sizes))

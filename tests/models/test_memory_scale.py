@@ -86,6 +86,8 @@ def measure() -> dict:
             image=np.ascontiguousarray(vf.image),
             mask=vf.mask.astype(np.int16),
             description=vf.description.to_dict(),
+            skyline=vf.skyline,
+            background=None if vf.background is None else np.ascontiguousarray(vf.background),
         )
         store[vf.index] = encode(msg.to_body())
     gc.collect()
