@@ -31,6 +31,7 @@ import os
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import atexit  # noqa: E402
+import hashlib  # noqa: E402
 import logging  # noqa: E402
 import math  # noqa: E402
 import shutil  # noqa: E402
@@ -112,17 +113,35 @@ void main()
 
 
 def _lambert_shader_dir() -> str:
-    """A shader folder: pyrender's shaders with ``mesh.frag`` replaced by the Lambert shader."""
+    """A shader folder: pyrender's shaders with ``mesh.frag`` replaced by the Lambert shader.
+
+    The folder is named by a digest of its content, so every process of every run shares one
+    (no folder is left behind per process, even when a process is killed); it is built in a
+    private temporary folder and renamed into place, so concurrent first uses are safe.
+    """
     global _SHADER_DIR
     if _SHADER_DIR is None:
         src = Path(pyrender.__file__).parent / "shaders"
-        tmp = Path(tempfile.mkdtemp(prefix="mapinterp-shaders-"))
-        for f in src.iterdir():
-            if f.name != "mesh.frag":
-                shutil.copyfile(f, tmp / f.name)
-        (tmp / "mesh.frag").write_text(_LAMBERT_FRAG)
-        atexit.register(shutil.rmtree, tmp, True)
-        _SHADER_DIR = str(tmp)
+        files = {f.name: f.read_bytes() for f in sorted(src.iterdir()) if f.is_file() and f.name != "mesh.frag"}
+        files["mesh.frag"] = _LAMBERT_FRAG.encode()
+        digest = hashlib.blake2b(digest_size=8)
+        for name, data in sorted(files.items()):
+            digest.update(name.encode() + b"\0" + data + b"\0")
+        final = Path(tempfile.gettempdir()) / f"mapinterp-shaders-{digest.hexdigest()}"
+        if not all((final / name).is_file() for name in files):
+            tmp = Path(tempfile.mkdtemp(prefix="mapinterp-shaders-tmp-"))
+            for name, data in files.items():
+                (tmp / name).write_bytes(data)
+            try:
+                os.rename(tmp, final)
+            except OSError:  # another process won the race, or a stale partial folder is in the way
+                shutil.rmtree(tmp, ignore_errors=True)
+                if not all((final / name).is_file() for name in files):
+                    final = Path(tempfile.mkdtemp(prefix="mapinterp-shaders-"))
+                    for name, data in files.items():
+                        (final / name).write_bytes(data)
+                    atexit.register(shutil.rmtree, final, True)
+        _SHADER_DIR = str(final)
     return _SHADER_DIR
 
 

@@ -208,3 +208,23 @@ def test_closing_one_emulator_leaves_another_working(caplog):
     assert (view.depth[-1] > 0).all()
     b.close()
     assert "closing the offscreen renderer" not in caplog.text
+
+
+def test_shader_folder_is_shared_by_processes_and_outlives_them(tmp_path):
+    """Two fresh processes render with one content-named shader folder and leave no other folder."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from models.camera_emulator import _lambert_shader_dir\n"
+        "import pathlib; d = pathlib.Path(_lambert_shader_dir()); print(d)\n"
+        "assert (d / 'mesh.frag').read_text().count('ambient_light') > 0\n"
+    )
+    env = {**os.environ, "TMPDIR": str(tmp_path)}
+    dirs = [
+        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout.strip()
+        for _ in range(2)
+    ]
+    assert dirs[0] == dirs[1]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [os.path.basename(dirs[0])]
