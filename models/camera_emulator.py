@@ -314,18 +314,18 @@ class CameraEmulator:
             if old >= 0:
                 self.scene.deactivate(self._terrain_nodes[(t, old)])
             if new >= 0:
-                self.scene.activate(self._terrain_node(t, new))
+                self.scene.activate(self._terrain_node(t, new), (0, t, new))
         self._current_levels = levels
         # landmark boxes: draw only those that may be in view (every draw call costs Python time)
         hidden = outside_frustum(
             self._box_corners, pose.position, pose.rotation(), tan_half_fov=(self._tan_x, self._tan_y)
         )
         far = np.linalg.norm(self._box_corners.mean(1) - pose.position, axis=1) > self.camera.far + 100
-        for node, off in zip(self._landmark_nodes, hidden | far):
+        for i, (node, off) in enumerate(zip(self._landmark_nodes, hidden | far)):
             if off:
                 self.scene.deactivate(node)
             else:
-                self.scene.activate(node)
+                self.scene.activate(node, (1, i))
         self.triangles_last = sum(
             len(self.environment.tile_mesh(t, lv).indices) for t, lv in enumerate(levels) if lv >= 0
         )
@@ -455,27 +455,36 @@ class CameraEmulator:
 
 
 class _ActiveScene(pyrender.Scene):
-    """A scene that shows pyrender's renderer only its *active* mesh nodes.
+    """A scene that shows pyrender's renderer only its *active* mesh nodes, in a fixed order.
 
     pyrender sorts and visits every mesh node in each pass, including hidden ones; with a mesh
     per terrain tile and level that costs more than the drawing. ``mesh_nodes`` here returns
     the active nodes only, while ``meshes`` still returns all of them, so inactive meshes keep
     their GL buffers instead of being deleted and uploaded again.
+
+    The active nodes come sorted by the key they were activated with (terrain tiles by tile and
+    level, then landmarks by index), whatever the history of views. pyrender draws solid nodes
+    sorted by the distance of their node origin only, and every terrain tile has its origin at
+    the world origin: with a set, the order of equally distant tiles followed the objects'
+    addresses, so a pixel where two tiles meet could differ by a grey level between processes.
     """
 
     def __init__(self, **kwargs) -> None:
         self._active: set[pyrender.Node] = set()
+        self._order: dict[pyrender.Node, tuple[int, ...]] = {}
         super().__init__(**kwargs)
 
     @property
-    def mesh_nodes(self) -> set[pyrender.Node]:
-        return self._active
+    def mesh_nodes(self) -> list[pyrender.Node]:
+        return sorted(self._active, key=self._order.__getitem__)
 
     @property
     def meshes(self) -> set[pyrender.Mesh]:
         return {n.mesh for n in self._mesh_nodes}
 
-    def activate(self, node: pyrender.Node) -> None:
+    def activate(self, node: pyrender.Node, key: tuple[int, ...]) -> None:
+        """Show ``node``; ``key`` fixes its place in the drawing order."""
+        self._order[node] = key
         self._active.add(node)
 
     def deactivate(self, node: pyrender.Node) -> None:

@@ -228,3 +228,24 @@ def test_shader_folder_is_shared_by_processes_and_outlives_them(tmp_path):
     ]
     assert dirs[0] == dirs[1]
     assert sorted(p.name for p in tmp_path.iterdir()) == [os.path.basename(dirs[0])]
+
+
+def test_views_do_not_depend_on_the_history_of_views():
+    """A view is the same bytes whatever was rendered before it, in this emulator or another one:
+    the drawing order of equally distant nodes (every terrain tile) is fixed, not a set's."""
+    from models.world import World
+
+    with World.from_scenario("scenarios/jacksboro.yaml", cache=None) as world:
+        poses = world.poses[:12]
+        forward = [world.emulator.render(p) for p in poses]
+        keys = [world.emulator.scene._order[n] for n in world.emulator.scene.mesh_nodes]
+        with CameraEmulator(world.environment, world.emulator.camera) as other:
+            backward = [other.render(p) for p in reversed(poses)][::-1]
+            other.render(poses[-1])
+            keys_backward = [other.scene._order[n] for n in other.scene.mesh_nodes]
+    assert keys == sorted(keys)
+    assert keys_backward == keys
+    for a, b in zip(forward, backward):
+        assert np.array_equal(a.image, b.image)
+        assert np.array_equal(a.depth, b.depth)
+        assert np.array_equal(a.mask, b.mask)
