@@ -8,8 +8,14 @@ or ``--split sim``: simulated drives of the bundled terrains with bench/tracking
 tuning seeds. Each drive's frames are ranked by the real associative memory
 (bench/tracking_data.py), then
 
-* single-frame: the ranking's best route point per frame (the blind decision);
-* tracked: models.tracking.RouteFilter over the same rankings, online (and smoothed offline).
+* single-frame: the observed ranking's best route point per frame (the blind decision, without
+  the landmark questions);
+* tracked: models.tracking.RouteFilter over the same rankings, online (and smoothed offline);
+
+each for what the tracker observes (``--observe``, side by side in one run): ``associative``,
+the memory's ranking alone with its own calibration (the tracker before it observed every
+source), and ``fused``, every ranking source of the scenario (associative and skyline) fused by
+the scheduler's rule (knowledge_sources.fusion), with the defaults of the scenario schema.
 
 Reported per drive and pooled: top-1 after a warm-up of 3 frames and within those 3 (a frame is
 right when its route point is the one nearest the true position), position error median and
@@ -18,7 +24,7 @@ on which the tracked route point is right again), the tracker's cost per frame o
 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
 tracker on one drive (``mapinterp run`` and ``--no-track``).
 
-    python bench/tracking.py [--split heldout|tuning|sim] [--runs] [--json-only]
+    python bench/tracking.py [--split heldout|tuning|sim] [--observe associative fused] [--runs] [--json-only]
 
 Prints JSON, then a table.
 """
@@ -43,6 +49,7 @@ import pickle  # noqa: E402
 import platform  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
+from collections.abc import Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -52,6 +59,14 @@ from models.tracking import RouteFilter, smooth  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 WARM_UP = 3
+sys.path.insert(0, str(ROOT / "bench"))
+from tracking_data import OBSERVE, observed  # noqa: E402
+
+sys.path.pop(0)
+#: the observation model's parameters fitted for the associative ranking alone on the evaluation
+#: set's tuning split (bench/tracking_calibrate.py --observe associative; BENCHMARKS.md): the
+#: tracker before it observed the fused ranking, run beside the defaults (fitted to the fusion)
+ASSOCIATIVE_CALIBRATION = {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0}
 
 
 def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list[int]:
@@ -65,13 +80,14 @@ def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list
     return out
 
 
-def track_drive(d: dict, spec: TrackingSpec) -> dict:
-    """Run the online filter (and the smoother) over one ranked drive; per-frame results."""
+def track_drive(d: dict, spec: TrackingSpec, observations: np.ndarray) -> dict:
+    """Run the online filter (and the smoother) over one ranked drive observing ``observations``
+    ``(T, N)`` (bench/tracking_data.observed); per-frame results."""
     f = RouteFilter(d["route"], spec=spec)
     n = len(d["route"])
     times = d["times"]
     logliks, dts, online, costs = [], [], [], []
-    for t, v in enumerate(d["variances"]):
+    for t, v in enumerate(observations):
         dt = None
         if t > 0 and np.isfinite(times[t]) and np.isfinite(times[t - 1]):
             dt = float(times[t] - times[t - 1])
@@ -85,27 +101,46 @@ def track_drive(d: dict, spec: TrackingSpec) -> dict:
     return {"online": online, "smoothed": smoothed, "cost_ms": costs}
 
 
-def score(d: dict, tracked: dict, spec: TrackingSpec) -> dict:
+def modes(observe: Sequence[str]) -> list[str]:
+    """The result modes of a run observing ``observe``: single frame, tracked, smoothed of each."""
+    return [f"{m}[{o}]" for o in observe for m in ("single", "tracked", "smoothed")]
+
+
+def score(d: dict, runs: dict[str, tuple[np.ndarray, dict]], spec: TrackingSpec) -> dict:
+    """Per-frame scores of each observation ``o`` in ``runs`` (``o -> (observations, tracked)``):
+    ``single[o]`` (the observation's best route point), ``tracked[o]``, ``smoothed[o]``; kidnap
+    recoveries of the first observation's online track (``recover_frames``) and of each
+    (``recover[o]``)."""
     truth, tp = d["truth"], d["true_point"]
-    single = np.array([int(np.nanargmin(v)) for v in d["variances"]])
     out: dict = {"name": d["name"], "frames": int(len(tp))}
-    for mode, ests in (("tracked", tracked["online"]), ("smoothed", tracked["smoothed"])):
-        pts = np.array([e.route_point for e in ests])
-        err = np.array([math.hypot(e.x - x, e.y - y) for e, (x, y, _) in zip(ests, truth)])
-        right = pts == tp
-        out[mode] = {"right": right.tolist(), "error_m": err.tolist(), "lost": [e.state == "lost" for e in ests]}
-    out["single"] = {
-        "right": (single == tp).tolist(),
-        "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)],
-    }
     kid = d["kidnaps"] if d.get("kidnaps") is not None else kidnap_frames_from_truth(tp, max_skip=spec.max_skip_points)
-    rec = []
-    for k in kid:
-        right = out["tracked"]["right"][k:]
-        rec.append(next((i for i, r in enumerate(right) if r), None))
     out["kidnaps"] = kid
-    out["recover_frames"] = rec
-    out["cost_ms"] = tracked["cost_ms"]
+    out["recover"] = {}
+    for o, (obs, tracked) in runs.items():
+        for mode, ests in (("tracked", tracked["online"]), ("smoothed", tracked["smoothed"])):
+            pts = np.array([e.route_point for e in ests])
+            err = np.array([math.hypot(e.x - x, e.y - y) for e, (x, y, _) in zip(ests, truth)])
+            out[f"{mode}[{o}]"] = {
+                "right": (pts == tp).tolist(),
+                "error_m": err.tolist(),
+                "lost": [e.state == "lost" for e in ests],
+                "route_point": pts.tolist(),
+                "confidence": [e.confidence for e in ests],
+            }
+        single = np.array([int(np.nanargmin(v)) for v in obs])
+        out[f"single[{o}]"] = {
+            "right": (single == tp).tolist(),
+            "error_m": [math.hypot(*(d["route"][k] - truth[t, :2])) for t, k in enumerate(single)],
+            "route_point": single.tolist(),
+        }
+        rec = []
+        for k in kid:
+            right = out[f"tracked[{o}]"]["right"][k:]
+            rec.append(next((i for i, r in enumerate(right) if r), None))
+        out["recover"][o] = rec
+        out["cost_ms"] = tracked["cost_ms"]
+    out["recover_frames"] = out["recover"][next(iter(runs))]
+    out["true_point"] = [int(x) for x in tp]
     return out
 
 
@@ -123,8 +158,8 @@ def pooled(results: list[dict]) -> dict:
     def after_no_kidnap(res, t):
         return t >= WARM_UP and not any(k <= t < k + 5 for k in res["kidnaps"])
 
-    out = {}
-    for mode in ("single", "tracked", "smoothed"):
+    out: dict = {}
+    for mode in [m for m in results[0] if m.startswith(("single[", "tracked[", "smoothed["))]:
         errs = [e for res in results for t, e in enumerate(res[mode]["error_m"]) if t >= WARM_UP]
         out[mode] = {
             "top1_after_warmup": frac(mode, after),
@@ -133,9 +168,10 @@ def pooled(results: list[dict]) -> dict:
             "error_m_median": float(np.median(errs)) if errs else None,
             "error_m_mean": float(np.mean(errs)) if errs else None,
         }
-    rec = [r for res in results for r in res["recover_frames"]]
-    out["recover_frames"] = rec
-    out["recover_frames_max"] = None if not rec or None in rec else int(max(rec))
+    for o in results[0]["recover"]:
+        rec = [r for res in results for r in res["recover"][o]]
+        out[f"recover[{o}]"] = rec
+        out[f"recover_max[{o}]"] = None if not rec or None in rec else int(max(rec))
     return out
 
 
@@ -227,6 +263,14 @@ def main() -> None:
     ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
     ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
     ap.add_argument("--cache", type=Path, help="keep the ranked drives here (pickle) and reuse them")
+    ap.add_argument(
+        "--observe",
+        nargs="+",
+        choices=OBSERVE,
+        default=list(OBSERVE),
+        help="what the tracker observes, side by side: the associative ranking alone (at its own calibration, "
+        "ASSOCIATIVE_CALIBRATION: the tracker before the fusion), every source fused (the defaults)",
+    )
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args()
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
@@ -245,10 +289,15 @@ def main() -> None:
             tracking = load_scenario(path).tracking  # not the cached one: the defaults may have changed since
             if args.no_times:
                 d["times"] = np.full(len(d["true_point"]), np.nan)
-            r = score(d, track_drive(d, tracking), tracking)
+            runs = {}
+            for o in args.observe:
+                obs = observed(d, o)
+                sp = tracking.model_copy(update=ASSOCIATIVE_CALIBRATION) if o == "associative" else tracking
+                runs[o] = (obs, track_drive(d, sp, obs))
+            r = score(d, runs, tracking)
             r["kind"] = d["kind"]
             results.append(r)
-        runs = whole_runs(ranked[0][2]) if args.runs else None
+        whole = whole_runs(ranked[0][2]) if args.runs else None
     out = {
         "data": what,
         "machine": platform.platform(),
@@ -259,14 +308,16 @@ def main() -> None:
         "warm_up": WARM_UP,
         "pooled": pooled(results),
         "cost_10000_cells": cost_10000(spec),
-        "whole_runs": runs,
+        "whole_runs": whole,
+        "observe": list(args.observe),
+        "associative_calibration": ASSOCIATIVE_CALIBRATION,
         "drives": [
             {
                 "name": r["name"],
                 "frames": r["frames"],
                 "kidnaps": r["kidnaps"],
-                "recover_frames": r["recover_frames"],
-                **{m: pooled([r])[m] for m in ("single", "tracked", "smoothed")},
+                "recover": r["recover"],
+                **{m: v for m, v in pooled([r]).items() if not m.startswith("recover")},
             }
             for r in results
         ],
@@ -289,17 +340,19 @@ def main() -> None:
     def m(x):
         return "" if x is None else f"{x:.1f}"
 
-    print(f"{'drive':<22} {'mode':<9} {'top1>3':>7} {'top1<3':>7} {'med m':>6} {'mean m':>7} {'recover':>8}")
+    print(f"{'drive':<22} {'mode':<23} {'top1>3':>7} {'top1<3':>7} {'med m':>6} {'mean m':>7} {'recover':>8}")
     by_kind = out["pooled_by_kind"]
     rows = [*out["drives"], *({"name": f"ALL {k}", **v} for k, v in by_kind.items()), {"name": "ALL", **out["pooled"]}]
     for r in rows:
-        for mode in ("single", "tracked", "smoothed"):
+        for mode in modes(args.observe):
             p = r[mode]
             if p["top1_after_warmup"] is None and p["top1_within_warmup"] is None:
                 continue
-            rec = ",".join("-" if x is None else str(x) for x in r["recover_frames"]) if mode == "tracked" else ""
+            o = mode[mode.index("[") + 1 : -1]
+            recs = r["recover"][o] if "recover" in r else r[f"recover[{o}]"]
+            rec = ",".join("-" if x is None else str(x) for x in recs) if mode.startswith("tracked") else ""
             print(
-                f"{r['name'][:22]:<22} {mode:<9} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
+                f"{r['name'][:22]:<22} {mode:<23} {pct(p['top1_after_warmup']):>7} {pct(p['top1_within_warmup']):>7} "
                 f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}"
             )
     c = out["cost_10000_cells"]
@@ -307,8 +360,8 @@ def main() -> None:
         f"tracker cost, {c['cells']} cells: step p50 {c['step_ms_p50']:.3f} ms wall, {c['step_cpu_ms_p50']:.3f} ms CPU; "
         f"prediction p50 {c['predict_ms_p50']:.3f} ms"
     )
-    if runs:
-        for k, v in runs.items():
+    if whole:
+        for k, v in whole.items():
             print(
                 f"whole run ({k}): {v['frames_per_s']:.1f} frames/s, top-1 {pct(v['top1'])}, "
                 f"frame-only {pct(v['top1_frame_only'])}"

@@ -12,7 +12,18 @@ probability at the true route point (nearest to the true position) over all tuni
 route points (their log ratio is what ``log L`` estimates) and a reliability table (the fitted
 single-frame probability of the best route point against how often it is right).
 
-    python bench/tracking_calibrate.py [--quick] [--cache /tmp/tracking_tune.npz]
+What a frame's ranking is (``--observe``): ``fused`` (the default, what the tracker observes),
+every ranking source of the drive (associative memory and skyline) fused by the scheduler's rule
+(knowledge_sources.fusion, bench/tracking_data.observed), or ``associative``, the memory's
+ranking alone (the tracker before it observed the skyline).
+
+The defaults of the scenario schema come from the evaluation set's TUNING split alone (frames of
+another renderer than the viewframes', like the judged data), ranked by bench/tracking.py:
+
+    python bench/tracking.py --split tuning --cache /tmp/tune.pkl --json-only > /dev/null
+    python bench/tracking_calibrate.py --evalset-tuning /tmp/tune.pkl --no-sim --observe fused
+
+    python bench/tracking_calibrate.py [--quick] [--cache /tmp/tracking_tune.npz] [--observe fused|associative]
 
 Prints JSON, then a table.
 """
@@ -38,6 +49,10 @@ from models.scenario import load_scenario  # noqa: E402
 from models.tracking import ObservationModel, RouteGrid, ranking_scores  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "bench"))
+from tracking_data import OBSERVE, observed  # noqa: E402
+
+sys.path.pop(0)
 #: seeds of the tuning drives: the evaluation set's seeds must be different (BENCHMARKS.md)
 TUNING_SEEDS = (101, 202)
 TUNING_DRIVE = {
@@ -210,6 +225,7 @@ def main() -> None:
         help="also the evaluation set's TUNING split, ranked by bench/tracking.py --split tuning --cache",
     )
     ap.add_argument("--no-sim", action="store_true", help="without the simulated drives (with --evalset-tuning)")
+    ap.add_argument("--observe", choices=OBSERVE, default="fused", help="the ranking a frame gives (module docstring)")
     args = ap.parse_args()
     if args.no_sim:
         drives = []
@@ -224,11 +240,16 @@ def main() -> None:
         for d, _, _ in ranked:
             d.setdefault("seed", "evalset-tuning")
             drives.append(d)
+    for d in drives:
+        if args.observe == "fused" and d.get("skyline") is None and "skyline_weight" not in d:
+            raise SystemExit(f"drive {d['name']}: ranked without the skyline (an old cache?): rank it again")
+        d["variances"] = observed(d, args.observe)
     zs, margins, truths = frame_scores(drives)
     frames = arc_frames(drives)
     params = fit(frames)
     top1 = float(np.mean([int(np.nanargmin(z)) == t for z, t in zip(zs, truths)]))
     out = {
+        "observe": args.observe,
         "drives": [{"name": d["name"], "seed": d["seed"], "frames": int(len(d["true_point"]))} for d in drives],
         "tuning_seeds": list(TUNING_SEEDS),
         "drive": TUNING_DRIVE,
@@ -240,7 +261,7 @@ def main() -> None:
     }
     print(json.dumps(out, indent=1))
     print()
-    print(f"{len(zs)} tuning frames, ranking top-1 {top1:.3f}")
+    print(f"{len(zs)} tuning frames, observing {args.observe}, ranking top-1 {top1:.3f}")
     print("fit: " + ", ".join(f"{k} {v:.4g}" for k, v in params.items()))
     print(f"{'z':>8} {'true':>6} {'other':>7} {'log ratio':>10}")
     for h in out["histogram"]:

@@ -1,11 +1,14 @@
-"""Drives ranked by the associative memory, without the blackboard: the data the tracker's
+"""Drives ranked by every ranking source, without the blackboard: the data the tracker's
 calibration (bench/tracking_calibrate.py) and benchmark (bench/tracking.py) read.
 
 :func:`ranked_drive` renders a scenario's viewframes, stores them in the scenario's memory,
-simulates (or reads) its camera frames and ranks each one, exactly as the agents do
-(models.world.World, models.index.ViewframeIndex). It returns plain
-arrays: per frame the variances indexed by route point, the true position, the time, and the
-true route point (nearest to the truth, the results' criterion).
+simulates (or reads) its camera frames and ranks each one, exactly as the agents do: the
+associative memory (models.world.World, models.index.ViewframeIndex, the indexers' call) and,
+when the scenario enables it, the skyline (models.skyline, the skyline ranker's call). It
+returns plain arrays: per frame each source's errors indexed by route point, the true position,
+the time, and the true route point (nearest to the truth, the results' criterion).
+:func:`observed` turns them into what the tracker observes: one source's errors, or the
+sources fused by the scheduler's rule (knowledge_sources.fusion).
 """
 
 from __future__ import annotations
@@ -24,7 +27,10 @@ from models.scenario import Scenario, load_scenario  # noqa: E402
 from models.tracking import ranking_vector  # noqa: E402
 from models.world import World  # noqa: E402
 
-__all__ = ["ranked_drive", "with_drive"]
+__all__ = ["ranked_drive", "with_drive", "observed", "OBSERVE"]
+
+#: what the tracker may observe: the associative memory alone, or every ranking source fused
+OBSERVE = ("associative", "fused")
 
 
 def with_drive(scenario: Scenario, drive: dict[str, Any], *, seed: int, path: Path) -> Scenario:
@@ -44,10 +50,13 @@ def with_drive(scenario: Scenario, drive: dict[str, Any], *, seed: int, path: Pa
 def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
     """Rank every camera frame of ``scenario`` against its viewframes (see the module docstring).
 
-    Returns ``{"name", "route" (N, 2), "variances" (T, N), "truth" (T, 3) x, y, heading,
-    "times" (T,) or NaN, "true_point" (T,), "rank_ms" (T,)}``.
+    Returns ``{"name", "route" (N, 2), "variances" (T, N) associative error variances,
+    "skyline" (T, N) skyline errors (degrees) or None when the scenario has no skyline,
+    "skyline_weight", "truth" (T, 3) x, y, heading, "times" (T,) or NaN, "true_point" (T,),
+    "rank_ms" (T,)}``.
     """
     from knowledge_sources.results import nearest_viewframe
+    from models.skyline import match_skylines, skyline_from_image
 
     sc = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
     with World(sc) as world:
@@ -56,12 +65,24 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
     index = ViewframeIndex(sc.memory, seed=0)
     index.add([v.image for v in vfs], list(range(len(vfs))))
     n = len(vfs)
-    variances, rank_ms = [], []
+    sky = sc.skyline
+    refs = np.stack([v.skyline for v in vfs]) if sky.enabled else None
+    match = {
+        "step_deg": sky.step_deg,
+        "max_heading_deg": sky.max_heading_deg,
+        "max_pitch_deg": sky.max_pitch_deg,
+        "truncate_deg": sky.truncate_deg,
+    }
+    variances, skyline, rank_ms = [], [], []
     for f in frames:
         t0 = time.perf_counter()
         r = index.rank(f.image)
         rank_ms.append((time.perf_counter() - t0) * 1e3)
         variances.append(ranking_vector(r.viewframes, r.variances, n))
+        if refs is not None:
+            q = skyline_from_image(f.image, fov_y_deg=sc.camera.fov_y_deg, step_deg=sky.step_deg)
+            m = match_skylines(q, refs, **match)
+            skyline.append(ranking_vector([v.index for v in vfs], m.error, n))
     route = np.asarray(sc.route, dtype=np.float64)
     truth = np.array([f.truth if f.truth is not None else (np.nan, np.nan, np.nan) for f in frames], float)
     true_point = np.array([nearest_viewframe(t[0], t[1], route) if np.isfinite(t[0]) else -1 for t in truth])
@@ -69,8 +90,38 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
         "name": sc.name,
         "route": route,
         "variances": np.array(variances),
+        "skyline": np.array(skyline) if refs is not None else None,
+        "skyline_weight": float(sky.weight),
         "truth": truth,
         "times": np.array([np.nan if f.time is None else f.time for f in frames], float),
         "true_point": true_point,
         "rank_ms": np.array(rank_ms),
     }
+
+
+def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
+    """What the tracker observes of each frame of a :func:`ranked_drive`, ``(T, N)`` indexed by
+    route point (lower is better): ``"associative"``, the memory's error variances; ``"fused"``,
+    every ranking source of the drive fused by the scheduler's rule
+    (:func:`knowledge_sources.fusion.fuse_rankings`, the scenario's skyline weight), which is
+    the associative ranking itself when the drive has no skyline."""
+    from knowledge_sources.fusion import fuse_rankings
+
+    if observe not in OBSERVE:
+        raise ValueError(f"observe must be one of {OBSERVE}, not {observe!r}")
+    v = np.asarray(drive["variances"], dtype=np.float64)
+    sky = drive.get("skyline")
+    if observe == "associative" or sky is None:
+        return v
+    n = v.shape[1]
+    labels = np.arange(n)
+    weights = {"associative": 1.0, "skyline": float(drive["skyline_weight"])}
+    out = np.full(v.shape, np.nan)
+    for t in range(v.shape[0]):
+        per = {}
+        for src, row in (("associative", v[t]), ("skyline", np.asarray(sky[t], dtype=np.float64))):
+            ok = np.isfinite(row)
+            per[src] = (labels[ok].tolist(), row[ok].tolist())
+        fused = fuse_rankings(per, weights=weights)
+        out[t] = ranking_vector([k for k, _ in fused], [f for _, f in fused], n)
+    return out

@@ -30,15 +30,26 @@ Fused
 
 A single source is passed through unchanged (its own errors, its own order): the fusion of one
 source is the identity, so a mission without the skyline decides exactly as before.
+
+Shards
+    A source may post its ranking in shards (the associative memory: one per indexer, errors
+    comparable across shards); :func:`fuse_shards` merges each source's shards by sorting
+    (:func:`models.associative.merge_rankings`) and then fuses the sources. The scheduler (its
+    candidate weighting) and the tracker (its observation) both call it, so the two see one
+    and the same fused ranking of a frame.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ["standardise", "fuse_rankings"]
+if TYPE_CHECKING:
+    from models.associative import Ranking as MemoryRanking
+
+__all__ = ["standardise", "fuse_rankings", "fuse_shards"]
 
 _MAD_TO_STD = 1.4826
 
@@ -106,3 +117,22 @@ def fuse_rankings(
     lab = np.asarray(universe, dtype=np.int64)
     order = np.lexsort((lab, fused))
     return [(int(lab[i]), float(fused[i])) for i in order]
+
+
+def fuse_shards(
+    shards: Mapping[str, Sequence[MemoryRanking]],
+    *,
+    weights: Mapping[str, float] | None = None,
+) -> list[tuple[int, float]]:
+    """Merge each source's shards, then fuse the sources (module docstring, "Shards").
+
+    ``shards``: source -> the rankings of its shards (:class:`models.associative.Ranking`, e.g.
+    :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights`` as :func:`fuse_rankings`.
+    """
+    from models.associative import merge_rankings
+
+    per_source = {}
+    for src, parts in shards.items():
+        merged = merge_rankings(list(parts))
+        per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
+    return fuse_rankings(per_source, weights=weights)

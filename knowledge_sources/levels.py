@@ -79,8 +79,10 @@ __all__ = [
     "Scenario",
     "SensorFrame",
     "TRACK",
+    "TRACK_QUERY",
     "TRUTH",
     "Track",
+    "TrackQuery",
     "Truth",
     "VIEWFRAME",
     "Viewframe",
@@ -97,6 +99,7 @@ __all__ = [
     "ranking_id",
     "scenario_id",
     "track_id",
+    "track_query_id",
     "truth_id",
     "viewframe_id",
 ]
@@ -715,6 +718,25 @@ def track_id(frame: int) -> str:
     return f"tr-{frame:06d}"
 
 
+@dataclass(frozen=True, slots=True)
+class TrackQuery(Message):
+    """The scheduler's request to the tracker: track frame F from its position (answered by the track)."""
+
+    level: ClassVar[str] = "track_query"
+    posted_by: ClassVar[str] = "scheduler"
+    id_pattern: ClassVar[str] = "tq-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    position: str = field(metadata=_doc("id of the frame's position hypothesis"))
+
+    def id(self) -> str:
+        return track_query_id(self.frame)
+
+
+def track_query_id(frame: int) -> str:
+    """Hypothesis id of the scheduler's track query for frame ``frame``."""
+    return f"tq-{frame:06d}"
+
+
 SCENARIO = Scenario.level
 VIEWFRAME = Viewframe.level
 MAP = Map.level
@@ -727,6 +749,7 @@ ANSWER = Answer.level
 POSITION = Position.level
 POSE = Pose.level
 TRACK = Track.level
+TRACK_QUERY = TrackQuery.level
 
 
 # -- the table ---------------------------------------------------------------------------------------

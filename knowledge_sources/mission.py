@@ -53,6 +53,8 @@ log = logging.getLogger(__name__)
 
 #: the camera's --rate is at most this (Hz); --timeout and --wait-remote at most this (seconds)
 MAX_RATE_HZ = 10_000.0
+#: the tracker's agent name (the scheduler addresses its track queries to it)
+TRACKER = "tracker"
 MAX_WAIT_S = 7 * 24 * 3600.0
 
 
@@ -122,6 +124,8 @@ def agent_plan(
                 "query_timeout_s": sched.query_timeout_s,
                 "sources": sources,
                 "tracked": tracked,
+                "tracker": TRACKER,
+                "track_timeout_s": sched.track_timeout_s,
                 "backtracking": sched.backtracking,
                 "questions": sched.questions,
                 "floor": sched.floor,
@@ -150,8 +154,13 @@ def agent_plan(
         plan.append(
             (
                 "knowledge_sources.tracker:Tracker",
-                "tracker",
-                {"spec": scenario.tracking.model_dump(), "min_pixels": sched.min_pixels},
+                TRACKER,
+                {
+                    "spec": scenario.tracking.model_dump(),
+                    "min_pixels": sched.min_pixels,
+                    "sources": sources,
+                    "await_query": True,
+                },
             )
         )
     return plan
@@ -368,9 +377,13 @@ def run_mission(
         rec["interrupted"] = interrupted is not None and f not in positions
         p = positions.get(f)
         rec["track_prior"] = bool(p is not None and p.track_prior)
-        if track and f in positions and f not in estimates:
+        untracked = track and f in positions and f not in estimates
+        if untracked:
             rec["reason"] += "; no track was posted (the single-frame decision stands)"
-        records.append(with_track(rec, estimates.get(f)))
+        rec = with_track(rec, estimates.get(f))
+        if untracked:
+            rec["state"] = "lost"  # not tracked: the blind single-frame decision is the answer
+        records.append(rec)
     summary = summarize(records)
     summary["frames_expected"] = n_frames
     summary["posted"] = len(frames_seen)
@@ -381,6 +394,8 @@ def run_mission(
     summary["localization_s"] = span
     summary["frames_per_s"] = (len(frames_seen) / span) if span else None
     degraded = [f"agent {name} {status}" for name, status in sorted(dead.items())]
+    if track:
+        degraded += _tracking_degraded(positions, estimates)
     if summary["missing"]:
         degraded.append(f"{summary['missing']} of {n_frames} frames never posted")
     if interrupted:
@@ -401,6 +416,19 @@ def run_mission(
     if scenario.map_frame is not None:
         add_map_coordinates(results, scenario.map_frame)
     return results
+
+
+def _tracking_degraded(positions: dict[int, levels.Position], estimates: dict[int, dict[str, Any]]) -> list[str]:
+    """What the tracker's absence cost a tracked run: frames analysed blind because the track
+    of the frame before did not come (the scheduler's fallback), frames left without a track."""
+    out = []
+    blind = sorted(f for f, p in positions.items() if any(d.startswith(f"{TRACKER}:") for d in p.degraded))
+    if blind:
+        out.append(f"{TRACKER}: {len(blind)} frames analysed blind, the track of the frame before missing: {blind}")
+    untracked = sorted(f for f in positions if f not in estimates)
+    if untracked:
+        out.append(f"{TRACKER}: no track for {len(untracked)} frames (their single-frame decisions stand): {untracked}")
+    return out
 
 
 def _track_estimates(

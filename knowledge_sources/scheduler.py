@@ -14,8 +14,14 @@ come faster than the tracker follows; their rankings wait, and the decisions do 
 timing). When that track says ``tracking``, the frame's candidates and P(L|A) are conditioned on
 its prediction for frame t (``prior_next``); when it says ``lost``, the frame is analysed blind,
 from the ranking alone. The track prior for frame t thus comes from frames < t only; the
-``position`` says which (``track_prior``). If the tracker dies, the frames after it wait for
-ever: the run ends without their positions and the results name the dead agent.
+``position`` says which (``track_prior``).
+
+Blind fallback: with each tracked frame's position the scheduler posts a ``track_query``
+addressed to the tracker with a deadline (``track_timeout_s``); the tracker's track of that
+frame links it (the answer). When the query times out (the tracker is dead or gone, which the
+blackboard's membership reports at once, or its track is late), the next frame is analysed
+blind, from the ranking alone, and its position says why in ``degraded`` (naming the tracker);
+a track arriving after that is not used for that frame.
 """
 
 from __future__ import annotations
@@ -74,12 +80,14 @@ class Scheduler(KnowledgeSource):
     analysis starts, and their weights in the fusion of :mod:`knowledge_sources.fusion`; default
     the associative memory alone).
     each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
-    ``tracked``: a tracker runs, frames are conditioned on its tracks (see the module docstring).
+    ``tracked``: a tracker runs (the agent ``tracker``), frames are conditioned on its tracks, and
+    a frame whose previous track does not come within ``track_timeout_s`` is analysed blind (see
+    the module docstring).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER, levels.TRACK)
-    produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
-    exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION)
+    produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY)
 
     def __init__(
         self,
@@ -94,6 +102,8 @@ class Scheduler(KnowledgeSource):
         query_timeout_s: float = _DEFAULTS.query_timeout_s,
         sources: dict[str, float] | None = None,
         tracked: bool = False,
+        tracker: str = "tracker",
+        track_timeout_s: float = _DEFAULTS.track_timeout_s,
         backtracking: str = _DEFAULTS.backtracking,
         questions: str = _DEFAULTS.questions,
         floor: float = _DEFAULTS.floor,
@@ -126,7 +136,12 @@ class Scheduler(KnowledgeSource):
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
         self._frames: dict[int, _Frame] = {}
         self.tracked = bool(tracked)
+        self.tracker = str(tracker)
+        self.track_timeout_s = float(track_timeout_s)
+        if not self.track_timeout_s > 0:
+            raise ValueError(f"track_timeout_s must be > 0, got {track_timeout_s!r}")
         self._tracks: dict[int, Any] = {}  # frame t -> prior for frame t + 1 from track t (None: lost)
+        self._no_track: dict[int, str] = {}  # frame t -> why its track did not come (frame t + 1 is blind)
         self._parked: dict[int, _Frame] = {}  # frame t - 1 -> frame t, ranked, waiting for track t - 1
 
     def precondition(self, event: Event) -> float | None:
@@ -147,12 +162,17 @@ class Scheduler(KnowledgeSource):
             self._on_answer(h, board)
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
+            if track.frame in self._no_track:
+                return  # late: the next frame was released blind already
             self._tracks[track.frame] = track.prior_next if track.state == "tracking" else None
             parked = self._parked.pop(track.frame, None)
             if parked is not None:
                 self._start(parked, board)
 
     def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
+        if hypothesis.level == levels.TRACK_QUERY:
+            self._on_track_timeout(levels.TrackQuery.from_hypothesis(hypothesis), reason, board)
+            return
         if hypothesis.level != levels.QUERY:
             return
         query = levels.Query.from_hypothesis(hypothesis)
@@ -165,6 +185,23 @@ class Scheduler(KnowledgeSource):
         assert question is not None
         st.analysis.answer(question, None)
         self._advance(st, board)
+
+    def _on_track_timeout(self, query: levels.TrackQuery, reason: str, board: Board) -> None:
+        """The track of ``query.frame`` did not come (tracker dead, gone or late): the next frame
+        goes blind."""
+        nxt = self._frames.get(query.frame + 1)
+        if (
+            query.frame in self._tracks
+            or query.frame in self._no_track
+            or (nxt is not None and nxt.analysis is not None)
+        ):
+            return  # the track came (and may have been used already)
+        log.warning("%s: frame %d: no track from %s: %s", self.name, query.frame, self.tracker, reason)
+        self._no_track[query.frame] = reason
+        self._tracks[query.frame] = None
+        parked = self._parked.pop(query.frame, None)
+        if parked is not None:
+            self._start(parked, board)
 
     def _set_map(self, mp: levels.Map) -> None:
         """Keep the map and what the questions need of it, derived once."""
@@ -202,18 +239,16 @@ class Scheduler(KnowledgeSource):
     def _start(self, st: _Frame, board: Board) -> None:
         """Merge each source's shards, fuse the sources and start the frame's scene analysis
         (conditioned on the track)."""
-        from knowledge_sources.fusion import fuse_rankings
-        from models.associative import merge_rankings
+        from knowledge_sources.fusion import fuse_shards
 
         mp = self._ensure_map(board)
-        per_source = {}
-        for src in self.sources:
-            parts = [st.rankings[(src, b)] for b in range(st.shards[src])]
-            merged = merge_rankings([p.ranking() for p in parts])
-            per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
-        st.ranking = fuse_rankings(per_source, weights=self.sources)
+        shards = {src: [st.rankings[(src, b)].ranking() for b in range(st.shards[src])] for src in self.sources}
+        st.ranking = fuse_shards(shards, weights=self.sources)
         prior = self._tracks.pop(st.frame - 1, None)
         st.track_prior = prior is not None
+        missing = self._no_track.get(st.frame - 1)
+        if missing is not None:
+            st.degraded.append(f"{self.tracker}: no track of frame {st.frame - 1}, analysed blind ({missing})")
         st.analysis = SceneAnalysis(
             st.ranking,
             self._visible,
@@ -276,6 +311,13 @@ class Scheduler(KnowledgeSource):
         assert d is not None
         st.done = True
         position, heading_deg = levels.Position.at(None if d.viewframe is None else mp.poses[d.viewframe])
+        if self.tracked:  # first, so the tracker has it when the position comes: its track links it
+            levels.post(
+                board,
+                levels.TrackQuery(frame=st.frame, position=levels.position_id(st.frame)),
+                addressed_to=self.tracker,
+                deadline_s=self.track_timeout_s,
+            )
         levels.post(
             board,
             levels.Position(

@@ -1,9 +1,12 @@
 """The tracker: the vehicle's place on the route from the sequence of camera frames.
 
-It consumes, per camera frame, the associative rankings (every shard's) and the scene
-analysis's decision (the landmark answers it got, and its single-frame answer), strictly in
-frame order, and keeps a :class:`~models.tracking.RouteFilter` (the model and its calibration
-are documented in :mod:`models.tracking`). For each frame it posts a ``track`` hypothesis: the
+It consumes, per camera frame, the rankings of every ranking source the single-frame decision
+uses (option ``sources``, the scheduler's: the associative memory's shards and the skyline) and
+the scene analysis's decision (the landmark answers it got, and its single-frame answer),
+strictly in frame order, and keeps a :class:`~models.tracking.RouteFilter` (the model and its
+calibration are documented in :mod:`models.tracking`). It observes the sources fused by the
+scheduler's own rule (:func:`knowledge_sources.fusion.fuse_shards`, same weights), so the track
+and the single-frame decision rest on the same ranking. For each frame it posts a ``track`` hypothesis: the
 route point, arc length, ``(x, y)``, heading, confidence, ``tracking``/``lost`` state, the
 posterior mass of each route point (``belief``), the predicted probability of each route point for the next frame (``prior_next``, which the
 scheduler uses to condition the next frame's questions), the frame's per-route-point evidence
@@ -36,29 +39,63 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class _Pending:
-    rankings: dict[int, tuple[list[int], list[float]]] = field(default_factory=dict)
-    shards: int = 1
+    rankings: dict[tuple[str, int], tuple[list[int], list[float]]] = field(default_factory=dict)  # (source, shard)
+    shards: dict[str, int] = field(default_factory=dict)  # source -> its number of shards
     time: float | None = None
     position: levels.Position | None = None
+    queried: bool = False  # the scheduler's track query of the frame is in
     links: list[str] = field(default_factory=list)
 
-    @property
-    def ready(self) -> bool:
-        return len(self.rankings) >= self.shards and self.position is not None
+    def complete(self, sources: tuple[str, ...], *, await_query: bool = False) -> bool:
+        """Every source's every shard, and the position (and with ``await_query`` the track query), are in."""
+        return (
+            self.position is not None
+            and (self.queried or not await_query)
+            and all(
+                src in self.shards and sum(1 for s, _ in self.rankings if s == src) >= self.shards[src]
+                for src in sources
+            )
+        )
+
+    def by_source(self) -> dict[str, list[tuple[list[int], list[float]]]]:
+        """Each source's shards ``(viewframes, errors)``, in shard order."""
+        out: dict[str, list[tuple[list[int], list[float]]]] = {}
+        for src, b in sorted(self.rankings):
+            out.setdefault(src, []).append(self.rankings[(src, b)])
+        return out
 
 
 class FrameOrder:
     """Buffers per-frame evidence and releases frames in order, each once it is complete
-    (every shard's ranking and the scene analysis's position)."""
+    (every shard's ranking of every source in ``sources``, the scene analysis's position, and
+    with ``await_query`` the scheduler's track query, which the track must link: it may arrive
+    after the position). Rankings of other sources are ignored."""
 
-    def __init__(self) -> None:
+    def __init__(self, sources: tuple[str, ...] = ("associative",), *, await_query: bool = False) -> None:
+        if not sources:
+            raise ValueError("FrameOrder needs at least one ranking source")
+        self.sources = tuple(sources)
+        self.await_query = bool(await_query)
         self.pending: dict[int, _Pending] = {}
         self.next = 0
 
-    def ranking(self, frame: int, shard: int, shards: int, viewframes, variances, time: float | None, hid: str) -> None:
+    def ranking(
+        self,
+        frame: int,
+        shard: int,
+        shards: int,
+        viewframes,
+        variances,
+        time: float | None,
+        hid: str,
+        *,
+        source: str = "associative",
+    ) -> None:
+        if source not in self.sources:
+            return
         p = self.pending.setdefault(frame, _Pending())
-        p.shards = shards
-        p.rankings[shard] = (list(viewframes), list(variances))
+        p.shards[source] = shards
+        p.rankings[(source, shard)] = (list(viewframes), list(variances))
         p.time = time if time is not None else p.time
         p.links.append(hid)
 
@@ -67,10 +104,17 @@ class FrameOrder:
         p.position = position
         p.links.append(hid)
 
+    def query(self, frame: int, hid: str) -> None:
+        """The scheduler's track query of ``frame`` (the track links it)."""
+        if frame >= self.next:  # a frame already tracked cannot link it any more
+            p = self.pending.setdefault(frame, _Pending())
+            p.queried = True
+            p.links.append(hid)
+
     def ready(self) -> list[tuple[int, _Pending]]:
         """The frames that can be processed now, in order (removed from the buffer)."""
         out = []
-        while (p := self.pending.get(self.next)) is not None and p.ready:
+        while (p := self.pending.get(self.next)) is not None and p.complete(self.sources, await_query=self.await_query):
             out.append((self.next, self.pending.pop(self.next)))
             self.next += 1
         return out
@@ -83,29 +127,44 @@ def answers_of(steps: list[dict[str, Any]]) -> list[tuple[str, bool]]:
 
 class Tracker(KnowledgeSource):
     """Options: the scenario's ``tracking`` block as a dict (``spec``), ``min_pixels`` (a landmark
-    counts as visible in a viewframe from this many pixels, as the scheduler's)."""
+    counts as visible in a viewframe from this many pixels, as the scheduler's), ``sources``
+    (``{source: weight}``, the scheduler's: the ranking sources a frame waits for and their
+    fusion weights; default the associative memory alone), ``await_query`` (a frame is tracked
+    once the scheduler's ``track_query`` for it is in as well, and its track links it: the
+    scheduler's blind fallback waits for that answer; on when the scheduler is tracked)."""
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.POSITION)
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.POSITION, levels.TRACK_QUERY)
     produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
     exclusive: ClassVar[tuple[str, ...]] = (levels.TRACK,)
 
     def __init__(
-        self, name: str, *, spec: dict[str, Any] | None = None, min_pixels: int | None = None, **options: Any
+        self,
+        name: str,
+        *,
+        spec: dict[str, Any] | None = None,
+        min_pixels: int | None = None,
+        sources: dict[str, float] | None = None,
+        await_query: bool = False,
+        **options: Any,
     ) -> None:
         super().__init__(name, **options)
         from models.scenario import SchedulerSpec, TrackingSpec
 
         self.spec = TrackingSpec(**(spec or {}))
         self.min_pixels = int(SchedulerSpec().min_pixels if min_pixels is None else min_pixels)
+        self.sources = {"associative": 1.0} if sources is None else {str(k): float(v) for k, v in sources.items()}
+        if not self.sources or any(not w >= 0 for w in self.sources.values()) or not any(self.sources.values()):
+            raise ValueError(f"{name}: sources must map ranking sources to weights >= 0, one > 0, got {sources!r}")
         self._filter: RouteFilter | None = None
         self._visible: dict[int, frozenset[str]] = {}
-        self._order = FrameOrder()
+        self._order = FrameOrder(tuple(self.sources), await_query=await_query)
         self._last_time: float | None = None
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
-        return 2.0 if event.hypothesis.level == levels.MAP else 1.0
+        # the map first; then the scheduler's track queries (the frames waiting for them go on)
+        return {levels.MAP: 2.0, levels.TRACK_QUERY: 1.5}.get(event.hypothesis.level, 1.0)
 
     def act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
@@ -114,12 +173,17 @@ class Tracker(KnowledgeSource):
             return
         if h.level == levels.RANKING:
             rk = levels.Ranking.from_hypothesis(h)
-            if rk.source != "associative":  # its observation model is calibrated on the memory's variances
+            if rk.source not in self.sources:
                 return
-            self._order.ranking(rk.frame, rk.shard, rk.shards, rk.viewframes, rk.variances, rk.time, h.id)
+            self._order.ranking(
+                rk.frame, rk.shard, rk.shards, rk.viewframes, rk.variances, rk.time, h.id, source=rk.source
+            )
         elif h.level == levels.POSITION:
             pos = levels.Position.from_hypothesis(h)
             self._order.position(pos.frame, pos, h.id)
+        elif h.level == levels.TRACK_QUERY:
+            if h.addressed_to == self.name:  # the scheduler waits for this frame's track: it links the query
+                self._order.query(levels.TrackQuery.from_hypothesis(h).frame, h.id)
         if self._filter is None:
             got = board.get(levels.map_id())
             if got is None:
@@ -139,11 +203,22 @@ class Tracker(KnowledgeSource):
         }
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
+        from knowledge_sources.fusion import fuse_shards
+        from models.associative import Ranking as MemoryRanking
+
         f = self._filter
         assert f is not None and p.position is not None
-        viewframes = [k for b in sorted(p.rankings) for k in p.rankings[b][0]]
-        variances = [v for b in sorted(p.rankings) for v in p.rankings[b][1]]
-        ll = f.route_loglik(viewframes, variances, answers=answers_of(p.position.steps), visible=self._visible)
+        shards = {
+            src: [MemoryRanking.from_dict({"viewframes": k, "variances": v, "reliability": 0.0}) for k, v in parts]
+            for src, parts in p.by_source().items()
+        }
+        fused = fuse_shards(shards, weights=self.sources)  # the scheduler's ranking of this frame
+        ll = f.route_loglik(
+            [k for k, _ in fused],
+            [e for _, e in fused],
+            answers=answers_of(p.position.steps),
+            visible=self._visible,
+        )
         dt = None
         if p.time is not None and self._last_time is not None:
             dt = float(p.time) - self._last_time

@@ -360,7 +360,9 @@ class SchedulerSpec(_Spec):
     ``accept``; ``reliability`` is the detectors' assumed reliability, ``beta`` the sharpness of
     the ranking weights; a landmark is asked about only where it covers at least ``min_pixels``
     pixels of the viewframe; a detector answers *present* from ``detector_threshold`` and *absent*
-    below ``absent_threshold``; an unanswered query times out after ``query_timeout_s``. The
+    below ``absent_threshold``; an unanswered query times out after ``query_timeout_s``; with
+    tracking, a frame whose previous frame's track is not posted within ``track_timeout_s`` (or
+    whose tracker is dead) is analysed blind. The
     defaults were chosen on simulated frames of the bundled scenarios with other seeds than theirs
     (BENCHMARKS.md). Example::
 
@@ -376,6 +378,9 @@ class SchedulerSpec(_Spec):
     absent_threshold: float = Field(default=0.15, ge=0, le=1)
     # a question unanswered this long is given up (its detector is taken as dead for it)
     query_timeout_s: float = Field(default=10.0, ge=0.01, le=3600)
+    # tracking: frame t waits this long after frame t - 1's position for the track of t - 1, then
+    # (or at once when the tracker is dead) it is analysed blind (the tracker answers in milliseconds)
+    track_timeout_s: float = Field(default=5.0, ge=0.01, le=3600)
     strategy: Literal["associative", "prior"] = "associative"
     #: how detector answers enter the posterior: "hard" (an absent landmark discards its
     #: viewframes, the seed paper's) or "soft" (the answer's likelihood ratio enters it)
@@ -454,12 +459,14 @@ class TrackingSpec(_Spec):
     probability ``p_skip`` by up to ``max_skip_points`` spacings (dropped frames), a stop with
     probability ``p_stop``, a reversal of up to ``reverse_m`` with probability ``p_reverse``; a
     jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
-    ranking's variances as a likelihood, ``log(eps_f + exp(gain - z / temperature))`` with ``z`` the
-    variance above the best in robust spreads, the floor ``eps_f = eps + margin_scale / margin``
+    frame's ranking (every ranking source the scheduler uses, fused by its rule:
+    :mod:`knowledge_sources.fusion`) as a likelihood, ``log(eps_f + exp(gain - z / temperature))``
+    with ``z`` the fused score above the best in robust spreads, the floor ``eps_f = eps + margin_scale / margin``
     higher when the ranking's margin is low, each route point's term spread along the route by a
     Gaussian of ``spread`` mean route spacings (the ranking's own along-route error);
-    ``temperature``, ``gain``, ``eps``, ``margin_scale`` and ``spread`` were fitted on
-    tuning drives (bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
+    the parameters were measured on the fused ranking of the evaluation set's tuning split
+    (maximum likelihood, then the tracked top-1 over a grid; ``gain`` fixed;
+    bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
     ``smoothing``: offline forward-backward over the whole drive (frames from files).

@@ -19,7 +19,10 @@ Prediction (motion model)
     or by FFT for long kernels).
 
 Update (observation model)
-    The associative ranking gives an error variance ``v_k`` per route point ``k``. With
+    The frame's ranking gives an error ``v_k`` per route point ``k``: the knowledge source passes
+    the ranking the single-frame decision uses, every ranking source (associative memory,
+    skyline) fused by the scheduler's rule (:mod:`knowledge_sources.fusion`; the fused score, or
+    the memory's error variance when it is the only source). With
     ``v_best`` the smallest and ``r`` a robust spread of all of them (1.4826 times the median
     absolute deviation about the median, as :func:`knowledge_sources.scene_analysis.ranking_weights`),
     the score is ``z_k = (v_k - v_best) / r``. The likelihood of the camera being at arc length
@@ -33,17 +36,20 @@ Update (observation model)
     trust. ``L`` is evaluated at :data:`SAMPLES_PER_LEG` samples per leg and interpolated (in
     log) to the cells.
 
-    *Calibration* (bench/tracking_calibrate.py; its numbers and seeds in BENCHMARKS.md): on
-    simulated drives with tuning seeds only (larger pose errors than the bundled scenarios'),
-    every frame's ranking gives ``L``; normalised over the route it is the density of where the
-    camera is according to that frame alone (from a uniform prior). ``temperature``, ``eps``,
-    ``margin_scale`` and ``spread`` maximise the mean log of that density at the true arc length
-    (the true position projected on the route); ``gain`` is fixed (only its ratio to the floor
-    matters). The script also prints the empirical log ratio of the score histograms of true
-    and other route points, and a reliability table (the single-frame probability of the chosen
-    route point against how often it is right). The fitted values are the defaults of
-    :class:`models.scenario.TrackingSpec`; a margin term did not improve the fit once the
-    spread was modelled, so its default is 0.
+    *Calibration* (bench/tracking_calibrate.py; its numbers and seeds in BENCHMARKS.md): on the
+    evaluation set's tuning split only (camera frames from another renderer than the
+    viewframes', larger pose errors than the bundled scenarios'), every frame's fused ranking
+    gives ``L``; normalised over the route it is the density of where the camera is according to
+    that frame alone (from a uniform prior). ``eps``, ``margin_scale`` and ``spread`` maximise
+    the mean log of that density at the true arc length (the true position projected on the
+    route); ``gain`` is fixed (only its ratio to the floor matters). The maximum-likelihood
+    ``temperature`` is over-confident for tracking (consecutive frames' errors are correlated,
+    which a single-frame fit cannot see), so the defaults of
+    :class:`models.scenario.TrackingSpec` are chosen on the tracked top-1 of the same split over
+    a grid of temperatures and spreads around the fit. The script also prints the empirical log
+    ratio of the score histograms of true and other route points, and a reliability table (the
+    single-frame probability of the chosen route point against how often it is right). A margin
+    term did not improve the fit once the spread was modelled, so its default is 0.
 
     Landmark answers of the scene analysis add ``log q`` / ``log (1 - q)`` per route point that
     sees / does not see a landmark reported present, and the converse for one reported absent

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from knowledge_sources.fusion import fuse_rankings, standardise
+from knowledge_sources.fusion import fuse_rankings, fuse_shards, standardise
 
 
 def _source(rng, n, truth, *, separation, noise=1.0, scale=1.0, offset=0.0):
@@ -77,3 +77,22 @@ def test_a_viewframe_a_source_did_not_rank_counts_as_its_worst():
 def test_bad_weights_are_refused(weights, match):
     with pytest.raises(ValueError, match=match):
         fuse_rankings({"a": ([0, 1], [0.1, 0.2])}, weights=weights)
+
+
+def test_fuse_shards_merges_each_source_then_fuses():
+    from models.associative import Ranking
+
+    rng = np.random.default_rng(7)
+    a, b = rng.random(12), rng.random(12) * 5.0
+    labels = np.arange(12)
+    shards = {
+        "associative": [Ranking(labels[:7], a[:7], 0.0), Ranking(labels[7:], a[7:], 0.0)],
+        "skyline": [Ranking(labels[::-1], b[::-1], 0.0)],
+    }
+    weights = {"associative": 1.0, "skyline": 4.0}
+    assert fuse_shards(shards, weights=weights) == fuse_rankings(
+        {"associative": (labels, a), "skyline": (labels, b)}, weights=weights
+    )
+    # one source: its shards merged, its own errors best first (the identity of the fusion)
+    only = fuse_shards({"associative": shards["associative"]})
+    assert [k for k, _ in only] == list(np.argsort(a)) and [e for _, e in only] == sorted(a.tolist())

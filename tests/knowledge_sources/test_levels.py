@@ -118,6 +118,7 @@ SAMPLES: list[levels.Message] = [
         loglik=np.zeros(9, np.float32),
         dt=None,
     ),
+    levels.TrackQuery(frame=4, position="pos-000004"),
 ]
 
 

@@ -4,6 +4,7 @@ The test plays the detectors: it answers the scheduler's queries by posting ``an
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from blackboard.memory_board import MemoryBlackboard
@@ -259,3 +260,58 @@ def test_a_lost_track_releases_the_frame_blind() -> None:
     bb.run(timeouts=False)
     ((_, q),) = _queries(bb)
     assert q.viewframe == 2  # the ranking's best: the lost track's prior is not used
+
+
+def test_without_the_track_of_the_frame_before_the_next_frame_is_analysed_blind() -> None:
+    bb = _board(tracked=True, candidates=1, track_timeout_s=2.5)  # no tracker on the board: its track queries time out
+    _rank(bb, 0, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})
+    _rank(bb, 1, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})
+    bb.run(timeouts=False)
+    ((qid, q),) = _queries(bb)  # frame 0 (nothing before it) is analysed; frame 1 waits for track 0
+    assert q.frame == 0
+    _answer(bb, q, qid, True)
+    bb.run(timeouts=False)
+    # with its position, frame 0's track query: addressed to the tracker, with the scheduler's deadline
+    (tq,) = bb.hypotheses(levels.TRACK_QUERY)
+    assert tq.addressed_to == "tracker" and tq.deadline_s == 2.5
+    assert levels.TrackQuery.from_hypothesis(tq) == levels.TrackQuery(frame=0, position=levels.position_id(0))
+    assert [levels.Query.from_hypothesis(h).frame for h in bb.hypotheses(levels.QUERY)] == [0]  # frame 1 waits
+    bb.run()  # nobody answers: the track query times out, frame 1 goes blind (its own query times out too)
+    p1 = levels.Position.from_hypothesis(bb.user.get(levels.position_id(1)))
+    assert not p1.track_prior and p1.viewframe == 2  # the blind ranking's best
+    assert any(d.startswith("tracker: no track of frame 0") for d in p1.degraded) and "tracker" in p1.reason
+    # a track of frame 0 arriving now is not used (frame 1 is decided), and nothing breaks
+    _track(bb, 0, "tracking", [0.01, 0.97, 0.01, 0.01])
+    bb.run()
+    assert len(bb.hypotheses(levels.POSITION)) == 2
+
+
+def test_a_track_answers_the_track_query() -> None:
+    bb = _board(tracked=True, candidates=1)
+    _rank(bb, 0, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})
+    bb.run(timeouts=False)
+    ((qid, q),) = _queries(bb)
+    _answer(bb, q, qid, True)
+    bb.run(timeouts=False)
+    levels.post(
+        bb.board("user"),
+        levels.Track(
+            frame=0,
+            route_point=1,
+            arc_m=10.0,
+            position=[10.0, 0.0],
+            heading_deg=0.0,
+            confidence=0.9,
+            state="tracking",
+            evidence=True,
+            belief=np.asarray([0.01, 0.97, 0.01, 0.01], np.float32),
+            prior_next=np.asarray([0.01, 0.97, 0.01, 0.01], np.float32),
+            loglik=None,
+            dt=None,
+        ),
+        links=(levels.track_query_id(0),),
+    )
+    _rank(bb, 1, {0: [(2, 1e-5), (1, 2e-5), (0, 8e-5), (3, 9e-5)]})
+    bb.run()  # the query was answered: no timeout, frame 1 conditioned on the track
+    p1 = levels.Position.from_hypothesis(bb.user.get(levels.position_id(1)))
+    assert p1.track_prior and not any(d.startswith("tracker") for d in p1.degraded)
