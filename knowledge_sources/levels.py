@@ -635,7 +635,9 @@ class Position(Message):
     latency_ms: float = field(metadata=_doc("camera frame posted to decision, milliseconds"))
     ranking: list = field(metadata=_doc("[[k, variance], ...] the merged ranking's first 5"))
     reason: str = field(metadata=_doc("why this decision (and what degraded it)"))
-    degraded: list = field(metadata=_doc("queries without an answer: [str, ...]"))
+    degraded: list = field(
+        metadata=_doc("queries without an answer, and a track of the frame before that did not come: [str, ...]")
+    )
     steps: list = field(metadata=_doc("the scene analysis's steps: [{...}, ...]"))
     strategy: str = field(metadata=_doc('"associative" or "prior"'))
     track_prior: bool = field(default=False, metadata=_doc("the candidates were conditioned on the track"))

@@ -53,9 +53,9 @@ log = logging.getLogger(__name__)
 
 #: the camera's --rate is at most this (Hz); --timeout and --wait-remote at most this (seconds)
 MAX_RATE_HZ = 10_000.0
+MAX_WAIT_S = 7 * 24 * 3600.0
 #: the tracker's agent name (the scheduler addresses its track queries to it)
 TRACKER = "tracker"
-MAX_WAIT_S = 7 * 24 * 3600.0
 
 
 def agent_plan(

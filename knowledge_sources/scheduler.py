@@ -311,7 +311,7 @@ class Scheduler(KnowledgeSource):
         assert d is not None
         st.done = True
         position, heading_deg = levels.Position.at(None if d.viewframe is None else mp.poses[d.viewframe])
-        if self.tracked:  # first, so the tracker has it when the position comes: its track links it
+        if self.tracked:  # the tracker's track of this frame answers it (the tracker waits for it)
             levels.post(
                 board,
                 levels.TrackQuery(frame=st.frame, position=levels.position_id(st.frame)),
