@@ -22,6 +22,7 @@ while it is up; :meth:`BlackboardNode.wait_joined` waits for named agents to joi
 from __future__ import annotations
 
 import hmac
+import json
 import logging
 import os
 import queue
@@ -98,7 +99,9 @@ class BlackboardNode:
         self.endpoint = options.listen[0] if options.listen else loopback_endpoint()
         extra_listen = [] if options.listen else [self.endpoint]
         self._router_config = zenoh_config(options, mode="router", listen=extra_listen)
-        self._joins_network = bool(options.connect) or options.config_file is not None
+        # another run may only be reached through links this router makes itself
+        scouts = json.loads(self._router_config.get_json("scouting/multicast/enabled")) is True
+        self._joins_network = bool(json.loads(self._router_config.get_json("connect/endpoints"))) or scouts
         self._config = zenoh_config(
             ZenohOptions(config_file=options.config_file, password=options.password),
             mode="client",
@@ -170,8 +173,9 @@ class BlackboardNode:
     def _refuse_run_id_in_use(self) -> None:
         """Raise :class:`BlackboardError` when a node of this run id is already up on the zenoh
         network this one joins, before this node declares anything (so the other run is never
-        touched). Only reachable when this router connects somewhere (``connect`` endpoints or
-        a user config): first wait up to :data:`JOIN_NETWORK_S` for those links to come up."""
+        touched). Only reachable when this router connects somewhere (``connect`` endpoints, its
+        own or a user config's, or multicast scouting a user config turns on): first wait up to
+        :data:`JOIN_NETWORK_S` for those links to come up."""
         assert self._router is not None and self._session is not None
         if not self._joins_network:
             return
