@@ -4,6 +4,7 @@ then a seeded fuzz of every key the node listens on (>= 10,000 messages), with n
 
 from __future__ import annotations
 
+import json
 import math
 import random
 import time
@@ -15,7 +16,7 @@ import zenoh
 
 from blackboard.codec import decode, encode
 from blackboard.config import ZenohOptions, open_session, zenoh_config
-from blackboard.errors import CodecError
+from blackboard.errors import CodecError, TransportError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.runtime import Runtime
@@ -465,13 +466,164 @@ def test_auth_is_on_by_default_beyond_loopback_only() -> None:
         ("{transport: {link: {tx: {lease: 10000}}}}", ["tcp/127.0.0.1:0"], False),
         ('{listen: {endpoints: ["tcp/127.0.0.1:7999"]}}', ["tcp/127.0.0.1:7999"], False),
         ("{scouting: {multicast: {enabled: true}}}", ["tcp/127.0.0.1:0"], True),  # said explicitly: the user's choice
+        # words in comments and listen settings without endpoints say nothing about either
+        ("// listen here; multicast stays off\n{/* listen, multicast */}", ["tcp/127.0.0.1:0"], False),
+        ("{listen: {timeout_ms: 5000}, scouting: {timeout: 1000}}", ["tcp/127.0.0.1:0"], False),
+        ('{listen: {endpoints: {peer: ["tcp/127.0.0.1:7999"]}}}', ["tcp/127.0.0.1:0"], False),  # not the router's
+        ('{listen: {endpoints: {router: ["tcp/127.0.0.1:7999"]}}}', {"router": ["tcp/127.0.0.1:7999"]}, False),
+        (
+            "{transport: {link: {tls: {root_ca_certificate: 'certs/ca.pem', enable_mtls: true}}}}",
+            ["tcp/127.0.0.1:0"],
+            False,
+        ),
     ],
 )
-def test_a_user_config_never_widens_the_defaults(tmp_path: Path, text: str, listen: list[str], multicast: bool) -> None:
-    import json
-
+def test_a_user_config_never_widens_the_defaults(tmp_path: Path, text: str, listen: object, multicast: bool) -> None:
     path = tmp_path / "z.json5"
     path.write_text(text)
     config = zenoh_config(ZenohOptions(config_file=path), mode="router")
     assert json.loads(config.get_json("listen/endpoints")) == listen
     assert json.loads(config.get_json("scouting/multicast/enabled")) is multicast
+    assert json.loads(config.get_json("scouting/gossip/enabled")) is False
+
+
+# -- TLS and access control: the example configs of scenarios/zenoh, with certificates made here ------
+
+
+def _outside_tls(folder: Path, endpoint: str, cert: str | None) -> zenoh.Config:
+    """A client config of an outside session over TLS: trusting the test CA, showing ``certs/CERT.pem``
+    (None: no certificate), giving up after 3 s."""
+    import json
+
+    tls: dict[str, object] = {"root_ca_certificate": str(folder / "certs" / "ca.pem")}
+    if cert is not None:
+        tls.update(
+            connect_certificate=str(folder / "certs" / f"{cert}.pem"),
+            connect_private_key=str(folder / "certs" / f"{cert}-key.pem"),
+            enable_mtls=True,
+        )
+    config = zenoh_config(ZenohOptions(connect=[endpoint]), mode="client")
+    config.insert_json5("transport/link/tls", json.dumps(tls))
+    config.insert_json5("connect/timeout_ms", "3000")
+    return config
+
+
+def _doubled_with_remote_echo(rt: Runtime, endpoint: str, agent_config: Path | None) -> tuple[list, dict]:
+    """Doubler local, Echo as a remote agent (its own session, connecting to ``endpoint`` with
+    ``agent_config``, as ``mapinterp agent`` does): post 1, 2, 3, run; (echo's values, agents' states)."""
+    from blackboard.agent import AgentRunner
+    from tests.blackboard.agents import Echo
+
+    rt.add(f"{AGENTS}:Doubler", name="doubler")
+    rt.expect_remote(["echo"])
+    remote = AgentRunner(
+        Echo("echo"),
+        run_id=rt.run_id,
+        connect=[endpoint],
+        zenoh_options=ZenohOptions(config_file=agent_config),
+        secret=rt.secret,
+    )
+    remote.start(wait_s=20)
+    try:
+        rt.wait_joined(["echo"], timeout_s=20)
+        for x in (1, 2, 3):
+            rt.post("number", {"x": x})
+        outcome = rt.run(timeout_s=30)
+        return sorted(h.body["x"] for h in rt.hypotheses("echo")), outcome.agents
+    finally:
+        remote.stop()
+
+
+def test_the_tls_example_configs_run_and_refuse_sessions_without_a_certificate(
+    run_id: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from blackboard.config import free_port, loopback_endpoint
+    from tests.blackboard.certs import ZENOH_EXAMPLES, make_certs
+
+    make_certs(tmp_path)
+    monkeypatch.chdir(tmp_path)  # the examples name certs/... relative to where mapinterp runs
+    endpoint = loopback_endpoint()
+    with Runtime(run_id=f"{run_id}-tcp", zenoh=ZenohOptions(listen=[endpoint])) as rt:
+        over_tcp = _doubled_with_remote_echo(rt, endpoint, None)
+    tls = f"tls/127.0.0.1:{free_port()}"
+    options = ZenohOptions(listen=[tls], config_file=ZENOH_EXAMPLES / "tls-run.json5")
+    with Runtime(run_id=run_id, zenoh=options) as rt:
+        assert json.loads(rt.node._router_config.get_json("listen/endpoints")) == [tls]
+        over_tls = _doubled_with_remote_echo(rt, tls, ZENOH_EXAMPLES / "tls-agent.json5")
+        for config in (
+            zenoh_config(ZenohOptions(connect=[tls.replace("tls/", "tcp/")]), mode="client"),  # plain tcp
+            _outside_tls(tmp_path, tls, None),  # TLS, but no client certificate (mTLS)
+        ):
+            config.insert_json5("connect/timeout_ms", "3000")
+            with pytest.raises(TransportError, match="cannot open a zenoh session"):
+                open_session(config)
+        open_session(_outside_tls(tmp_path, tls, "agent")).close()  # a certificate of the CA: admitted
+    assert over_tls == over_tcp == ([2, 4, 6], {"doubler": "ok", "echo": "ok"})
+
+
+def test_the_acl_example_drops_whatever_other_sessions_send_before_the_node_sees_it(
+    run_id: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from blackboard.config import free_port
+    from tests.blackboard.certs import ZENOH_EXAMPLES, make_certs
+
+    make_certs(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    keys = RunKeys(run_id)
+    tls, tcp = f"tls/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    trace = tmp_path / "t.trace"
+    options = ZenohOptions(listen=[tls, tcp], config_file=ZENOH_EXAMPLES / "acl-run.json5")
+    seen_by: dict[str, list[bytes]] = {}
+    with Runtime(run_id=run_id, zenoh=options, trace_path=trace) as rt:
+        rt.add(f"{AGENTS}:Doubler", name="doubler")
+        rt.add(f"{AGENTS}:Echo", name="echo")
+        outsiders = {
+            "plain-tcp": open_session(zenoh_config(ZenohOptions(connect=[tcp]), mode="client")),
+            "intruder": open_session(_outside_tls(tmp_path, tls, "intruder")),  # same CA, another name
+            "insider": open_session(_outside_tls(tmp_path, tls, "agent")),  # a name the ACL admits
+        }
+        try:
+            for who, session in outsiders.items():
+                seen_by[who] = []
+                session.declare_subscriber(
+                    keys.all_hypotheses,  # what others post (its own puts it gets locally)
+                    lambda s, w=who: None if str(s.key_expr).endswith(w) else seen_by[w].append(b""),
+                )
+            time.sleep(0.5)  # the subscriptions reach the router
+            for who, session in outsiders.items():
+                _post(session, keys, "doubled", f"forged-{who}", "doubler", {"x": 999})
+                _put(session, keys.status, _status("echo", state="dead", reason=f"forged by {who}"))
+                replies = list(session.get(keys.request, payload=encode({"op": "join", "agent": who}), timeout=3))
+                seen_by[who + "-replies"] = [b"" for r in replies if r.ok is not None]
+            for x in (1, 2, 3):
+                rt.post("number", {"x": x})
+            outcome = rt.run(timeout_s=30)
+        finally:
+            for session in outsiders.values():
+                session.close()
+        assert sorted(h.body["x"] for h in rt.hypotheses("doubled")) == [2, 4, 6]
+        assert sorted(h.body["x"] for h in rt.hypotheses("echo")) == [2, 4, 6]
+        assert outcome.agents == {"doubler": "ok", "echo": "ok"}
+    rejected = " | ".join(f"{r.get('key')} {r['message']}" for r in read_trace(trace) if r["kind"] == "rejected")
+    # the admitted name reaches the node, which refuses its forgeries itself (the HMAC layer) ...
+    assert "forged-insider" in rejected and "join refused: agent 'insider'" in rejected
+    assert seen_by["insider"] and seen_by["insider-replies"]
+    # ... the others are dropped by the router: the node never sees them, they see nothing
+    for who in ("plain-tcp", "intruder"):
+        assert f"forged-{who}" not in rejected and f"agent '{who}'" not in rejected, rejected
+        assert seen_by[who] == [] and seen_by[who + "-replies"] == []
+
+
+@pytest.mark.parametrize("example", ["tls-run.json5", "tls-agent.json5", "acl-run.json5"])
+@pytest.mark.parametrize("mode", ["router", "client"])
+def test_the_example_configs_never_widen_the_defaults(example: str, mode: str) -> None:
+    from tests.blackboard.certs import ZENOH_EXAMPLES
+
+    path = ZENOH_EXAMPLES / example
+    for listen, expected in (([], ["tcp/127.0.0.1:0"]), (["tls/127.0.0.1:7447"], ["tls/127.0.0.1:7447"])):
+        config = zenoh_config(ZenohOptions(listen=listen, config_file=path), mode=mode)
+        assert json.loads(config.get_json("listen/endpoints")) == (expected if mode == "router" else [])
+        assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+        assert json.loads(config.get_json("scouting/gossip/enabled")) is False
+        assert json.loads(config.get_json("connect/endpoints")) == []  # none of its own: only what --connect says
+        assert json.loads(config.get_json("transport/link/tls/enable_mtls")) is True  # and the file still counts
