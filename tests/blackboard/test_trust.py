@@ -191,32 +191,111 @@ def test_forgery_from_an_outside_session_is_refused_and_traced(case: str, run_id
     assert not [r for r in read_trace(trace) if r["kind"] == "agent_join" and r["agent"] not in ("doubler", "echo")]
 
 
+def test_a_join_copied_off_the_wire_is_refused_and_gains_nothing(run_id: str, tmp_path: Path) -> None:
+    """An outside session that declares the node's queryable sees an agent's challenge and join
+    requests and answers them with forged "welcomes": the agent ignores those and joins; the copied
+    join, sent again while the agent is live, after it stopped, or with a fresh challenge of the
+    attacker's, is refused each time (each nonce counts once, the proof binds it) and its replies
+    hold no key."""
+    keys = RunKeys(run_id)
+    trace = tmp_path / "t.trace"
+    seen: list[bytes] = []
+
+    def intercept(query: zenoh.Query) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        seen.append(payload)
+        welcome = {"ok": True, "keys": bytes(64), "nonce": "0" * 32, "proof": "0" * 64, "agent_key": "00" * 32}
+        query.reply(keys.request, encode(welcome))  # a forged welcome (and a forged challenge)
+
+    def send(session: zenoh.Session, message: dict) -> list[dict]:
+        replies = session.get(
+            keys.request, payload=encode(message), timeout=10, consolidation=zenoh.ConsolidationMode.NONE
+        )
+        return [decode(r.ok.payload.to_bytes()) for r in replies if r.ok is not None]
+
+    with Runtime(run_id=run_id, trace_path=trace) as rt:
+        outsider = open_session(zenoh_config(ZenohOptions(), mode="client", connect=[rt.node.endpoint]))
+        try:
+            queryable = outsider.declare_queryable(keys.request, intercept)
+            time.sleep(0.3)  # the queryable reaches the router
+            rt.add(f"{AGENTS}:Doubler", name="doubler")  # joins despite the forged replies
+            queryable.undeclare()
+            joins = [m for m in map(decode, seen) if m.get("op") == "join"]
+            assert len(joins) == 1 and joins[0]["agent"] == "doubler" and joins[0]["proof"]
+            copied = joins[0]
+            rt.post("number", {"x": 21})
+            outcome = rt.run(timeout_s=30)
+            assert [h.body["x"] for h in rt.hypotheses("doubled")] == [42] and outcome.agents == {"doubler": "ok"}
+            answers = [send(outsider, copied)]  # while the agent is live
+            rt._runners["doubler"].stop()
+            deadline = time.monotonic() + 10
+            while rt.node.agents["doubler"].live and time.monotonic() < deadline:
+                time.sleep(0.05)
+            assert rt.node.agents["doubler"].state == "stopped"
+            answers.append(send(outsider, copied))  # after it stopped: the old code let this in
+            nonce = send(outsider, {"op": "challenge", "agent": "doubler"})[0]["nonce"]
+            answers.append(send(outsider, {**copied, "nonce": nonce}))  # a fresh nonce, the old proof
+        finally:
+            outsider.close()
+        assert rt.node.agents["doubler"].state == "stopped"  # nobody joined under its name
+    for replies in answers:
+        assert len(replies) == 1 and replies[0]["ok"] is False and "keys" not in replies[0], replies
+    assert "a copied join sent again" in answers[0][0]["message"] and "a copied join" in answers[1][0]["message"]
+    assert "wrong or no secret" in answers[2][0]["message"]
+    records = read_trace(trace)
+    assert [r["agent"] for r in records if r["kind"] == "agent_join"] == ["doubler"]
+    assert sum("join refused: agent 'doubler'" in r.get("message", "") for r in records) == 3
+
+
+@pytest.mark.parametrize("secret", ["a guess", None], ids=["wrong-secret", "no-secret"])
+def test_an_agent_without_the_secret_is_told_why_it_cannot_join(run_id: str, secret: str | None) -> None:
+    from blackboard.agent import AgentRunner
+    from blackboard.errors import DeclarationError
+    from tests.blackboard.agents import Echo
+
+    with Runtime(run_id=run_id) as rt:
+        rt.expect_remote(["remote-1"])
+        runner = AgentRunner(Echo("remote-1"), run_id=run_id, connect=[rt.node.endpoint], secret=secret)
+        with pytest.raises(DeclarationError, match="remote-1' did not prove it is the one this run started"):
+            runner.start(wait_s=10)
+        assert "remote-1" not in rt.node.agents
+
+
 def test_the_truth_is_for_the_runs_own_user_side_only(run_id: str, tmp_path: Path) -> None:
+    """Posted by the user side and by an agent (as the camera does): never served to a ``get``,
+    unreadable on the wire to an outside session and to a joined agent (which holds the run key),
+    read by the node into the results and the trace."""
     keys = RunKeys(run_id)
     trace = tmp_path / "t.trace"
     seen: list[bytes] = []
     with Runtime(run_id=run_id, trace_path=trace) as rt:
+        rt.add(f"{AGENTS}:Witness", name="witness")  # posts truth {pose: [21.25, 42.5, 0.75]} on number 21
+        rt.add(f"{AGENTS}:Doubler", name="doubler")  # a joined agent: it holds the run key
+        run_key = rt._runners["doubler"].board.run_key
         outsider = open_session(zenoh_config(ZenohOptions(), mode="client", connect=[rt.node.endpoint]))
         try:
             outsider.declare_subscriber(keys.level("truth"), lambda s: seen.append(s.payload.to_bytes()))
             time.sleep(0.3)  # the subscription reaches the router
             rt.post("truth", {"frame": 0, "pose": [123.25, 456.5, 7.75]})
+            rt.post("number", {"x": 21})
             rt.run(timeout_s=10)
             replies = [r for r in outsider.get(keys.level("truth"), timeout=5) if r.ok is not None]
-            replies += [r for r in outsider.get(f"{keys.root}/**", timeout=5) if r.ok is not None]
+            everything = [r for r in outsider.get(f"{keys.root}/**", timeout=5) if r.ok is not None]
+            replies += [r for r in everything if "/truth/" in str(r.ok.key_expr)]
         finally:
             outsider.close()
-        assert [h.body["pose"] for h in rt.hypotheses("truth")] == [[123.25, 456.5, 7.75]]  # the user side reads it
+        assert everything  # the other levels are served
+        poses = sorted(h.body["pose"] for h in rt.hypotheses("truth"))
+        assert poses == [[21.25, 42.5, 0.75], [123.25, 456.5, 7.75]]  # the user side reads both
     assert replies == []  # never served
-    assert seen, "the post travelled"
-    for payload in seen:  # sealed on the wire: nothing of the pose is readable
+    assert len(seen) == 2, "both posts travelled"
+    for payload in seen:  # sealed on the wire: nothing of the pose is readable, not even with the run key
         body = decode(payload)["hyp"]["body"]
-        assert set(body) == {"__sealed__"} and b"123.25" not in payload and "pose" not in body
+        assert set(body) == {"__sealed__"} and b"123.25" not in payload and b"21.25" not in payload
+        assert run_key is not None and unseal(run_key, body["__sealed__"]) is None
     records = read_trace(trace)
     assert any("read of a private level refused" in r.get("message", "") for r in records)
-    assert [r["body"]["pose"] for r in records if r["kind"] == "post" and r.get("level") == "truth"] == [
-        [123.25, 456.5, 7.75]
-    ]  # the trace, the user's own file, has it
+    assert sorted(r["body"]["pose"] for r in records if r["kind"] == "post" and r.get("level") == "truth") == poses
 
 
 def test_the_runs_memory_budget_refuses_posts_with_a_trace_record(run_id: str, tmp_path: Path) -> None:
@@ -343,7 +422,7 @@ def _message(rng: random.Random) -> dict:
                 activity=[["s", "number", "h-1", 1, "posted", 1.0, 1.0, None]],
             ),
             {
-                "op": rng.choice(["join", "leave", "update", "retract", "?"]),
+                "op": rng.choice(["challenge", "join", "leave", "update", "retract", "?"]),
                 "agent": "doubler",
                 "sent": 0,
                 "after": {"echo": 1},
@@ -351,6 +430,7 @@ def _message(rng: random.Random) -> dict:
                 "body": {},
                 "produces": ["doubled"],
                 "proof": "x",
+                "nonce": rng.choice(["0" * 32, "x", ""]),
             },
         ]
     )
