@@ -18,10 +18,12 @@ started on another machine (``mapinterp agent``) knows when to stop.
 from __future__ import annotations
 
 import heapq
+import hmac
 import itertools
 import logging
 import os
 import queue
+import secrets
 import socket
 import threading
 import time
@@ -36,7 +38,7 @@ from blackboard.errors import AgentError, BlackboardError, CodecError, Transport
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Event, EventKind, KnowledgeSource
-from blackboard.trust import TAG_BYTES, attachment_bytes, proof, verify
+from blackboard.trust import TAG_BYTES, attachment_bytes, join_key, proof, unseal, verify
 from blackboard.zenoh_board import ZenohBoard
 
 __all__ = ["ACTIVITY_CODES", "ACTIVITY_ROW", "AgentRunner"]
@@ -153,28 +155,10 @@ class AgentRunner:
             session, self.keys, self.name, produces=self.source.produces, max_message_bytes=self._max
         )
         try:
-            reply = self.board._request(
-                {
-                    "op": "join",
-                    "consumes": list(self.source.consumes),
-                    "produces": list(self.source.produces),
-                    "exclusive": list(self.source.exclusive),
-                    "pid": os.getpid(),
-                    "host": socket.gethostname()[:200],
-                    "proof": None if self._secret is None else proof(self._secret, "join", self.keys.run_id, self.name),
-                }
-            )
-            self.board.agent_key = bytes.fromhex(str(reply["agent_key"]))
-            self.board.run_key = bytes.fromhex(str(reply["run_key"]))
+            self._join()
         except BlackboardError:
             self._close_session()
             raise
-        except (KeyError, ValueError):
-            self._close_session()
-            raise TransportError(
-                f"agent {self.name!r}: the node's join reply holds no keys (not a mapinterp node "
-                "of this version, or a forged reply)"
-            ) from None
         self._entities.append(session.liveliness().declare_token(self.keys.liveliness(self.name)))
         try:
             self.source.setup(self.board)
@@ -185,6 +169,47 @@ class AgentRunner:
             raise AgentError(self.name, reason) from err
         self._thread = threading.Thread(target=self._work, name=f"agent-{self.name}", daemon=True)
         self._thread.start()
+
+    def _join(self) -> None:
+        """Join the run (see :mod:`blackboard.trust`): ask the node for a challenge, prove the
+        join secret against it, take the agent and run keys from the reply sealed for us. Replies
+        of other sessions on the node's key (a forged challenge, a forged welcome) are ignored:
+        only the node knows the secret that the challenge's proof and the keys' seal need."""
+        board, secret, run_id, name = self.board, self._secret or "", self.keys.run_id, self.name
+        assert board is not None
+        mine, offered = secrets.token_hex(16), []
+
+        def challenge(reply: dict) -> str | None:
+            nonce, shown = reply.get("nonce"), reply.get("proof")
+            if not isinstance(nonce, str) or not isinstance(shown, str):
+                return None
+            offered.append(nonce)
+            return nonce if hmac.compare_digest(shown, proof(secret, "challenge", run_id, name, mine, nonce)) else None
+
+        try:
+            nonce = board._request_authentic({"op": "challenge", "nonce": mine}, challenge)
+        except TransportError:
+            if not offered:
+                raise
+            # none proves itself: a wrong (or no) secret, most likely; join anyway, so that the
+            # node's refusal says why
+            nonce = offered[0]
+        keys = board._request_authentic(
+            {
+                "op": "join",
+                "consumes": list(self.source.consumes),
+                "produces": list(self.source.produces),
+                "exclusive": list(self.source.exclusive),
+                "pid": os.getpid(),
+                "host": socket.gethostname()[:200],
+                "nonce": nonce,
+                "proof": proof(secret, "join", run_id, name, nonce) if self._secret is not None else None,
+            },
+            lambda reply: unseal(join_key(secret, run_id, name, nonce), reply.get("keys")),
+        )
+        if len(keys) != 64:
+            raise TransportError(f"agent {name!r}: the node's join reply holds no keys (not a mapinterp node)")
+        board.agent_key, board.run_key = keys[:32], keys[32:]
 
     def _open(self, wait_s: float, deadline: float) -> zenoh.Session:
         """The client session; retried until ``deadline`` when ``wait_s`` > 0."""

@@ -82,6 +82,30 @@ class ZenohOptions:
 #: zenoh's limit on a blocked put before it closes the transport, and ours (microseconds)
 BLOCK_WAIT_KEY = "transport/link/tx/queue/congestion_control/block/wait_before_close"
 BLOCK_WAIT_BEFORE_CLOSE_US = 60_000_000
+#: our defaults where zenoh's are unsafe or lossy, each kept unless a user config sets the key
+#: (to another value than zenoh's default).
+#: A put with CongestionControl.BLOCK that waits longer than BLOCK_WAIT_KEY CLOSES the transport
+#: (zenoh 1.x; default 5 s), losing every hypothesis behind it: under heavy load a burst can stall
+#: that long on a loaded machine. A minute keeps delivery lossless yet bounded (never a hang).
+_DEFAULTS: dict[str, str] = {
+    "scouting/multicast/enabled": "false",
+    "scouting/gossip/enabled": "false",
+    BLOCK_WAIT_KEY: str(BLOCK_WAIT_BEFORE_CLOSE_US),
+}
+#: zenoh's own defaults, as a config file that says nothing reads (listen: every interface)
+_ZENOH = zenoh.Config()
+_ZENOH_LISTEN_DEFAULT = json.loads(_ZENOH.get_json("listen/endpoints"))
+
+
+def _user_listen(config: zenoh.Config, mode: str) -> list | None:
+    """The listen endpoints a loaded user config sets for ``mode``, or None when it sets none
+    (zenoh's default then would listen on every interface)."""
+    endpoints = json.loads(config.get_json("listen/endpoints"))
+    if endpoints == _ZENOH_LISTEN_DEFAULT:
+        return None
+    if isinstance(endpoints, dict):  # per mode: {router: [...], peer: [...]}
+        endpoints = endpoints.get(mode)
+    return endpoints if isinstance(endpoints, list) else None
 
 
 def zenoh_config(
@@ -104,26 +128,21 @@ def zenoh_config(
         raise TransportError(f"zenoh mode must be router, peer or client, got {mode!r}")
     options = options or ZenohOptions()
     if options.config_file is not None:
+        _read_text(options.config_file)  # a missing or unreadable file: one line naming it
         try:
             config = zenoh.Config.from_file(str(options.config_file))
         except (OSError, zenoh.ZError, ValueError) as err:
             raise TransportError(f"{options.config_file}: cannot load zenoh config: {err}") from None
         # the user's file decides what it says; what it does not say keeps our defaults, which
-        # never widen the listen address (zenoh's own default: every interface) nor scout
-        text = _read_text(options.config_file)
-        if "multicast" not in text:
-            config.insert_json5("scouting/multicast/enabled", "false")
-        if "gossip" not in text:
-            config.insert_json5("scouting/gossip/enabled", "false")
-        user_listens = re.search(r"\blisten\b", text) is not None
+        # never widen the listen address (zenoh's own default: every interface) nor scout. Read
+        # from the loaded config, not the text: a comment naming "listen" or "multicast" says nothing
+        user_listens = _user_listen(config, mode) is not None
     else:
         user_listens = False
         config = zenoh.Config()
-        config.insert_json5("scouting/multicast/enabled", "false")
-        # A put with CongestionControl.BLOCK that waits longer than this CLOSES the transport (zenoh
-        # 1.x; default 5 s), losing every hypothesis behind it: under heavy load a burst can stall
-        # that long on a loaded machine. A minute keeps delivery lossless yet bounded (never a hang).
-        config.insert_json5(BLOCK_WAIT_KEY, str(BLOCK_WAIT_BEFORE_CLOSE_US))
+    for key, default in _DEFAULTS.items():
+        if config.get_json(key) == _ZENOH.get_json(key):  # unset in the user's file (or no file)
+            config.insert_json5(key, default)
     config.insert_json5("mode", json.dumps(mode))
     listen_eps = [*options.listen, *(listen or [])] if mode != "client" else []
     connect_eps = [*options.connect, *(connect or [])]

@@ -22,11 +22,14 @@ while it is up; :meth:`BlackboardNode.wait_joined` waits for named agents to joi
 from __future__ import annotations
 
 import hmac
+import json
 import logging
 import os
 import queue
+import secrets
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -54,6 +57,7 @@ from blackboard.trust import (
     attachment_bytes,
     check_request,
     check_status,
+    join_key,
     proof,
     read_message,
     seal,
@@ -67,6 +71,8 @@ __all__ = ["NODE_SENDER", "AgentState", "BlackboardNode"]
 logger = logging.getLogger(__name__)
 
 _MAX_UNREPORTED = 100_000
+#: join challenges a name may have outstanding (older ones are forgotten, and so refused)
+_MAX_CHALLENGES = 8
 #: on close, how long the node waits for the agents still connected to leave after the run end
 END_GRACE_S = 5.0
 #: at start, how long the node waits for its links to the network it connects to, then how long
@@ -98,7 +104,9 @@ class BlackboardNode:
         self.endpoint = options.listen[0] if options.listen else loopback_endpoint()
         extra_listen = [] if options.listen else [self.endpoint]
         self._router_config = zenoh_config(options, mode="router", listen=extra_listen)
-        self._joins_network = bool(options.connect) or options.config_file is not None
+        # another run may only be reached through links this router makes itself
+        scouts = json.loads(self._router_config.get_json("scouting/multicast/enabled")) is True
+        self._joins_network = bool(json.loads(self._router_config.get_json("connect/endpoints"))) or scouts
         self._config = zenoh_config(
             ZenohOptions(config_file=options.config_file, password=options.password),
             mode="client",
@@ -107,8 +115,10 @@ class BlackboardNode:
         self._max = max_message_bytes
         # the trust model (blackboard.trust)
         self._run_key = os.urandom(32)  # shared with joined agents: tags the node's own messages
+        self._private_key = os.urandom(32)  # the node's alone: seals its own posts of private levels
         self._expected: dict[str, str] = {}  # agent name -> its join secret
         self._agent_keys: dict[str, bytes] = {}  # joined agent -> its own key
+        self._challenges: dict[str, deque[str]] = {}  # expected agent -> join nonces handed out, unused
         self._status_seq: dict[str, int] = {}
         self._stored_bytes = 0
         self.run_budget_bytes = RUN_BUDGET_BYTES
@@ -170,8 +180,9 @@ class BlackboardNode:
     def _refuse_run_id_in_use(self) -> None:
         """Raise :class:`BlackboardError` when a node of this run id is already up on the zenoh
         network this one joins, before this node declares anything (so the other run is never
-        touched). Only reachable when this router connects somewhere (``connect`` endpoints or
-        a user config): first wait up to :data:`JOIN_NETWORK_S` for those links to come up."""
+        touched). Only reachable when this router connects somewhere (``connect`` endpoints, its
+        own or a user config's, or multicast scouting a user config turns on): first wait up to
+        :data:`JOIN_NETWORK_S` for those links to come up."""
         assert self._router is not None and self._session is not None
         if not self._joins_network:
             return
@@ -329,7 +340,7 @@ class BlackboardNode:
             self._barrier.received_from(sender)
             record = message.get("hyp")
             if isinstance(record, dict) and record.get("level") in PRIVATE_LEVELS:
-                record = {**record, "body": self._unseal(record.get("body"), key)}
+                record = {**record, "body": self._unseal(record.get("body"), key, sender)}
             hyp = Hypothesis.from_record(record, key=key)
         except CodecError as err:
             self._trace.reject(key, err.message, size=len(data))
@@ -341,11 +352,11 @@ class BlackboardNode:
             self._accept_post(hyp, data, key, sender)
         self._barrier.release()
 
-    def _unseal(self, body: Any, key: str) -> Any:
+    def _unseal(self, body: Any, key: str, sender: str) -> Any:
         sealed = body.get(SEALED) if isinstance(body, dict) and len(body) == 1 else None
-        plain = unseal(self._run_key, sealed)
+        plain = unseal(self._agent_keys.get(sender), sealed)
         if plain is None:
-            raise CodecError("a private level's body must travel sealed with the run key", key=key)
+            raise CodecError("a private level's body must travel sealed with its sender's agent key", key=key)
         return decode(plain, max_bytes=self._max, key=key)
 
     def _on_forged(self, sample: zenoh.Sample) -> None:
@@ -364,8 +375,8 @@ class BlackboardNode:
     def _on_local_post(self, hyp: Hypothesis) -> None:
         key = self.keys.hypothesis(hyp.level, hyp.id)
         record = hyp.to_record()
-        if hyp.level in PRIVATE_LEVELS:  # on the wire sealed: only the node reads it
-            record["body"] = {SEALED: seal(self._run_key, encode(hyp.body, max_bytes=self._max))}
+        if hyp.level in PRIVATE_LEVELS:  # on the wire sealed with a key nobody else holds
+            record["body"] = {SEALED: seal(self._private_key, encode(hyp.body, max_bytes=self._max))}
         data = encode({"op": "post", "hyp": record, "sender": NODE_SENDER}, max_bytes=self._max)
         self._quiescence.sample(hyp.level)
         self._publish(key, data)
@@ -494,7 +505,7 @@ class BlackboardNode:
             problem = check_request(request)
         if (
             problem is None
-            and request["op"] != "join"
+            and request["op"] not in ("challenge", "join")
             and not verify(self._agent_keys.get(request["agent"]), payload, attachment_bytes(query))
         ):
             problem = f"{request['op']} not signed by agent {request['agent']!r} (a forgery, or from outside the run)"
@@ -503,7 +514,9 @@ class BlackboardNode:
             self._reply(query, {"ok": False, "error": "malformed", "message": problem})
             return
         op, agent, sent = request["op"], request["agent"], request.get("sent", 0)
-        if op == "join":
+        if op == "challenge":
+            self._reply(query, self._challenge(agent, request.get("nonce")))
+        elif op == "join":
             self._reply(query, self._join(agent, request))
         elif op == "leave":  # a clean stop: the token dropped next is no death
             state = self.agents.get(agent)
@@ -525,21 +538,44 @@ class BlackboardNode:
         finally:
             query.drop()
 
+    def _refuse_join(self, name: str, why: str) -> dict:
+        self._trace.write(TraceKind.REJECTED, agent=name, message=f"join refused: {why}")
+        return {"ok": False, "error": "declaration", "level": "", "message": f"join refused: {why}"}
+
+    def _challenge(self, name: str, theirs: Any) -> dict:
+        """A fresh nonce for the join of ``name`` (an agent this run expects) to prove against,
+        with a proof over the agent's own nonce ``theirs`` that it comes from this node."""
+        with self._members.lock:
+            secret = self._expected.get(name)
+        if secret is None:
+            return self._refuse_join(name, f"agent {name!r} is not an agent of this run")
+        nonce = secrets.token_hex(16)
+        self._challenges.setdefault(name, deque(maxlen=_MAX_CHALLENGES)).append(nonce)
+        return {
+            "ok": True,
+            "nonce": nonce,
+            "proof": proof(secret, "challenge", self.keys.run_id, name, str(theirs), nonce),
+        }
+
     def _join(self, name: str, request: dict) -> dict:
         with self._members.lock:
             secret = self._expected.get(name)
-        if (
-            secret is None
-            or not isinstance(request.get("proof"), str)
-            or not hmac.compare_digest(request["proof"], proof(secret, "join", self.keys.run_id, name))
-        ):
-            why = (
-                f"agent {name!r} is not an agent of this run"
-                if secret is None
-                else f"agent {name!r} did not prove it is the one this run started (wrong or no secret)"
+        if secret is None:
+            return self._refuse_join(name, f"agent {name!r} is not an agent of this run")
+        nonce, issued = request.get("nonce"), self._challenges.get(name)
+        if not isinstance(nonce, str) or issued is None or nonce not in issued:
+            return self._refuse_join(
+                name,
+                f"agent {name!r} did not prove it is the one this run started (its join answers no "
+                "challenge of this node: a copied join sent again, or no challenge asked)",
             )
-            self._trace.write(TraceKind.REJECTED, agent=name, message=f"join refused: {why}")
-            return {"ok": False, "error": "declaration", "level": "", "message": f"join refused: {why}"}
+        issued.remove(nonce)  # each challenge counts once, whatever the outcome
+        if not isinstance(request.get("proof"), str) or not hmac.compare_digest(
+            request["proof"], proof(secret, "join", self.keys.run_id, name, nonce)
+        ):
+            return self._refuse_join(
+                name, f"agent {name!r} did not prove it is the one this run started (wrong or no secret)"
+            )
         if not set(request.get("exclusive", ())) <= set(request.get("produces", ())):
             return {"ok": False, "error": "declaration", "level": "", "message": "exclusive levels must be produced"}
         joined = self._members.join(name, request)
@@ -565,8 +601,10 @@ class BlackboardNode:
         self._agent_keys[name] = agent_key = os.urandom(32)
         self._status_seq[name] = 0
         self._members.check_presence()
-        # a query reply goes to the querying session only: the keys bind the name to that session
-        return {"ok": True, "agent_key": agent_key.hex(), "run_key": self._run_key.hex()}
+        # a query reply goes to the querying session only: the keys bind the name to that session;
+        # sealed for the holder of the secret, so a session that sent a copied join learns nothing
+        sealed = seal(join_key(secret, self.keys.run_id, name, nonce), agent_key + self._run_key)
+        return {"ok": True, "keys": sealed}
 
     def _change(self, query: zenoh.Query, op: str, agent: str, request: dict) -> None:
         self._quiescence.change()

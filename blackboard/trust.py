@@ -12,7 +12,9 @@ half that concerns them):
   of an unexpected name, or of a name already live.
 * **Binding a name to a session.** The join reply, a query reply (routed to the querying
   session only), hands the agent two fresh keys: its own *agent key* and the *run key* shared
-  by the joined agents. Every message of the agent (posts, status, requests) carries
+  by the joined agents, sealed (:func:`seal`) with :func:`join_key`, which only the holder of
+  the secret can derive: a session that sent a copied join learns nothing, and the agent takes
+  only a reply it can unseal (a forged "welcome" from another session is ignored). Every message of the agent (posts, status, requests) carries
   ``HMAC(agent key, payload)`` in its zenoh attachment: the node accepts it only if the tag
   matches the name it claims, so a post, a status, a leave or activity records under a real
   agent's name from any other session are refused and traced (``rejected``). Posts also carry
@@ -27,20 +29,23 @@ half that concerns them):
   :class:`~blackboard.hypothesis.Hypothesis` (finite, bounded numbers: ``deadline_s: 1e300``
   is refused), so no single message can crash or stall the node.
 * **The truth level** (true poses, for evaluation only) is never served to ``get`` queries,
-  and its bodies travel sealed with the run key (:func:`seal`): only the node, which writes
-  the results and the trace for the run's own user, reads them.
+  and its bodies travel sealed (:func:`seal`) with the posting agent's own key (the node's
+  own posts with a key of the node alone), not with the run key every joined agent holds: only
+  the node, which writes the results and the trace for the run's own user, reads them.
 * **Memory budgets.** A message larger than ``max_message_bytes`` is dropped by everyone
   before decoding; the node also keeps a per-run budget of stored bytes (:data:`RUN_BUDGET_BYTES`),
   beyond which posts are refused and traced.
 
 Across machines the router itself also asks for a user name and password (zenoh ``usrpwd``):
-see :mod:`blackboard.config`. Known limits: a joined agent holds the run key, so it could forge
-posts that other *consumers* believe (the node, and so the results, still refuse them); a
-session that intercepts a join request (by declaring the node's queryable) can replay its proof
-before the real agent joins, which then fails to join (visible, never silent); an outside session
-can declare a liveliness token under an agent's name, which hides that agent's death from the
-node until the run's timeout (the run then fails naming it, never silently); zenoh itself
-authenticates sessions only with ``usrpwd`` (or TLS), which is off on loopback by default.
+see :mod:`blackboard.config`; TLS and access control come from a zenoh config file
+(``scenarios/zenoh/``). Known limits (README.md, "Trust model"): a joined agent holds the run
+key, so it could forge posts that other *consumers* believe (the node, and so the results,
+still refuse them); an outside session can declare a liveliness token under an agent's name,
+which hides that agent's death from the node until its questions time out; a session that
+receives a join request before the node does (by declaring the node's queryable) and sends it
+on first makes the real agent's join fail (visible, never silent; it gains no key); anyone who
+reaches the port can flood it; zenoh itself authenticates sessions only with ``usrpwd`` or
+TLS, which are off on loopback by default.
 """
 
 from __future__ import annotations
@@ -55,6 +60,7 @@ from typing import Any
 __all__ = [
     "new_secret",
     "proof",
+    "join_key",
     "sign",
     "verify",
     "seal",
@@ -75,7 +81,7 @@ TAG_BYTES = 32
 RUN_BUDGET_BYTES = 2 * 1024**3
 #: levels whose bodies travel sealed and are never served to ``get`` queries
 PRIVATE_LEVELS: frozenset[str] = frozenset({"truth"})
-#: the one key of a sealed body on the wire: ``{SEALED: seal(run key, encode(body))}``
+#: the one key of a sealed body on the wire: ``{SEALED: seal(agent key, encode(body))}``
 SEALED = "__sealed__"
 
 _MAX_INT = 2**62
@@ -83,7 +89,7 @@ _MAX_ENTRIES = 4096
 _MAX_ACTIVITY = 100_000
 _MAX_TEXT = 4000
 _STATES = frozenset({"idle", "busy", "dead", "stopped"})
-_OPS = frozenset({"join", "leave", "update", "retract"})
+_OPS = frozenset({"challenge", "join", "leave", "update", "retract"})
 _ACTIVITY_KINDS = frozenset({"activation_start", "activation_finish", "activation_error", "activation_obviated"})
 
 
@@ -95,6 +101,12 @@ def new_secret() -> str:
 def proof(secret: str, *parts: str) -> str:
     """``HMAC-SHA256(secret, "/".join(parts))`` in hex: proves knowledge of ``secret``."""
     return hmac.new(secret.encode(), "/".join(parts).encode(), hashlib.sha256).hexdigest()
+
+
+def join_key(secret: str, run_id: str, name: str, nonce: str) -> bytes:
+    """The key that seals the join reply to agent ``name`` for challenge ``nonce``: derived from
+    the agent's join secret, so only the node and that agent know it."""
+    return hmac.new(secret.encode(), f"keys/{run_id}/{name}/{nonce}".encode(), hashlib.sha256).digest()
 
 
 def sign(key: bytes, payload: bytes) -> bytes:
@@ -237,7 +249,7 @@ def check_status(message: Any) -> str | None:
 
 
 def check_request(request: Any) -> str | None:
-    """The problem of a request to the node (join, leave, update, retract), or None."""
+    """The problem of a request to the node (challenge, join, leave, update, retract), or None."""
     if type(request) is not dict:
         return "a request must be a map"
     op = request.get("op")
@@ -249,6 +261,8 @@ def check_request(request: Any) -> str | None:
         return "sent: must be a count"
     if not _counts(request.get("after", {})):
         return "after: must map agent names to counts"
+    if op == "challenge" and not _text(request.get("nonce")):
+        return "nonce: must be a short text"
     if op == "join":
         for k in ("consumes", "produces", "exclusive"):
             levels = request.get(k, [])
@@ -257,8 +271,8 @@ def check_request(request: Any) -> str | None:
         pid = request.get("pid")
         if pid is not None and not _count(pid):
             return "pid: must be a process id"
-        if not _text(request.get("host")) or not _text(request.get("proof")):
-            return "host, proof: must be short texts"
+        if not _text(request.get("host")) or not _text(request.get("proof")) or not _text(request.get("nonce")):
+            return "host, proof, nonce: must be short texts"
     elif op in ("update", "retract"):
         if not _name(request.get("id")):
             return "id: must be a hypothesis id"

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 import zenoh
 
@@ -14,13 +14,14 @@ from blackboard.hypothesis import Hypothesis, validate_name
 from blackboard.trust import PRIVATE_LEVELS, SEALED, read_message, seal, sign
 
 if TYPE_CHECKING:
-    from collections.abc import Iterable
+    from collections.abc import Callable, Iterable
 
     from blackboard.keys import RunKeys
 
 __all__ = ["REQUEST_TIMEOUT_S", "ZenohBoard"]
 
 logger = logging.getLogger(__name__)
+T = TypeVar("T")
 
 #: how long a request to the blackboard node may take before TransportError
 REQUEST_TIMEOUT_S = 10.0
@@ -105,8 +106,8 @@ class ZenohBoard:
         key = self._keys.hypothesis(level, hyp.id)
         with self._lock:  # the envelope is ours (str keys, validated names): only the body needs the walk
             record = hyp.to_record()
-            if level in PRIVATE_LEVELS and self.run_key is not None:  # only the node may read it
-                record["body"] = {SEALED: seal(self.run_key, encode(hyp.body, max_bytes=self._max))}
+            if level in PRIVATE_LEVELS and self.agent_key is not None:  # only the node may read it
+                record["body"] = {SEALED: seal(self.agent_key, encode(hyp.body, max_bytes=self._max))}
             data = encode(
                 {"op": "post", "hyp": record, "sender": self.agent, "n": self.sent + 1},
                 max_bytes=self._max,
@@ -167,14 +168,58 @@ class ZenohBoard:
         return out
 
     def _request(self, request: dict) -> dict:
-        request = {**request, "agent": self.agent, "sent": self.sent, "after": dict(self.seen_from)}
-        payload = encode(request, max_bytes=self._max)
-        replies = self._get(self._keys.request, payload, attachment=self._tags(payload))
-        if not replies:
-            raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")
+        """Send ``request`` to the node and return its reply; a refusal raises.
+
+        Raises:
+            TransportError: no reply.
+            DeclarationError, BlackboardError: the node refused the request.
+        """
+        replies = self._send(request, consolidation=None)
         reply = decode(replies[0], key=self._keys.request)
         if not isinstance(reply, dict):
             raise CodecError("malformed reply from the blackboard node", key=self._keys.request)
+        return self._outcome(reply)
+
+    def _request_authentic(self, request: dict, accept: Callable[[dict], T | None]) -> T:
+        """Send ``request`` (a challenge, a join) and return ``accept(reply)`` of the first reply
+        it accepts (not None): every reply is looked at (no consolidation, so another session
+        answering on the node's key cannot hide the node's reply); the others are ignored.
+
+        Raises:
+            TransportError: no reply accepted, nor a refusal.
+            DeclarationError, BlackboardError: the node refused the request.
+        """
+        refusal: dict | None = None
+        for data in self._send(request, consolidation=zenoh.ConsolidationMode.NONE):
+            try:
+                reply = decode(data, max_bytes=self._max, key=self._keys.request)
+            except CodecError:
+                continue
+            if not isinstance(reply, dict):
+                continue
+            if reply.get("ok"):
+                value = accept(reply)
+                if value is not None:
+                    return value
+                logger.warning("agent %s: ignored a %s reply not from this run's node", self.agent, request["op"])
+            elif refusal is None:
+                refusal = reply
+        if refusal is not None:
+            self._outcome(refusal)
+        raise TransportError(
+            f"agent {self.agent!r}: no reply to its {request['op']} came from this run's node "
+            "(only replies that prove nothing: not a mapinterp node of this version, or forged)"
+        )
+
+    def _send(self, request: dict, *, consolidation: zenoh.ConsolidationMode | None) -> list[bytes]:
+        request = {**request, "agent": self.agent, "sent": self.sent, "after": dict(self.seen_from)}
+        payload = encode(request, max_bytes=self._max)
+        replies = self._get(self._keys.request, payload, attachment=self._tags(payload), consolidation=consolidation)
+        if not replies:
+            raise TransportError(f"agent {self.agent!r}: the blackboard node did not answer a {request['op']} request")
+        return replies
+
+    def _outcome(self, reply: dict) -> dict:
         if reply.get("ok"):
             return reply
         if reply.get("error") == "declaration":
@@ -188,7 +233,14 @@ class ZenohBoard:
         tag = sign(self.agent_key, data)
         return tag + sign(self.run_key, data) if both and self.run_key is not None else tag
 
-    def _get(self, selector: str, payload: bytes | None, *, attachment: bytes | None = None) -> list[bytes]:
+    def _get(
+        self,
+        selector: str,
+        payload: bytes | None,
+        *,
+        attachment: bytes | None = None,
+        consolidation: zenoh.ConsolidationMode | None = None,
+    ) -> list[bytes]:
         try:
             replies = self._session.get(
                 selector,
@@ -196,6 +248,7 @@ class ZenohBoard:
                 timeout=REQUEST_TIMEOUT_S,
                 attachment=attachment,
                 congestion_control=zenoh.CongestionControl.BLOCK,
+                consolidation=consolidation,
             )
             out = []
             for reply in replies:

@@ -101,6 +101,10 @@ MAX_ROUTE_POINTS = 1_000_000
 MAX_FRAMES = 1_000_000
 MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
 MAX_SPEED_MPS = 1000.0
+#: the scheduler's clip of one answer's log-likelihood ratio, and the detector calibration's
+#: coefficients (the defaults are single digits): larger ones only overflow the posterior
+MAX_LLR = 20.0
+MAX_CALIBRATION = 1e3
 #: smallest camera image on file accepted, pixels per side (the camera's own lower bound)
 MIN_IMAGE_PX = 8
 
@@ -389,16 +393,29 @@ class SchedulerSpec(_Spec):
     questions: Literal["information", "probability"] = "information"
     #: soft: a candidate whose posterior falls below this is discarded
     floor: float = Field(default=1e-3, ge=0, lt=1)
-    #: soft: no single answer moves a candidate's log-odds by more than this
-    max_llr: float = Field(default=3.0, gt=0)
+    #: soft: no single answer moves a candidate's log-odds by more than this (natural log; 20 is
+    #: a likelihood ratio of about 5e8, beyond which one answer would decide alone)
+    max_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
     #: pose errors, (pitch, heading) degrees, the detectors' likelihood ratio must tolerate
     align_deg: tuple[float, float] = (2.0, 5.0)
     #: detector calibration, {landmark kind or detector family: [bias, w_statistic, w_score, w_contrast]}:
     #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
     #: by bench/tuning/calibrate_detectors.py on tuning seeds
     calibration: dict[str, tuple[float, float, float, float]] = Field(
-        default_factory=lambda: dict(DETECTOR_CALIBRATION)
+        default_factory=lambda: dict(DETECTOR_CALIBRATION), max_length=64
     )
+
+    @field_validator("calibration")
+    @classmethod
+    def _calibration(
+        cls, value: dict[str, tuple[float, float, float, float]]
+    ) -> dict[str, tuple[float, float, float, float]]:
+        for kind, numbers in value.items():
+            if not 1 <= len(kind) <= 64:
+                raise ValueError(f"{kind!r}: a landmark kind or detector family of 1 to 64 characters")
+            if not all(abs(v) <= MAX_CALIBRATION for v in numbers):
+                raise ValueError(f"{kind}: every number must be within ±{MAX_CALIBRATION:g}")
+        return value
 
     @field_validator("align_deg")
     @classmethod

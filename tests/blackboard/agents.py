@@ -24,6 +24,7 @@ __all__ = [
     "Rogue",
     "Slow",
     "Booster",
+    "Witness",
 ]
 
 
@@ -207,3 +208,16 @@ class Booster(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         if event.kind is EventKind.POSTED and event.hypothesis.source != self.name:
             board.update(event.hypothesis.id, body={"boosted": True}, credibility=0.5)
+
+
+class Witness(KnowledgeSource):
+    """number {x} -> truth {frame: x, pose: [x + 0.25, 2x + 0.5, 0.75]}, as the camera posts the
+    true poses (a private level)."""
+
+    consumes = ("number",)
+    produces = ("truth",)
+
+    def act(self, event: Event, board: Board) -> None:
+        if event.kind is EventKind.POSTED:
+            x = event.hypothesis.body["x"]
+            board.post("truth", {"frame": x, "pose": [x + 0.25, 2 * x + 0.5, 0.75]})

@@ -13,7 +13,7 @@ from blackboard.config import ZenohOptions, open_session, zenoh_config
 from blackboard.keys import RunKeys
 from blackboard.runtime import Runtime
 from blackboard.trace import read_trace
-from blackboard.trust import proof, sign
+from blackboard.trust import join_key, proof, sign, unseal
 
 AGENTS = "tests.blackboard.agents"
 _HEAD = ["seq", "t", "kind", "agent", "level", "id", "version", "event", "rating"]
@@ -113,6 +113,7 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
                 return decode(replies[0].ok.payload.to_bytes())
 
             rt.node.expect("old", "sekrit")  # a joined agent of this run, speaking for itself
+            nonce = request({"op": "challenge", "agent": "old"})["nonce"]
             joined = request(
                 {
                     "op": "join",
@@ -120,11 +121,14 @@ def test_node_traces_rows_and_dict_records_alike(run_id: str, tmp_path: Path) ->
                     "consumes": [],
                     "produces": [],
                     "exclusive": [],
-                    "proof": proof("sekrit", "join", run_id, "old"),
+                    "nonce": nonce,
+                    "proof": proof("sekrit", "join", run_id, "old", nonce),
                 }
             )
             assert joined["ok"]
-            agent_key = bytes.fromhex(joined["agent_key"])
+            keys_ = unseal(join_key("sekrit", run_id, "old", nonce), joined["keys"])
+            assert keys_ is not None
+            agent_key = keys_[:32]
             activity = [
                 {**head, "kind": "activation_start"},  # an older agent
                 {**head, "kind": "activation_finish", "t": 13.0, "duration_s": 0.5},

@@ -268,6 +268,19 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("strategy-unknown", _set("scheduler.strategy", "random"), "scheduler.strategy: must be one of"),
     ("reliability-one", _set("scheduler.reliability", 1.0), "scheduler.reliability: must be < 1"),
     ("candidates-zero", _set("scheduler.candidates", 0), "scheduler.candidates: must be >= 1"),
+    ("max-llr-1e300", _set("scheduler.max_llr", 1e300), "scheduler.max_llr: must be <= 20"),
+    ("max-llr-inf", _set("scheduler.max_llr", float("inf")), "scheduler.max_llr: must be a finite"),
+    ("max-llr-zero", _set("scheduler.max_llr", 0), "scheduler.max_llr: must be > 0"),
+    (
+        "calibration-1e300",
+        _set("scheduler.calibration", {"outline": [1e300, 0, 0, 0]}),
+        "scheduler.calibration: outline: every number must be within ±1000",
+    ),
+    (
+        "calibration-three-numbers",
+        _set("scheduler.calibration", {"outline": [1, 2, 3]}),
+        "scheduler.calibration.outline",
+    ),
     ("expect-top1-two", _set("expect", {"top1_min": 2}), "expect.top1_min: must be <= 1"),
 ]
 

@@ -447,3 +447,65 @@ def test_run_fails_when_a_remote_agent_never_joins(procs, small: Path, tmp_path:
 def test_remote_names_must_be_agents_of_the_mission(small: Path) -> None:
     with pytest.raises(AgentError, match="'detector-church'.*its agents are: map-renderer, camera"):
         run_mission(small, remote=["detector-church"])
+
+
+@pytest.mark.slow
+def test_run_with_remote_detectors_over_tls(procs, small: Path, tmp_path: Path) -> None:
+    """The example configs of scenarios/zenoh with certificates made here: the run over
+    ``tls/127.0.0.1`` (with the user/password authentication of runs beyond loopback) gives the
+    frames of the same run over tcp, and an agent that knows the secret but comes over plain tcp
+    cannot join."""
+    from blackboard.config import free_port
+    from tests.blackboard.certs import ZENOH_EXAMPLES, make_certs
+
+    make_certs(tmp_path)  # certs/ in the folder both sides run in, as the examples read them
+    tls, run_id = f"tls/127.0.0.1:{free_port()}", _run_id()
+    out, trace = tmp_path / "r.json", tmp_path / "run.trace"
+    run_config, agent_config = str(ZENOH_EXAMPLES / "tls-run.json5"), str(ZENOH_EXAMPLES / "tls-agent.json5")
+    run = procs(
+        _cli(
+            "run",
+            str(small),
+            "--listen",
+            tls,
+            "--run-id",
+            run_id,
+            "--remote",
+            "detector-house",
+            "--remote",
+            "detector-tower",
+            "--zenoh-config",
+            run_config,
+            "--auth",  # the run's secret as zenoh usrpwd too, as beyond loopback
+            "--out",
+            str(out),
+            "--trace",
+            str(trace),
+            "--no-progress",
+        ),
+        tmp_path,
+    )
+    commands = _remote_commands(run, 2)
+    for argv in commands:  # the run prints its own config: the agents' machines give theirs
+        assert argv[argv.index("--zenoh-config") + 1] == run_config and argv[argv.index("--connect") + 1] == tls
+        assert "--auth" in argv
+        argv[argv.index("--zenoh-config") + 1] = agent_config
+    plain = list(commands[0])
+    plain[plain.index("--connect") + 1] = tls.replace("tls/", "tcp/")
+    plain[plain.index("--zenoh-config") : plain.index("--zenoh-config") + 2] = ["--connect-timeout", "2"]
+    intruder = procs(plain, tmp_path)
+    assert intruder.wait() == 2, intruder.text
+    assert "cannot reach the blackboard at tcp/127.0.0.1:" in intruder.text and "Traceback" not in intruder.text
+    agents = {argv[argv.index("--name") + 1]: procs(argv, tmp_path) for argv in commands}
+    assert run.wait() == 0, run.text
+    for name, agent in agents.items():
+        assert agent.wait() == 0, (name, agent.text)
+    results = load_results(out)
+    local = run_mission(small)  # every agent in one process, over tcp on loopback
+    keys = ("frame", "viewframe", "queries", "backtracks", "correct")
+    assert [{k: f[k] for k in keys} for f in results["frames"]] == [{k: f[k] for k in keys} for f in local["frames"]]
+    assert len(results["frames"]) == 8 and {results["agents"][name] for name in agents} == {"ok"}
+    records = read_trace(trace)
+    answers = {r["agent"] for r in records if r["kind"] == "post" and r["level"] == "answer"}
+    assert answers == set(agents)  # the remote detectors, over TLS, answered every question
+    assert [r["agent"] for r in records if r["kind"] == "agent_join"].count("detector-house") == 1

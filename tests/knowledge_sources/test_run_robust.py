@@ -245,13 +245,19 @@ def test_an_input_error_met_during_a_run_exits_2_with_one_line(small_data, tmp_p
     assert str(err.value) == f"{path}: sensor.frames[0].image: {image}: not a readable image (PNG or JPEG expected)"
 
 
-def test_a_second_run_with_a_run_id_in_use_is_refused_untouched(tmp_path) -> None:
+@pytest.mark.parametrize("via", ["flag", "config-file"])
+def test_a_second_run_with_a_run_id_in_use_is_refused_untouched(tmp_path, via: str) -> None:
     endpoint = loopback_endpoint()
+    if via == "flag":
+        second = ZenohOptions(connect=[endpoint])
+    else:  # the network reached through a zenoh config file's own connect endpoints
+        (tmp_path / "z.json5").write_text(f'{{connect: {{endpoints: ["{endpoint}"]}}}}')
+        second = ZenohOptions(config_file=tmp_path / "z.json5")
     with Runtime(run_id="taken", zenoh=ZenohOptions(listen=[endpoint]), trace_path=tmp_path / "a.trace") as first:
         first.add("tests.blackboard.agents:Doubler", name="doubler")
         started = time.monotonic()
         with pytest.raises(BlackboardError, match="run id 'taken' is already in use"):
-            with Runtime(run_id="taken", zenoh=ZenohOptions(connect=[endpoint])):
+            with Runtime(run_id="taken", zenoh=second):
                 pass
         assert time.monotonic() - started < 10
         first.post("number", {"x": 21})

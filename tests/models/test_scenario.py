@@ -291,3 +291,67 @@ def test_readme_documents_every_field_the_bundled_scenarios_use():
     wild = {d[:-1] for d in documented if d.endswith("*")}
     missing = sorted(u for u in used if u not in documented and not any(u.startswith(w) for w in wild))
     assert not missing, f"README.md does not document {missing}"
+
+
+#: numeric fields bounded by a validator rather than by Field(ge/le): (spec, field, a value out of bounds)
+_VALIDATED_NUMBERS = {
+    ("Scenario", "route"): [[0.0, 0.0], [1e300, 0.0]],
+    ("DriveSpec", "speed_mps"): (1.0, 1e300),
+    ("MemorySpec", "size"): 2**40,
+    ("MemorySpec", "max_shift"): (1, 10**9),
+    ("SchedulerSpec", "align_deg"): (1.0, 1e300),
+    ("SchedulerSpec", "calibration"): {"outline": (1e300, 0.0, 0.0, 0.0)},
+}
+
+
+def _numeric_fields():
+    """Every (spec class, field name, field info) of the schema that holds numbers."""
+    import inspect
+    import typing
+
+    from pydantic import BaseModel
+
+    seen: set[type] = set()
+    todo: list[type[BaseModel]] = [Scenario]
+    while todo:
+        spec = todo.pop()
+        if spec in seen:
+            continue
+        seen.add(spec)
+        for name, info in spec.model_fields.items():
+            leaves, stack = [], [info.annotation]
+            while stack:
+                t = stack.pop()
+                args = typing.get_args(t)
+                stack.extend(args) if args else leaves.append(t)
+            if any(t in (int, float) for t in leaves):
+                yield spec, name, info
+            todo.extend(t for t in leaves if inspect.isclass(t) and issubclass(t, BaseModel))
+
+
+def test_every_number_of_the_schema_has_both_bounds():
+    import annotated_types as at
+
+    found = set()
+    for spec, name, info in _numeric_fields():
+        lower = any(isinstance(m, (at.Ge, at.Gt)) for m in info.metadata)
+        upper = any(isinstance(m, (at.Le, at.Lt)) for m in info.metadata)
+        if not (lower and upper):
+            assert (spec.__name__, name) in _VALIDATED_NUMBERS, f"{spec.__name__}.{name} has no upper or lower bound"
+            found.add((spec.__name__, name))
+    assert found == set(_VALIDATED_NUMBERS)  # the table is not stale
+    assert len(list(_numeric_fields())) > 80
+
+
+@pytest.mark.parametrize("spec_field", sorted(_VALIDATED_NUMBERS), ids=lambda c: ".".join(c))
+def test_numbers_bounded_by_a_validator_refuse_a_huge_value(spec_field):
+    import models.scenario as schema
+
+    spec_name, name = spec_field
+    value = _VALIDATED_NUMBERS[spec_field]
+    if spec_name == "Scenario":
+        with pytest.raises(ScenarioError, match=name):
+            scenario_from_dict({**VALID, name: value})
+    else:
+        with pytest.raises(ValidationError, match=name):
+            getattr(schema, spec_name).model_validate({name: value})
