@@ -50,6 +50,11 @@ def test_malformed_and_oversized_messages_are_rejected_and_traced(run_id: str, t
             }
             put(keys.hypothesis("number", "mismatch"), encode({"op": "post", "hyp": record, "sender": "x"}))
             put(keys.status, b"\xff\xfe")
+            # the raw session's puts travel beside the run's own messages: wait until the node
+            # has met all five, or the run may reach quiescence before the large one arrives
+            deadline = time.monotonic() + 10
+            while rt.node.stats["rejected"] < 5 and time.monotonic() < deadline:
+                time.sleep(0.02)
             rt.post("number", {"x": 21})
             outcome = rt.run(timeout_s=10)
         finally:
