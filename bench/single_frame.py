@@ -2,12 +2,14 @@
 
 Each case of :mod:`bench.evalset` (held-out by default) runs through the real pipeline,
 :func:`knowledge_sources.mission.run_mission` (all agents on the blackboard, in one process), with
-the scenario's defaults unless ``--memory``/``--scheduler`` override blocks of it. Per terrain and
+the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline`` override blocks of it,
+and without the tracker (every frame decided alone; ``--track``: with it, as a mission runs by
+default, so that ``top1`` is the track's). Per terrain and
 over all frames it reports:
 
 * ``top1``: the final answer is the route point nearest the truth (the results' criterion),
-* ``rank_top1`` / ``rank_top5``: the merged associative ranking has the truth first / among its
-  first five,
+* ``rank_top1`` / ``rank_top5``: the ranking the scene analysis starts from (the fusion of every
+  ranking source) has the truth first / among its first five,
 * ``err_mean`` / ``err_median``: metres between the answer's position and the true one,
 * ``frames``, ``fps`` (frames / localization seconds, of the whole run).
 
@@ -15,7 +17,7 @@ Prints JSON, then a table. Columns are entries of :data:`COLUMNS` (name, format,
 list of frame records): add one there (e.g. a ranking source's own top-1 once results carry it).
 
     python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
-        [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--json-only]
+        [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--track] [--json-only]
 """
 
 from __future__ import annotations
@@ -79,13 +81,15 @@ def run(
     names: Sequence[str] | None = None,
     kinds: Sequence[str] | None = None,
     blocks: dict[str, Any] | None = None,
+    track: bool = False,
 ) -> dict[str, Any]:
-    """Run every selected case; returns per-case results, per-terrain and overall measures."""
+    """Run every selected case; returns per-case results, per-terrain and overall measures.
+    ``track``: with the tracker (the mission's default); off, every frame is decided alone."""
     per_case, by_terrain, everything = {}, {}, []
     for case in cases(split, names=names, kinds=kinds):
         path = case.write_scenario(**blocks) if blocks else case.scenario_path
         t0 = time.perf_counter()
-        res = run_mission(path)
+        res = run_mission(path, track=track)
         wall = time.perf_counter() - t0
         frames = res["frames"]
         for f, truth in zip(frames, case.frames):
@@ -99,7 +103,14 @@ def run(
         by_terrain.setdefault(case.terrain, []).extend(frames)
         everything.extend(frames)
     terrains = {t: measure(fr) for t, fr in by_terrain.items()}
-    return {"split": split, "blocks": blocks or {}, "cases": per_case, "terrains": terrains, "all": measure(everything)}
+    return {
+        "split": split,
+        "blocks": blocks or {},
+        "track": track,
+        "cases": per_case,
+        "terrains": terrains,
+        "all": measure(everything),
+    }
 
 
 def table(result: dict[str, Any]) -> str:
@@ -130,12 +141,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--kinds", nargs="*", default=None, help="sweep, drive, kidnap (default all)")
     parser.add_argument("--memory", type=json.loads, default=None, help="JSON memory block replacing the default")
     parser.add_argument("--scheduler", type=json.loads, default=None, help="JSON scheduler block")
+    parser.add_argument("--track", action="store_true", help="with the tracker (default: every frame decided alone)")
+    parser.add_argument("--skyline", type=json.loads, default=None, help="JSON skyline block")
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
-    blocks = {k: v for k, v in (("memory", args.memory), ("scheduler", args.scheduler)) if v is not None}
+    blocks = {
+        k: v
+        for k, v in (("memory", args.memory), ("scheduler", args.scheduler), ("skyline", args.skyline))
+        if v is not None
+    }
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
-    result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks)
+    result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track)
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),
@@ -145,7 +162,10 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(result, indent=1))
     if not args.json_only:
         print()
-        print(f"split {args.split}, blocks {json.dumps(blocks) if blocks else 'scenario defaults'}")
+        print(
+            f"split {args.split}, blocks {json.dumps(blocks) if blocks else 'scenario defaults'}, "
+            f"{'with' if args.track else 'without'} tracking"
+        )
         print(table(result))
     return 0
 
