@@ -3,13 +3,15 @@
 For every sweep case of a split of :mod:`bench.evalset` it builds the viewframes from the case's
 scenario (as the map renderer does), ranks every camera frame with the associative memory (the
 indexer's model calls) and with the skyline (the skyline ranker's), fuses them with
-:func:`knowledge_sources.fusion.fuse_rankings` at each skyline weight given, and refines the pose
+:func:`knowledge_sources.fusion.fuse_rankings` at each skyline weight given (nats per degree, the
+associative ranking at the scenario's ``memory.weight``; default the scenario's ``skyline.weight``),
+and refines the pose
 from the fused ranking's first viewframe (:func:`models.refine.refine_pose`, the refiner's call).
 Truth is the case's ``route_index`` (the results' criterion). No blackboard and no landmark
 verification: this measures the ranking sources and the refinement alone.
 
-    python bench/skyline_eval.py --split tuning --weights 0.25 0.5 1 2 4 --no-refine
-    python bench/skyline_eval.py --split heldout --weights 1
+    python bench/skyline_eval.py --split tuning --weights 1 2 4 8 --no-refine
+    python bench/skyline_eval.py --split heldout
 
 Prints JSON (per case and overall), then a table.
 """
@@ -33,7 +35,7 @@ from bench.evalset import cases  # noqa: E402
 from knowledge_sources.fusion import fuse_rankings  # noqa: E402
 from models.index import ViewframeIndex  # noqa: E402
 from models.refine import refine_pose  # noqa: E402
-from models.scenario import load_scenario  # noqa: E402
+from models.scenario import SkylineSpec, load_scenario  # noqa: E402
 from models.sensor import load_frame_image  # noqa: E402
 from models.skyline import match_skylines, skyline_from_image  # noqa: E402
 from models.world import World  # noqa: E402
@@ -55,6 +57,7 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
         "max_heading_deg": sky.max_heading_deg,
         "max_pitch_deg": sky.max_pitch_deg,
         "truncate_deg": sky.truncate_deg,
+        "max_roll_deg": sky.max_roll_deg,
     }
     out: dict = {"case": case.name, "frames": 0, "ranks": {}, "cost_ms": {}}
     with World(scenario) as world:
@@ -87,7 +90,7 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
             ranks["skyline"].append(_rank_of(truth, fuse_rankings({"skyline": per["skyline"]})))
             fused_first = None
             for w in weights:
-                fused = fuse_rankings(per, weights={"associative": 1.0, "skyline": w})
+                fused = fuse_rankings(per, weights={"associative": scenario.memory.weight, "skyline": w})
                 ranks[f"fused@{w:g}"].append(_rank_of(truth, fused))
                 if w == weights[0]:
                     fused_first = fused[0][0]
@@ -172,7 +175,9 @@ def summarize(results: list[dict]) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="tuning", choices=("tuning", "heldout"))
-    ap.add_argument("--weights", type=float, nargs="+", default=[1.0], help="skyline weights to fuse with")
+    ap.add_argument(
+        "--weights", type=float, nargs="+", default=[SkylineSpec().weight], help="skyline weights to fuse with"
+    )
     ap.add_argument("--no-refine", action="store_true")
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--names", nargs="*", default=None, help="terrain names (default all of the split)")

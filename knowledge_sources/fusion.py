@@ -2,31 +2,46 @@
 
 Several knowledge sources rank all viewframes for a camera frame, each with its own error
 measure: the associative memory banks (error variance, comparable across banks, merged by
-sorting: :func:`models.associative.merge_rankings`) and the skyline (truncated L1 in degrees,
-:mod:`models.skyline`). Their scales have nothing in common, and a source's scale changes from
-frame to frame (a hazy frame, a flat horizon). The rule, stated once:
+sorting: :func:`models.associative.merge_rankings`) and the skyline (mean truncated L1 residual
+in degrees of elevation, :mod:`models.skyline`). The rule, stated once: a product of per-source
+likelihoods, each calibrated on the evaluation set's tuning split.
 
-Per-frame robust standardisation
-    For source ``s`` with errors ``e_s(k)`` over the viewframes it ranked,
-    ``z_s(k) = (e_s(k) - median_k e_s) / (1.4826 * MAD_k e_s)``; when more than half the
-    errors are equal (MAD 0: e.g. skylines with no overlap all score the truncation) the
-    standard deviation is the spread, and a source whose errors are all equal gives z = 0
-    (no evidence) rather than infinities. A viewframe a source did not rank gets that
-    source's largest z (the least likely).
+Evidence of a source
+    A source's errors ``e_s(k)`` over the viewframes k it ranked become its evidence
+    ``u_s(k) >= 0`` (lower: more likely the true viewframe) in one of two ways, by the kind of
+    its error measure (:data:`ABSOLUTE_SOURCES`):
+
+    * *robust* (the associative memory, whose error variances have no fixed scale: they move
+      with the frame's contrast, haze and texture): per-frame robust z-scores,
+      ``u_s(k) = (e_s(k) - median_k e_s) / (1.4826 * MAD_k e_s)`` (:func:`standardise`; when
+      more than half the errors are equal the standard deviation is the spread, and errors all
+      equal give u = 0: no evidence). The frame's own spread sets the scale.
+    * *absolute* (the skyline, whose error is in degrees whatever the frame):
+      ``u_s(k) = e_s(k) - min_k e_s``. The scale is fixed, so the source's reliability in this
+      frame stays in the evidence: a frame whose horizon was found badly has every viewframe's
+      error high and close together, and its skyline hardly moves the fusion, while a clean
+      horizon that fits one viewframe to 0.3 degrees and the others to 1 degree or more
+      decides. (Standardising the skyline per frame, as in the first version of this rule,
+      blew a failed horizon's noise up to the spread of a good one's: the fusion was
+      over-confident in the skyline exactly where it failed.)
+
+    A viewframe a source did not rank gets that source's largest evidence (the least likely).
 
 Likelihoods
-    Each source's evidence that viewframe k is the true one is taken as
-    ``p_s(obs | k) ∝ exp(-w_s * z_s(k))``: a likelihood falling exponentially with the
-    standardised error, the same form as the scene analysis' candidate weights
-    (:func:`knowledge_sources.scene_analysis.ranking_weights`). ``w_s`` is the source's weight,
-    calibrated on tuning data (scenario ``skyline.weight``; the associative memory's is 1).
+    ``p_s(obs | k) ∝ exp(-w_s * u_s(k))``, ``w_s`` in nats per unit of evidence (per robust z
+    for the memory, per degree for the skyline): the scenario's ``memory.weight`` and
+    ``skyline.weight``. The weights are calibrated, not tuned for top-1: they maximise the
+    likelihood of the true viewframe (a conditional logit, ``bench/fusion_sweep.py --fit``) over
+    the tuning split's frames, so ``exp(-w_s u_s)`` is each source's likelihood on the scale its
+    errors really carry.
 
 Fused
     Sources are taken as independent given k, so the log-likelihoods add:
-    ``F(k) = sum_s w_s z_s(k) / sum_s w_s`` (lower is better; dividing by the weights' sum keeps
-    F on the z scale). The fused ranking sorts viewframes by F (ties by label), and F is handed
-    to the scene analysis in place of an error variance, where ``ranking_weights`` turns it into
-    the candidate weights ``exp(-beta (F - F_best) / spread(F))``.
+    ``F(k) = sum_s w_s u_s(k) - min_k (...)`` (nats, lower is better; ``exp(-F(k))`` is the
+    likelihood ratio of k against the best viewframe, and :func:`fused_log_posterior` normalises
+    it over the viewframes, a uniform prior). The fused ranking sorts viewframes by F (ties by
+    label), and F is handed to the scene analysis in place of an error variance, where
+    ``ranking_weights`` turns it into the candidate weights ``exp(-beta (F - F_best) / spread(F))``.
 
 A single source is passed through unchanged (its own errors, its own order): the fusion of one
 source is the identity, so a mission without the skyline decides exactly as before.
@@ -41,7 +56,7 @@ Shards
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,9 +64,15 @@ import numpy as np
 if TYPE_CHECKING:
     from models.associative import Ranking as MemoryRanking
 
-__all__ = ["standardise", "fuse_rankings", "fuse_shards"]
+__all__ = ["ABSOLUTE_SOURCES", "standardise", "evidence", "fuse_rankings", "fused_log_posterior", "fuse_shards"]
 
 _MAD_TO_STD = 1.4826
+
+#: ranking sources whose errors have a fixed scale across frames (module docstring); the others
+#: are standardised per frame
+ABSOLUTE_SOURCES: frozenset[str] = frozenset({"skyline"})
+
+Rankings = Mapping[str, tuple[Sequence[int], Sequence[float]]]
 
 
 def standardise(errors: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -70,10 +91,47 @@ def standardise(errors: Sequence[float] | np.ndarray) -> np.ndarray:
     return (e - med) / spread
 
 
+def evidence(errors: Sequence[float] | np.ndarray, *, absolute: bool) -> np.ndarray:
+    """One source's evidence ``u_s`` (module docstring) from its errors, shape (H,)."""
+    if not absolute:
+        return standardise(errors)
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    if e.size and not np.all(np.isfinite(e)):
+        raise ValueError("errors must be finite")
+    return e - e.min() if e.size else e
+
+
+def _check(rankings: Rankings, weights: Mapping[str, float] | None) -> dict[str, float]:
+    weights = dict(weights or {})
+    for s, w in weights.items():
+        if not w >= 0:
+            raise ValueError(f"weight of source {s!r} must be >= 0, got {w}")
+    used = {s: float(weights.get(s, 1.0)) for s in rankings if weights.get(s, 1.0) > 0}
+    if not used:
+        raise ValueError("fusion needs at least one source of positive weight")
+    return used
+
+
+def _fused(rankings: Rankings, used: Mapping[str, float], absolute: Collection[str]) -> tuple[np.ndarray, np.ndarray]:
+    """(labels (H,), F (H,)) over the union of the viewframes the sources ranked."""
+    universe = sorted({int(k) for s in used for k in rankings[s][0]})
+    pos = {k: i for i, k in enumerate(universe)}
+    total = np.zeros(len(universe))
+    for s, w in used.items():
+        labels, errors = rankings[s]
+        u = evidence(errors, absolute=s in absolute)
+        us = np.full(len(universe), float(u.max()) if u.size else 0.0)
+        for k, v in zip(labels, u):
+            us[pos[int(k)]] = v
+        total += w * us
+    return np.asarray(universe, dtype=np.int64), total - (total.min() if total.size else 0.0)
+
+
 def fuse_rankings(
-    rankings: Mapping[str, tuple[Sequence[int], Sequence[float]]],
+    rankings: Rankings,
     *,
     weights: Mapping[str, float] | None = None,
+    absolute: Collection[str] = ABSOLUTE_SOURCES,
 ) -> list[tuple[int, float]]:
     """Fuse ranking sources into one ranking (module docstring).
 
@@ -82,52 +140,57 @@ def fuse_rankings(
     rankings : mapping source -> (labels, errors)
         Each source's viewframe labels and errors (lower is better), any order.
     weights : mapping source -> weight, optional
-        ``w_s >= 0``; a source not named weighs 1. A source of weight 0 is ignored.
+        ``w_s >= 0`` in nats per unit of the source's evidence; a source not named weighs 1. A
+        source of weight 0 is ignored.
+    absolute : collection of source names
+        Sources whose errors have a fixed scale (default :data:`ABSOLUTE_SOURCES`).
 
     Returns
     -------
     list of (label, score), best first: the source's own errors for a single source, else F.
     """
-    weights = dict(weights or {})
-    for s, w in weights.items():
-        if not w >= 0:
-            raise ValueError(f"weight of source {s!r} must be >= 0, got {w}")
-    used = {s: r for s, r in rankings.items() if weights.get(s, 1.0) > 0}
-    if not used:
-        raise ValueError("fuse_rankings needs at least one source of positive weight")
+    used = _check(rankings, weights)
     if len(used) == 1:
-        labels, errors = next(iter(used.values()))
+        labels, errors = rankings[next(iter(used))]
         lab = np.asarray(labels, dtype=np.int64)
         err = np.asarray(errors, dtype=np.float64)
         order = np.lexsort((lab, err))
         return [(int(lab[i]), float(err[i])) for i in order]
-    universe = sorted({int(k) for labels, _ in used.values() for k in labels})
-    pos = {k: i for i, k in enumerate(universe)}
-    total = np.zeros(len(universe))
-    wsum = 0.0
-    for s, (labels, errors) in used.items():
-        w = float(weights.get(s, 1.0))
-        z = standardise(errors)
-        zs = np.full(len(universe), float(z.max()) if z.size else 0.0)
-        for k, v in zip(labels, z):
-            zs[pos[int(k)]] = v
-        total += w * zs
-        wsum += w
-    fused = total / wsum
-    lab = np.asarray(universe, dtype=np.int64)
+    lab, fused = _fused(rankings, used, absolute)
     order = np.lexsort((lab, fused))
     return [(int(lab[i]), float(fused[i])) for i in order]
+
+
+def fused_log_posterior(
+    rankings: Rankings,
+    *,
+    weights: Mapping[str, float] | None = None,
+    absolute: Collection[str] = ABSOLUTE_SOURCES,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The calibrated belief over the viewframes from every source (module docstring).
+
+    Returns ``(labels, log_p)``, both (H,) over the union of the viewframes ranked, labels
+    ascending: ``log_p(k) = -F(k) - log sum_j exp(-F(j))``, the log posterior of each viewframe
+    under a uniform prior (also for a single source, whose evidence is then its ``w_s u_s``).
+    This is the per-viewframe likelihood an observer of the fused ranking (the tracker) takes.
+    """
+    used = _check(rankings, weights)
+    lab, fused = _fused(rankings, used, absolute)
+    ll = -fused
+    return lab, ll - float(np.log(np.exp(ll - ll.max()).sum()) + ll.max())
 
 
 def fuse_shards(
     shards: Mapping[str, Sequence[MemoryRanking]],
     *,
     weights: Mapping[str, float] | None = None,
+    absolute: Collection[str] = ABSOLUTE_SOURCES,
 ) -> list[tuple[int, float]]:
     """Merge each source's shards, then fuse the sources (module docstring, "Shards").
 
     ``shards``: source -> the rankings of its shards (:class:`models.associative.Ranking`, e.g.
-    :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights`` as :func:`fuse_rankings`.
+    :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights``, ``absolute`` as
+    :func:`fuse_rankings`.
     """
     from models.associative import merge_rankings
 
@@ -135,4 +198,4 @@ def fuse_shards(
     for src, parts in shards.items():
         merged = merge_rankings(list(parts))
         per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
-    return fuse_rankings(per_source, weights=weights)
+    return fuse_rankings(per_source, weights=weights, absolute=absolute)

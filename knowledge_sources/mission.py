@@ -79,8 +79,9 @@ def agent_plan(
         "max_heading_deg": sky.max_heading_deg,
         "max_pitch_deg": sky.max_pitch_deg,
         "truncate_deg": sky.truncate_deg,
+        "max_roll_deg": sky.max_roll_deg,
     }
-    sources = {"associative": 1.0}
+    sources = {"associative": scenario.memory.weight}
     if sky.enabled:
         plan.append(
             ("knowledge_sources.skyline:SkylineRanker", "skyline", {"fov_y_deg": scenario.camera.fov_y_deg, **match})

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from models.skyline import DEFAULT_MAX_ROLL_DEG
 
 if TYPE_CHECKING:
     from models.camera_emulator import CameraEmulator
@@ -28,7 +29,7 @@ class PoseRefiner(KnowledgeSource):
 
     Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``, ``position`` (search the position too, or refine heading
+    ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too, or refine heading
     and pitch only). Positions that arrive before the map wait.
     """
 
@@ -49,6 +50,7 @@ class PoseRefiner(KnowledgeSource):
         max_heading_deg: float,
         max_pitch_deg: float,
         truncate_deg: float,
+        max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
         position: bool,
         **options: Any,
     ) -> None:
@@ -67,6 +69,7 @@ class PoseRefiner(KnowledgeSource):
             "max_heading_deg": float(max_heading_deg),
             "max_pitch_deg": float(max_pitch_deg),
             "truncate_deg": float(truncate_deg),
+            "max_roll_deg": float(max_roll_deg),
             "position": bool(position),
         }
         self._world: World | None = None

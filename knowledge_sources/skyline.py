@@ -10,6 +10,7 @@ import numpy as np
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from models.skyline import DEFAULT_MAX_ROLL_DEG
 
 __all__ = ["SkylineRanker", "SKYLINE_SOURCE"]
 
@@ -29,7 +30,7 @@ class SkylineRanker(KnowledgeSource):
     (:mod:`knowledge_sources.fusion`).
 
     Options (from the scenario's ``skyline`` block and camera): ``fov_y_deg``, ``step_deg``,
-    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``. Camera frames that arrive before the
+    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``. Camera frames that arrive before the
     map is complete wait; viewframes missed as events are read back from the blackboard.
     """
 
@@ -45,6 +46,7 @@ class SkylineRanker(KnowledgeSource):
         max_heading_deg: float,
         max_pitch_deg: float,
         truncate_deg: float,
+        max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -58,6 +60,7 @@ class SkylineRanker(KnowledgeSource):
             "max_heading_deg": float(max_heading_deg),
             "max_pitch_deg": float(max_pitch_deg),
             "truncate_deg": float(truncate_deg),
+            "max_roll_deg": float(max_roll_deg),
         }
         self._profiles: dict[int, np.ndarray] = {}
         self._refs: np.ndarray | None = None

@@ -40,6 +40,7 @@ from models.scenario import RefineSpec
 from models.skyline import (
     DEFAULT_MAX_HEADING_DEG,
     DEFAULT_MAX_PITCH_DEG,
+    DEFAULT_MAX_ROLL_DEG,
     DEFAULT_STEP_DEG,
     DEFAULT_TRUNCATE_DEG,
     SkylineMatch,
@@ -153,12 +154,23 @@ def _shifted(profile: NDArray, s: int) -> NDArray[np.float64]:
 
 class _Scorer:
     def __init__(
-        self, image, emulator: CameraEmulator, *, step_deg, max_heading_deg, max_pitch_deg, truncate_deg, edge_weight
+        self,
+        image,
+        emulator: CameraEmulator,
+        *,
+        step_deg,
+        max_heading_deg,
+        max_pitch_deg,
+        truncate_deg,
+        max_roll_deg,
+        edge_weight,
     ) -> None:
         self.emulator = emulator
         self.fov = float(emulator.camera.fov_y_deg)
         self.step = step_deg
-        self.kw = dict(step_deg=step_deg, max_pitch_deg=max_pitch_deg, truncate_deg=truncate_deg)
+        self.kw = dict(
+            step_deg=step_deg, max_pitch_deg=max_pitch_deg, truncate_deg=truncate_deg, max_roll_deg=max_roll_deg
+        )
         self.max_heading = max_heading_deg
         self.query = skyline_from_image(image, fov_y_deg=self.fov, step_deg=step_deg)
         h, w = emulator.height, emulator.width
@@ -210,6 +222,7 @@ def refine_pose(
     max_heading_deg: float = DEFAULT_MAX_HEADING_DEG,
     max_pitch_deg: float = DEFAULT_MAX_PITCH_DEG,
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
+    max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
     position: bool = DEFAULT_POSITION,
 ) -> RefinedPose:
     """Refine ``start`` (the chosen route point's pose) against the camera ``image`` (H, W, 3).
@@ -231,6 +244,7 @@ def refine_pose(
         max_heading_deg=max_heading_deg,
         max_pitch_deg=max_pitch_deg,
         truncate_deg=truncate_deg,
+        max_roll_deg=max_roll_deg,
         edge_weight=edge_weight,
     )
     # 1. heading and pitch at the start point, then score it again at that heading

@@ -319,7 +319,10 @@ class MemorySpec(_Spec):
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
     up to 2 degrees plus eye-height and terrain differences; +-2 lost 8 points), columns +-16
-    (about 8 degrees of heading). Example::
+    (about 8 degrees of heading). ``weight`` is the associative ranking's weight in the fusion
+    of ranking sources, in nats per robust z-score of its error variances
+    (:mod:`knowledge_sources.fusion`), calibrated with the skyline's on the tuning split
+    (``bench/fusion_sweep.py --fit``). Example::
 
         memory: {size: 128, blur_sigma: 1.0, bank_size: 1, shard_size: 512, max_shift: [8, 16]}
     """
@@ -332,6 +335,7 @@ class MemorySpec(_Spec):
     shard_size: int = Field(default=512, ge=1, le=MAX_ROUTE_POINTS)
     max_shift: tuple[int, int] = (8, 16)
     key: Literal["phase", "quantized"] = "phase"
+    weight: float = Field(default=0.64, ge=0, le=1e3)
 
     @field_validator("max_shift")
     @classmethod
@@ -434,9 +438,13 @@ class SchedulerSpec(_Spec):
 class SkylineSpec(_Spec):
     """The skyline ranking source (:mod:`models.skyline`, :mod:`knowledge_sources.skyline`):
     ``{enabled: true, step_deg: 0.5, max_heading_deg: 12, max_pitch_deg: 4, truncate_deg: 2,
-    weight: 4.0}``. ``weight`` is the skyline's weight in the fusion of ranking sources
-    (:mod:`knowledge_sources.fusion`; the associative memory's is 1), chosen on the evaluation
-    set's tuning split (bench/skyline_eval.py; BENCHMARKS.md).
+    max_roll_deg: 3, weight: 3.8}``. ``max_roll_deg`` bounds the tilt of the camera's profile
+    against a viewframe's that the matching fits (the camera's roll;
+    :func:`models.skyline.match_skylines`), chosen on the evaluation set's tuning split.
+    ``weight`` is the skyline's weight in the fusion of ranking sources, in nats per degree of
+    matching error (:mod:`knowledge_sources.fusion`; the memory's is ``memory.weight``),
+    calibrated with the memory's on the tuning split (``bench/fusion_sweep.py --fit``;
+    BENCHMARKS.md).
     """
 
     enabled: bool = True
@@ -444,7 +452,8 @@ class SkylineSpec(_Spec):
     max_heading_deg: float = Field(default=12.0, ge=0, le=90)
     max_pitch_deg: float = Field(default=4.0, ge=0, le=30)
     truncate_deg: float = Field(default=2.0, gt=0, le=90)
-    weight: float = Field(default=4.0, ge=0, le=1e3)
+    max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
+    weight: float = Field(default=3.8, ge=0, le=1e3)
 
 
 class RefineSpec(_Spec):

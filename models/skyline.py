@@ -36,13 +36,19 @@ haze leaves between far hills and sky. The truncated-linear smoothness lets silh
 the same at every size; gain and gamma do not matter (the class models are per image).
 
 **Matching** (:func:`match_skylines`): the camera profile ``q`` against reference profiles
-``r`` over heading shifts ``delta`` (whole bins) and a pitch offset. With the camera turned by
-``delta`` (ccw, as headings) and pitched by ``pi`` relative to the reference,
-``q(a) = r(a - delta) - pi``. For each shift the pitch offset is the median of ``r - q`` over
-the bins valid in both (robust), clipped to ``max_pitch_deg``, and the error is the mean of the
+``r`` over heading shifts ``delta`` (whole bins), a pitch offset and a roll. With the camera
+turned by ``delta`` (ccw, as headings), pitched by ``pi`` and rolled by ``rho`` relative to the
+reference, ``q(a) = r(a - delta) - pi - tan(rho) * a`` near the horizon (a roll tilts the
+profile: at azimuth ``a`` a point of the horizon moves by about ``rho * a`` in elevation, about
+0.9 degrees at the border of a 55-degree view for a roll of 2 degrees). For each shift the tilt is
+fitted robustly first: the median of ``r - q`` over the left half of the bins valid in both and
+over the right half, the line through them at the halves' median azimuths (a two-group
+median line, robust as a median), its slope clipped to ``tan(max_roll_deg)``
+(``max_roll_deg`` 0: no roll, the profile is only shifted); then the pitch offset is the median
+of the detilted ``r - q``, clipped to ``max_pitch_deg``, and the error is the mean of the
 residuals truncated at ``truncate_deg`` (a truncated L1: an occluder or a wrong column costs at
 most ``truncate_deg``). Overlaps under ``min_overlap`` of the bins score ``truncate_deg``. The
-best shift of each reference is returned: error (degrees), heading offset, pitch offset.
+best shift of each reference is returned: error (degrees), heading offset, pitch offset, roll.
 """
 
 from __future__ import annotations
@@ -76,6 +82,7 @@ DEFAULT_STEP_DEG = _DEFAULTS.step_deg
 DEFAULT_MAX_HEADING_DEG = _DEFAULTS.max_heading_deg
 DEFAULT_MAX_PITCH_DEG = _DEFAULTS.max_pitch_deg
 DEFAULT_TRUNCATE_DEG = _DEFAULTS.truncate_deg
+DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
 #: images are reduced to at most this many rows before the boundary search
 WORK_ROWS = 128
 
@@ -342,13 +349,16 @@ class SkylineMatch:
 
     ``error`` (V,) mean truncated residual in degrees (lower is better); ``heading_deg`` (V,)
     how far the camera is turned ccw from the reference; ``pitch_deg`` (V,) how far it is
-    pitched up from the reference; ``overlap`` (V,) fraction of bins compared.
+    pitched up from the reference; ``overlap`` (V,) fraction of bins compared; ``roll_deg`` (V,)
+    the fitted tilt, ``atan`` of the slope of ``r - q`` against azimuth (degrees; positive: the
+    camera's horizon falls to the right relative to the reference's; zeros without roll).
     """
 
     error: NDArray[np.float64]
     heading_deg: NDArray[np.float64]
     pitch_deg: NDArray[np.float64]
     overlap: NDArray[np.float64]
+    roll_deg: NDArray[np.float64] | None = None
 
 
 def match_skylines(
@@ -359,6 +369,7 @@ def match_skylines(
     max_heading_deg: float = DEFAULT_MAX_HEADING_DEG,
     max_pitch_deg: float = DEFAULT_MAX_PITCH_DEG,
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
+    max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
     min_overlap: float = _MIN_OVERLAP,
 ) -> SkylineMatch:
     """Match the camera profile ``query`` (n,) with ``references`` (V, n) over heading shifts.
@@ -373,8 +384,8 @@ def match_skylines(
         r = r[None]
     if r.ndim != 2 or r.shape[1] != q.size:
         raise ValueError(f"references must have shape (V, {q.size}) like the query, not {r.shape}")
-    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0:
-        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0")
+    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0 or not 0 <= max_roll_deg < 45:
+        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0, max_roll_deg in [0, 45)")
     v, n = r.shape
     smax = min(int(round(max_heading_deg / step_deg)), n - 1)
     shifts = np.arange(-smax, smax + 1)
@@ -382,28 +393,58 @@ def match_skylines(
     best_h = np.zeros(v)
     best_p = np.zeros(v)
     best_o = np.zeros(v)
+    best_r = np.zeros(v)
     qn = np.isfinite(q).sum()
     if qn == 0 or v == 0:
-        return SkylineMatch(best_e, best_h, best_p, best_o)
+        return SkylineMatch(best_e, best_h, best_p, best_o, best_r)
     need = max(3, int(math.ceil(min_overlap * qn)))
+    az = profile_azimuths(n, step_deg=step_deg)
+    slope_max = math.tan(math.radians(max_roll_deg))
     for s in shifts:
         # q(i) against r(i - s)
         lo, hi = max(0, s), min(n, n + s)
-        d = r[:, lo - s : hi - s] - q[None, lo:hi]  # r - q = pitch offset where they agree
+        d = r[:, lo - s : hi - s] - q[None, lo:hi]  # r - q = pitch offset (+ tilt) where they agree
         ok = np.isfinite(d)
         cnt = ok.sum(1)
         use = cnt >= need
         if not use.any():
             continue
-        pitch = np.clip(_row_nanmedian(d[use], cnt[use]), -max_pitch_deg, max_pitch_deg)
-        res = np.minimum(np.abs(d[use] - pitch[:, None]), truncate_deg)
+        du, oku, cu = d[use], ok[use], cnt[use]
+        slope = np.zeros(len(du))
+        if slope_max > 0:
+            slope = np.clip(_tilt(du, oku, cu, az[lo:hi]), -slope_max, slope_max)
+            du = du - slope[:, None] * az[None, lo:hi]
+        pitch = np.clip(_row_nanmedian(du, cu), -max_pitch_deg, max_pitch_deg)
+        res = np.minimum(np.abs(du - pitch[:, None]), truncate_deg)
         # bins of the query the reference does not cover count as truncated residuals
-        err = (np.where(ok[use], res, 0.0).sum(1) + truncate_deg * (qn - cnt[use])) / qn
+        err = (np.where(oku, res, 0.0).sum(1) + truncate_deg * (qn - cu)) / qn
         rows = np.nonzero(use)[0]
         better = err < best_e[rows]
         rows = rows[better]
         best_e[rows] = err[better]
         best_h[rows] = s * step_deg
         best_p[rows] = pitch[better]
-        best_o[rows] = cnt[use][better] / qn
-    return SkylineMatch(best_e, best_h, best_p, best_o)
+        best_o[rows] = cu[better] / qn
+        best_r[rows] = np.degrees(np.arctan(slope[better]))
+    return SkylineMatch(best_e, best_h, best_p, best_o, best_r)
+
+
+def _tilt(d: NDArray[np.float64], ok: NDArray[np.bool_], cnt: NDArray[np.int64], az: NDArray[np.float64]) -> NDArray:
+    """Robust slope (degrees of elevation per degree of azimuth) of each row of ``d`` (R, m), finite
+    where ``ok``, against the azimuths ``az`` (m,): the line through the medians of the left and
+    the right half of each row's finite bins, at the halves' median azimuths (module docstring)."""
+    rows = np.arange(len(d))
+    col = np.arange(d.shape[1])[None, :]
+    # the finite bins of each row in azimuth order (a stable sort by validity keeps the order)
+    order = np.argsort(~ok, axis=1, kind="stable")
+    ds = np.take_along_axis(d, order, axis=1)
+    azs = az[order]
+    nl = cnt // 2
+    nr = cnt - nl
+    left = np.sort(np.where(col < nl[:, None], ds, np.inf), axis=1)
+    right = np.sort(np.where((col >= nl[:, None]) & (col < cnt[:, None]), ds, np.inf), axis=1)
+    m_l = 0.5 * (left[rows, (nl - 1) // 2] + left[rows, nl // 2])
+    m_r = 0.5 * (right[rows, (nr - 1) // 2] + right[rows, nr // 2])
+    a_l = 0.5 * (azs[rows, (nl - 1) // 2] + azs[rows, nl // 2])
+    a_r = 0.5 * (azs[rows, nl + (nr - 1) // 2] + azs[rows, nl + nr // 2])
+    return (m_r - m_l) / np.maximum(a_r - a_l, 1e-9)

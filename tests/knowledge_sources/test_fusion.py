@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from knowledge_sources.fusion import fuse_rankings, fuse_shards, standardise
+from knowledge_sources.fusion import (
+    ABSOLUTE_SOURCES,
+    evidence,
+    fuse_rankings,
+    fuse_shards,
+    fused_log_posterior,
+    standardise,
+)
 
 
 def _source(rng, n, truth, *, separation, noise=1.0, scale=1.0, offset=0.0):
@@ -28,15 +35,50 @@ def test_a_single_source_passes_through_unchanged():
     assert fuse_rankings({"associative": (labels, errors)}) == [(1, 0.1), (2, 0.5), (3, 0.5)]
 
 
-def test_fusion_does_not_depend_on_each_sources_units():
+def test_fusion_does_not_depend_on_a_robust_sources_units():
     rng = np.random.default_rng(0)
     a = _source(rng, 40, 7, separation=2.0)
     b = _source(rng, 40, 7, separation=2.0)
-    base = fuse_rankings({"associative": a, "skyline": b})
+    base = fuse_rankings({"associative": a, "other": b})
     rescaled = fuse_rankings(
-        {"associative": (a[0], [1e-5 * v + 3.0 for v in a[1]]), "skyline": (b[0], [40.0 * v for v in b[1]])}
+        {"associative": (a[0], [1e-5 * v + 3.0 for v in a[1]]), "other": (b[0], [40.0 * v for v in b[1]])}
     )
+    assert "associative" not in ABSOLUTE_SOURCES and "other" not in ABSOLUTE_SOURCES
     assert [k for k, _ in base] == [k for k, _ in rescaled]
+
+
+def test_an_absolute_sources_scale_is_its_reliability():
+    """The skyline's errors are degrees: a failed horizon (every viewframe off by about the
+    truncation, a little noise) must not outvote a confident associative ranking, as the per-frame
+    standardisation of the first rule let it; a clean fit of one viewframe must decide."""
+    rng = np.random.default_rng(5)
+    n, truth = 32, 9
+    assoc = _source(rng, n, truth, separation=5.0)
+    failed = list(range(n)), list(1.8 + 0.05 * rng.normal(size=n))
+    failed[1][20] = 1.65  # its best is wrong, but by a hair in degrees
+    w = {"associative": 0.64, "skyline": 3.8}
+    assert fuse_rankings({"associative": assoc, "skyline": failed}, weights=w)[0][0] == truth
+    # the first rule (both standardised) follows the failed skyline's noise instead
+    assert fuse_rankings({"associative": assoc, "skyline": failed}, weights={"skyline": 4.0}, absolute=())[0][0] == 20
+    clean = list(range(n)), [0.3 if k == 14 else 1.2 + 0.1 * rng.normal() for k in range(n)]
+    weak = _source(rng, n, 15, separation=1.0)  # a neighbour, weakly
+    assert fuse_rankings({"associative": weak, "skyline": clean}, weights=w)[0][0] == 14
+    np.testing.assert_allclose(evidence([2.0, 1.5, 3.0], absolute=True), [0.5, 0.0, 1.5])
+
+
+def test_the_fused_log_posterior_is_normalised_and_orders_as_the_ranking():
+    rng = np.random.default_rng(6)
+    a = _source(rng, 25, 3, separation=2.5)
+    b = list(range(25)), list(np.abs(rng.normal(1.0, 0.3, 25)))
+    w = {"associative": 0.64, "skyline": 3.8}
+    labels, logp = fused_log_posterior({"associative": a, "skyline": b}, weights=w)
+    assert list(labels) == list(range(25)) and np.exp(logp).sum() == pytest.approx(1.0)
+    ranked = fuse_rankings({"associative": a, "skyline": b}, weights=w)
+    assert [k for k, _ in ranked][:5] == list(labels[np.argsort(-logp, kind="stable")][:5])
+    # F is the negative log likelihood ratio against the best, in nats
+    best = int(np.argmax(logp))
+    for k, f in ranked[:5]:
+        assert f == pytest.approx(logp[best] - logp[k])
 
 
 def test_two_weak_independent_sources_beat_either_alone():
@@ -89,7 +131,7 @@ def test_fuse_shards_merges_each_source_then_fuses():
         "associative": [Ranking(labels[:7], a[:7], 0.0), Ranking(labels[7:], a[7:], 0.0)],
         "skyline": [Ranking(labels[::-1], b[::-1], 0.0)],
     }
-    weights = {"associative": 1.0, "skyline": 4.0}
+    weights = {"associative": 0.64, "skyline": 3.8}
     assert fuse_shards(shards, weights=weights) == fuse_rankings(
         {"associative": (labels, a), "skyline": (labels, b)}, weights=weights
     )

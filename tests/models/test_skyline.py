@@ -154,6 +154,47 @@ def test_matching_is_robust_to_an_occluded_stretch():
     assert m.error[0] < 0.4
 
 
+@pytest.mark.parametrize("roll", [2.0, -2.0])
+def test_matching_fits_the_cameras_roll(emulator, roll):
+    """A camera rolled by 2 degrees (the image rotated about its centre) tilts its horizon by up to
+    a degree at the borders: the match with the roll fitted is closer than the match without,
+    finds the tilt's sign and size, and keeps the heading."""
+    import cv2
+
+    x, y, heading = 420.0, 380.0, 80.0
+    ref = skyline_from_depth(emulator.render(emulator.pose_at(x, y, heading)).depth, fov_y_deg=FOV)
+    view = emulator.render(emulator.pose_at(x, y, heading + 3.0))
+    h, w = view.image.shape[:2]
+    rot = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), roll, 1.0)
+    rolled = cv2.warpAffine(view.image, rot, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    image = degrade(rolled, spec=SimulateSpec(haze=0.3, noise=6.0), rng=3)
+    q = skyline_from_image(image, fov_y_deg=FOV)
+    flat = match_skylines(q, ref[None], max_roll_deg=0.0)
+    tilted = match_skylines(q, ref[None], max_roll_deg=3.0)
+    assert flat.roll_deg is not None and not np.any(flat.roll_deg)
+    assert tilted.error[0] < 0.7 * flat.error[0]
+    # the image turned counter-clockwise (OpenCV's positive angle): the right half of the horizon
+    # rises against the reference's, r - q falls to the right
+    assert tilted.roll_deg is not None and tilted.roll_deg[0] == pytest.approx(-roll, abs=0.7)
+    assert tilted.heading_deg[0] == pytest.approx(3.0, abs=0.75)
+
+
+def test_the_fitted_tilt_is_bounded_and_robust_to_an_occluder():
+    rng = np.random.default_rng(4)
+    n = 81
+    az = profile_azimuths(n)
+    ref = np.cumsum(rng.normal(0, 0.4, n)).astype(np.float64)
+    q = ref - 0.5 - math.tan(math.radians(1.5)) * az  # pitched up by 0.5 degrees, tilted 1.5
+    q[50:60] += 6.0  # an occluder
+    m = match_skylines(q, ref[None], max_heading_deg=0.0, max_roll_deg=3.0)
+    assert m.roll_deg is not None and m.roll_deg[0] == pytest.approx(1.5, abs=0.3)
+    assert m.pitch_deg[0] == pytest.approx(0.5, abs=0.15) and m.error[0] < 0.4
+    bounded = match_skylines(q, ref[None], max_heading_deg=0.0, max_roll_deg=0.5)
+    assert bounded.roll_deg is not None and bounded.roll_deg[0] == pytest.approx(0.5, abs=1e-6)
+    with pytest.raises(ValueError, match="max_roll_deg"):
+        match_skylines(q, ref[None], max_roll_deg=-1.0)
+
+
 def test_matching_rejects_mismatched_grids():
     with pytest.raises(ValueError, match="references must have shape"):
         match_skylines(np.zeros(81), np.zeros((3, 75)))

@@ -1,0 +1,235 @@
+"""Fusion rules of the ranking sources, compared on the evaluation set from cached per-frame errors.
+
+Step 1 (``--dump``): for every case of a split of :mod:`bench.evalset` (sweeps, drives, kidnaps)
+it builds the viewframes (:class:`models.world.World`, as the map renderer does), ranks every
+camera frame with the associative memory (``ViewframeIndex.rank``, the indexer's call) and
+extracts its skyline profile (``skyline_from_image``, the skyline ranker's call), and writes the
+per-frame associative errors over all viewframes, the query profile, the viewframes' profiles,
+the route and the truth to ``<out>/<split>.npz``. Step 2 (default): reads that file, matches the
+skylines (``match_skylines``, the schema's settings or ``--truncate``/``--max-roll``; and once
+without the roll, ``skyline_flat``), fuses the two sources by each rule of :data:`RULES` (the
+first rule, both standardised, at fixed weights: ``robust@w``, ``flat_robust@4`` being the
+merged tree's default; the calibrated rule of :mod:`knowledge_sources.fusion` at the schema's
+weights; ``--fit``: at the weights fitted on this split) and prints top-1 / top-5 per terrain
+and overall.
+
+    python bench/fusion_sweep.py --split tuning --dump
+    python bench/fusion_sweep.py --split tuning --fit [--rules ...] [--truncate 2] [--max-roll 3]
+
+Prints JSON, then a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+sys.path.insert(0, str(_HERE.parent))
+
+import numpy as np  # noqa: E402
+
+from bench.evalset import cases  # noqa: E402
+from knowledge_sources.fusion import fuse_rankings, fused_log_posterior  # noqa: E402
+from models.scenario import MemorySpec, SkylineSpec  # noqa: E402
+from models.skyline import match_skylines  # noqa: E402
+
+
+def dump(split: str, out: Path) -> Path:
+    """Step 1 of the module docstring; returns the file written."""
+    from models.index import ViewframeIndex
+    from models.scenario import load_scenario
+    from models.sensor import load_frame_image
+    from models.skyline import skyline_from_image
+    from models.world import World
+
+    rec: dict[str, list[Any]] = {k: [] for k in ("case", "truth", "assoc", "query", "xy", "arc")}
+    refs: dict[str, np.ndarray] = {}
+    routes: dict[str, np.ndarray] = {}
+    for case in cases(split):
+        scenario = load_scenario(case.scenario_path)
+        cam, sky = scenario.camera, scenario.skyline
+        t0 = time.perf_counter()
+        with World(scenario) as world:
+            vfs = world.viewframes
+            index = ViewframeIndex(scenario.memory, seed=0)
+            index.add((v.image for v in vfs), [v.index for v in vfs])
+            refs[case.name] = np.stack([v.skyline for v in vfs]).astype(np.float32)
+            routes[case.name] = np.array([[v.pose.x, v.pose.y, v.pose.heading_deg] for v in vfs])
+            for fr in case.frames:
+                image = load_frame_image(fr.image, width=cam.width, height=cam.height)
+                rk = index.rank(image)
+                err = np.empty(len(vfs))
+                err[rk.viewframes] = rk.variances
+                rec["case"].append(case.name)
+                rec["truth"].append(int(fr.route_index))
+                rec["assoc"].append(err)
+                rec["query"].append(skyline_from_image(image, fov_y_deg=cam.fov_y_deg, step_deg=sky.step_deg))
+                rec["xy"].append((fr.x, fr.y))
+                rec["arc"].append(fr.arc_m)
+        print(
+            f"# {case.name}: {len(case.frames)} frames, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True
+        )
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{split}.npz"
+    np.savez(
+        path,
+        case=np.array(rec["case"]),
+        truth=np.array(rec["truth"]),
+        assoc=np.array(rec["assoc"], dtype=object),
+        query=np.array(rec["query"]),
+        xy=np.array(rec["xy"]),
+        arc=np.array(rec["arc"]),
+        ref_names=np.array(list(refs)),
+        **{f"ref:{k}": v for k, v in refs.items()},
+        **{f"route:{k}": v for k, v in routes.items()},
+    )
+    return path
+
+
+Rule = Callable[[dict[str, tuple[list[int], list[float]]]], list[tuple[int, float]]]
+
+_MEM, _SKY = MemorySpec(), SkylineSpec()
+
+
+def _robust(w: float, sky: str = "skyline") -> Rule:
+    """The first rule: both sources standardised per frame, the skyline (``sky``: matched with
+    the roll fitted or, ``"skyline_flat"``, without) at weight ``w``."""
+    return lambda per: fuse_rankings(
+        {"associative": per["associative"], "skyline": per[sky]},
+        weights={"associative": 1.0, "skyline": w},
+        absolute=(),
+    )
+
+
+def _calibrated(wa: float, ws: float) -> Rule:
+    """The calibrated rule (:mod:`knowledge_sources.fusion`) at the given weights."""
+    return lambda per: fuse_rankings(
+        {"associative": per["associative"], "skyline": per["skyline"]}, weights={"associative": wa, "skyline": ws}
+    )
+
+
+#: name -> rule over {source: (labels, errors)}; the sources alone first
+RULES: dict[str, Rule] = {
+    "associative": lambda per: fuse_rankings({"associative": per["associative"]}),
+    "skyline_flat": lambda per: fuse_rankings({"skyline": per["skyline_flat"]}),
+    "skyline": lambda per: fuse_rankings({"skyline": per["skyline"]}),
+    "flat_robust@4": _robust(4.0, "skyline_flat"),
+    **{f"robust@{w:g}": _robust(w) for w in (1, 2, 4)},
+    "calibrated": _calibrated(_MEM.weight, _SKY.weight),
+}
+
+
+def per_frame(data: dict[str, Any], *, truncate: float, max_roll: float) -> list[dict[str, Any]]:
+    """Each frame's two sources' (labels, errors) with its truth and terrain."""
+    match = {
+        "step_deg": _SKY.step_deg,
+        "max_heading_deg": _SKY.max_heading_deg,
+        "max_pitch_deg": _SKY.max_pitch_deg,
+        "truncate_deg": truncate,
+        "max_roll_deg": max_roll,
+    }
+    out = []
+    for i, name in enumerate(data["case"]):
+        refs = data[f"ref:{name}"]
+        m = match_skylines(data["query"][i], refs, **match)
+        flat = match_skylines(data["query"][i], refs, **{**match, "max_roll_deg": 0.0})
+        labels = list(range(len(refs)))
+        out.append(
+            {
+                "per": {
+                    "associative": (labels, list(data["assoc"][i])),
+                    "skyline": (labels, m.error.tolist()),
+                    "skyline_flat": (labels, flat.error.tolist()),
+                },
+                "truth": int(data["truth"][i]),
+                "terrain": str(name).split("/")[0],
+            }
+        )
+    return out
+
+
+def fit_weights(frames: list[dict[str, Any]]) -> tuple[float, float, float]:
+    """The calibrated rule's (w_associative, w_skyline) that maximise the log posterior of the
+    true viewframes (:func:`fused_log_posterior`), and that negative log-likelihood (nats)."""
+    from scipy.optimize import minimize
+
+    def nll(p: np.ndarray) -> float:
+        w = {"associative": float(np.exp(p[0])), "skyline": float(np.exp(p[1]))}
+        total = 0.0
+        for f in frames:
+            lab, lp = fused_log_posterior({s: f["per"][s] for s in w}, weights=w)
+            total -= float(lp[np.searchsorted(lab, f["truth"])])
+        return total
+
+    r = minimize(nll, np.log([_MEM.weight, _SKY.weight]), method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3})
+    return float(np.exp(r.x[0])), float(np.exp(r.x[1])), float(r.fun)
+
+
+def evaluate(frames: list[dict[str, Any]], rules: dict[str, Rule]) -> dict[str, Any]:
+    """Top-1 / top-5 of each rule per terrain and over all frames."""
+    ranks: dict[str, list[int]] = {r: [] for r in rules}
+    for f in frames:
+        for r, rule in rules.items():
+            fused = rule(f["per"])
+            ranks[r].append(next(j for j, (k, _) in enumerate(fused) if k == f["truth"]))
+    terr = np.array([f["terrain"] for f in frames])
+    out: dict[str, Any] = {"frames": len(frames), "terrains": {}, "overall": {}}
+    for r in rules:
+        rk = np.array(ranks[r])
+        out["overall"][r] = {"top1": float(np.mean(rk < 1)), "top5": float(np.mean(rk < 5))}
+        for t in sorted(set(terr)):
+            sel = rk[terr == t]
+            out["terrains"].setdefault(t, {})[r] = {"top1": float(np.mean(sel < 1)), "top5": float(np.mean(sel < 5))}
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--split", default="tuning", choices=("tuning", "heldout"))
+    ap.add_argument("--dump", action="store_true", help="compute and cache the per-frame errors first")
+    ap.add_argument("--out", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "mapinterp-fusion")
+    ap.add_argument("--rules", nargs="*", default=None, help=f"of {', '.join(RULES)} (default all)")
+    ap.add_argument("--truncate", type=float, default=_SKY.truncate_deg, help="skyline truncate_deg")
+    ap.add_argument("--max-roll", type=float, default=_SKY.max_roll_deg, help="skyline max_roll_deg")
+    ap.add_argument("--fit", action="store_true", help="fit the calibrated rule's weights on this split")
+    args = ap.parse_args(argv)
+    path = args.out / f"{args.split}.npz"
+    if args.dump or not path.exists():
+        path = dump(args.split, args.out)
+    with np.load(path, allow_pickle=True) as z:
+        data = {k: z[k] for k in z.files}
+    frames = per_frame(data, truncate=args.truncate, max_roll=args.max_roll)
+    rules = dict(RULES)
+    fitted = None
+    if args.fit:
+        wa, ws, nll = fit_weights(frames)
+        fitted = {"associative": wa, "skyline": ws, "nll": nll, "frames": len(frames)}
+        rules["fitted"] = _calibrated(wa, ws)
+    unknown = [r for r in (args.rules or []) if r not in rules]
+    if unknown:
+        ap.error(f"unknown rules {unknown}; known: {', '.join(rules)}")
+    chosen = {r: rules[r] for r in (args.rules or rules)}
+    res = evaluate(frames, chosen)
+    settings = {"truncate_deg": args.truncate, "max_roll_deg": args.max_roll, "weights": [_MEM.weight, _SKY.weight]}
+    print(json.dumps({"split": args.split, "settings": settings, "fitted": fitted, **res}, indent=1))
+    if fitted:
+        print(
+            f"\nfitted weights: associative {fitted['associative']:.3f}, skyline {fitted['skyline']:.3f} (nll {fitted['nll']:.1f})"
+        )
+    print(f"\n{'terrain':22s} " + " ".join(f"{r:>14s}" for r in chosen))
+    for t, row in {**res["terrains"], "ALL": res["overall"]}.items():
+        print(f"{t:22s} " + " ".join(f"{row[r]['top1']:.3f}/{row[r]['top5']:.3f}".rjust(14) for r in chosen))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
