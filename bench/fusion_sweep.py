@@ -11,7 +11,8 @@ without the roll, ``skyline_flat``), fuses the two sources by each rule of :data
 first rule, both standardised, at fixed weights: ``robust@w``, ``flat_robust@4`` being the
 merged tree's default; the calibrated rule of :mod:`knowledge_sources.fusion` at the schema's
 weights; ``--fit``: at the weights fitted on this split) and prints top-1 / top-5 per terrain
-and overall.
+and overall, and the calibrated rule's position error: its first route point against estimates
+between it and its neighbours from the fused posterior (:func:`position_errors`).
 
     python bench/fusion_sweep.py --split tuning --dump
     python bench/fusion_sweep.py --split tuning --fit [--rules ...] [--truncate 2] [--max-roll 3]
@@ -174,6 +175,31 @@ def fit_weights(frames: list[dict[str, Any]]) -> tuple[float, float, float]:
     return float(np.exp(r.x[0])), float(np.exp(r.x[1])), float(r.fun)
 
 
+def position_errors(data: dict[str, Any], frames: list[dict[str, Any]], rule_weights: dict[str, float]) -> dict:
+    """Metres from the true position: the calibrated rule's first route point, against two
+    estimates between it and its route neighbours from the fused log posterior ``lp``: the
+    posterior-weighted mean of the three points' (x, y), and the vertex of the parabola through
+    ``lp`` at the three, moved along the route (at most half a spacing)."""
+    out: dict[str, list[float]] = {"route_point": [], "mean_of_3": [], "parabola": []}
+    for i, f in enumerate(frames):
+        route = data[f"route:{data['case'][i]}"][:, :2]
+        xy = np.asarray(data["xy"][i], dtype=np.float64)
+        lab, lp = fused_log_posterior({s: f["per"][s] for s in rule_weights}, weights=rule_weights)
+        k = int(lab[int(np.argmax(lp))])
+        out["route_point"].append(float(np.hypot(*(route[k] - xy))))
+        nb = [j for j in (k - 1, k, k + 1) if 0 <= j < len(route)]
+        p = np.exp(lp[nb] - lp[k])
+        out["mean_of_3"].append(float(np.hypot(*((p[:, None] * route[nb]).sum(0) / p.sum() - xy))))
+        pos = route[k]
+        if 0 < k < len(route) - 1:
+            a, b, c = lp[k - 1], lp[k], lp[k + 1]
+            den = a - 2 * b + c
+            off = float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
+            pos = route[k] + abs(off) * (route[k + (1 if off > 0 else -1)] - route[k])
+        out["parabola"].append(float(np.hypot(*(pos - xy))))
+    return {m: {"median_m": float(np.median(e)), "mean_m": float(np.mean(e))} for m, e in out.items()}
+
+
 def evaluate(frames: list[dict[str, Any]], rules: dict[str, Rule]) -> dict[str, Any]:
     """Top-1 / top-5 of each rule per terrain and over all frames."""
     ranks: dict[str, list[int]] = {r: [] for r in rules}
@@ -219,6 +245,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"unknown rules {unknown}; known: {', '.join(rules)}")
     chosen = {r: rules[r] for r in (args.rules or rules)}
     res = evaluate(frames, chosen)
+    res["position"] = position_errors(data, frames, {"associative": _MEM.weight, "skyline": _SKY.weight})
     settings = {"truncate_deg": args.truncate, "max_roll_deg": args.max_roll, "weights": [_MEM.weight, _SKY.weight]}
     print(json.dumps({"split": args.split, "settings": settings, "fitted": fitted, **res}, indent=1))
     if fitted:
@@ -228,6 +255,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n{'terrain':22s} " + " ".join(f"{r:>14s}" for r in chosen))
     for t, row in {**res["terrains"], "ALL": res["overall"]}.items():
         print(f"{t:22s} " + " ".join(f"{row[r]['top1']:.3f}/{row[r]['top5']:.3f}".rjust(14) for r in chosen))
+    print(
+        "position of the calibrated rule's answer, median / mean m: "
+        + ", ".join(f"{m} {v['median_m']:.1f} / {v['mean_m']:.1f}" for m, v in res["position"].items())
+    )
     return 0
 
 
