@@ -106,7 +106,7 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
                     levels=scenario.refine.levels,
                     grid=scenario.refine.grid,
                     edge_weight=scenario.refine.edge_weight,
-                    **match,
+                    **{**match, "max_roll_deg": scenario.refine.max_roll_deg},
                 )
                 t_ref += time.perf_counter() - t3
                 pos_err.append(math.hypot(r.x - fr.x, r.y - fr.y))

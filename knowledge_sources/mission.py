@@ -148,6 +148,7 @@ def agent_plan(
                     "grid": ref.grid,
                     "edge_weight": ref.edge_weight,
                     **match,
+                    "max_roll_deg": ref.max_roll_deg,
                 },
             )
         )

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
-from models.skyline import DEFAULT_MAX_ROLL_DEG
+from models.scenario import RefineSpec
 
 if TYPE_CHECKING:
     from models.camera_emulator import CameraEmulator
@@ -50,7 +50,7 @@ class PoseRefiner(KnowledgeSource):
         max_heading_deg: float,
         max_pitch_deg: float,
         truncate_deg: float,
-        max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
+        max_roll_deg: float = RefineSpec().max_roll_deg,
         position: bool,
         **options: Any,
     ) -> None:

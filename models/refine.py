@@ -40,7 +40,6 @@ from models.scenario import RefineSpec
 from models.skyline import (
     DEFAULT_MAX_HEADING_DEG,
     DEFAULT_MAX_PITCH_DEG,
-    DEFAULT_MAX_ROLL_DEG,
     DEFAULT_STEP_DEG,
     DEFAULT_TRUNCATE_DEG,
     SkylineMatch,
@@ -67,6 +66,7 @@ DEFAULT_LEVELS = _DEFAULTS.levels
 DEFAULT_GRID = _DEFAULTS.grid
 DEFAULT_EDGE_WEIGHT = _DEFAULTS.edge_weight
 DEFAULT_POSITION = _DEFAULTS.position
+DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
 
 _BLUR_PX = 1.5
 

@@ -463,7 +463,11 @@ class RefineSpec(_Spec):
     searched, ``levels`` times on a ``grid`` x ``grid`` pattern that shrinks each time; a view's
     score is its skyline error plus ``edge_weight`` times one minus its edge correlation.
     ``position: false`` (default) refines heading and pitch only: on the evaluation set's tuning
-    split the position search made the median error worse than the route point's (BENCHMARKS.md)."""
+    split the position search made the median error worse than the route point's (BENCHMARKS.md).
+    ``max_roll_deg`` (default 0) is the skyline match's roll bound in the refiner's scores (the
+    ranker's is ``skyline.max_roll_deg``): fitting the roll there flattened the score across
+    positions, and the position search missed a known offset it finds without
+    (tests/models/test_refine.py)."""
 
     enabled: bool = True
     position: bool = False
@@ -472,6 +476,7 @@ class RefineSpec(_Spec):
     levels: int = Field(default=2, ge=1, le=8)
     grid: int = Field(default=5, ge=3, le=11)
     edge_weight: float = Field(default=2.0, ge=0, le=1e3)
+    max_roll_deg: float = Field(default=0.0, ge=0, lt=45)
 
 
 class TrackingSpec(_Spec):

@@ -221,6 +221,9 @@ def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.ran
     if len(s) > 4000:
         s = s[rng.choice(len(s), 4000, replace=False)]
     k = min(_CLUSTERS, len(s) // 8)
+    # k-means++ seeds from OpenCV's global generator: seeded, so that a frame's horizon does not
+    # depend on how many k-means ran before it in this process
+    cv2.setRNGSeed(int(rng.integers(2**31)))
     _, lab, _ = cv2.kmeans(  # type: ignore[call-overload]  # bestLabels None: let OpenCV allocate them
         s.astype(np.float32),
         k,
