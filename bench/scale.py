@@ -106,16 +106,7 @@ def components(path: Path, cache_dir: Path) -> dict:
 
     sizes = []
     for vf in viewframes[: min(n, 200)]:
-        p = vf.pose
-        msg = levels.Viewframe(
-            index=vf.index,
-            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
-            image=np.ascontiguousarray(vf.image),
-            mask=vf.mask.astype(np.int16),
-            description=vf.description.to_dict(),
-            skyline=vf.skyline,
-            background=None if vf.background is None else np.ascontiguousarray(vf.background),
-        )
+        msg = levels.Viewframe.of(vf)
         sizes.append(len(encode(msg.to_body())))
     out["message_bytes_per_viewframe"] = float(np.mean(sizes))
 

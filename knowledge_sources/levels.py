@@ -54,6 +54,7 @@ from blackboard.errors import BlackboardError
 if TYPE_CHECKING:
     from blackboard.hypothesis import Hypothesis
     from blackboard.knowledge_source import Board
+    from models import viewframes as models_viewframes
     from models.associative import Ranking as MemoryRanking
 
 __all__ = [
@@ -398,6 +399,23 @@ class Viewframe(Message):
             channels=3,
         ),
     )
+
+    @classmethod
+    def of(cls, viewframe: models_viewframes.Viewframe) -> Self:
+        """The message of a rendered viewframe (:class:`models.viewframes.Viewframe`): its pose as
+        a list, its image and background as C-contiguous arrays, its mask as int16 and its
+        symbolic description as plain data; the depth map stays behind (no agent reads it)."""
+        p = viewframe.pose
+        background = viewframe.background
+        return cls(
+            index=int(viewframe.index),
+            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+            image=np.ascontiguousarray(viewframe.image),
+            mask=viewframe.mask.astype(np.int16),
+            description=viewframe.description.to_dict(),
+            skyline=viewframe.skyline,
+            background=None if background is None else np.ascontiguousarray(background),
+        )
 
     def id(self) -> str:
         return viewframe_id(self.index)

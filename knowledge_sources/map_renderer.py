@@ -5,8 +5,6 @@ from __future__ import annotations
 import logging
 from typing import ClassVar
 
-import numpy as np
-
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.errors import input_error_message
@@ -43,20 +41,11 @@ class MapRenderer(KnowledgeSource):
             priors = world.priors
         poses = []
         for vf in viewframes:
-            p = vf.pose
-            pose = [p.x, p.y, p.z, p.heading_deg, p.pitch_deg]
-            poses.append(pose)
+            message = levels.Viewframe.of(vf)
+            poses.append(message.pose)
             levels.post(
                 board,
-                levels.Viewframe(
-                    index=vf.index,
-                    pose=pose,
-                    image=np.ascontiguousarray(vf.image),
-                    mask=vf.mask.astype(np.int16),
-                    description=vf.description.to_dict(),
-                    skyline=vf.skyline,
-                    background=None if vf.background is None else np.ascontiguousarray(vf.background),
-                ),
+                message,
                 links=(source.id,),
             )
         levels.post(

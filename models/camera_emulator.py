@@ -13,6 +13,12 @@ One renderer and one scene are reused across views; per view only the terrain ti
 detail, the landmark boxes that may be in view, the camera pose and the light change. Each
 view takes two passes: a lit colour pass (the image) and a flat segmentation pass (the landmark
 mask, and the depth: it rasterises without multisampling, so depth is sampled at pixel centres).
+pyrender's per-draw Python work is cut without changing a pixel: each shader program looks a
+uniform's location up once and skips setting a value it already holds, the renderer picks a
+primitive's shader program once per flags, the scene composes a node's pose once per change
+(``bench/setup.py`` measures it and checks the output bit for bit). Nodes are drawn in a fixed
+order (terrain tiles by tile and level, then landmark boxes), so where two triangles meet a pixel
+at the same depth every emulator, in any process, colours it the same.
 Several emulators may live in one process; :meth:`CameraEmulator.close` destroys only its own
 EGL context (pyrender's ``delete`` would ``eglTerminate`` the display shared with the others).
 
@@ -43,7 +49,8 @@ from typing import TYPE_CHECKING  # noqa: E402
 import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
 import trimesh  # noqa: E402
-from pyrender.shader_program import ShaderProgramCache  # noqa: E402
+from OpenGL.GL import glGetUniformLocation  # noqa: E402
+from pyrender.shader_program import ShaderProgram, ShaderProgramCache  # noqa: E402
 
 from models.environment import KIND_COLORS, EnvironmentModel, outside_frustum  # noqa: E402
 from models.errors import RenderError  # noqa: E402
@@ -249,7 +256,11 @@ class CameraEmulator:
             raise RenderError(f"cannot create an offscreen renderer (PYOPENGL_PLATFORM={platform}): {exc}") from exc
         inner = getattr(self._renderer, "_renderer", None)
         if inner is not None and hasattr(inner, "_program_cache"):
-            inner._program_cache = ShaderProgramCache(shader_dir=_lambert_shader_dir())
+            inner._program_cache = _UniformCachingProgramCache(shader_dir=_lambert_shader_dir())
+            if type(inner) is pyrender.renderer.Renderer:
+                inner.__class__ = _ProgramCachingRenderer
+                inner._programs = {}
+                inner._max_lights = {}
         else:  # pragma: no cover - other pyrender versions
             log.warning("pyrender has no shader cache to replace: keeping its PBR shader (slower)")
         self.triangles_last = 0
@@ -454,6 +465,75 @@ class CameraEmulator:
         self.close()
 
 
+class _UniformCachingProgram(ShaderProgram):
+    """A pyrender shader program that looks each uniform's location up once and skips a
+    ``glUniform*`` call when the uniform already holds the value.
+
+    pyrender sets every uniform of every primitive in every pass (camera, lights, material,
+    model pose), each time asking GL for the location first; through PyOpenGL each call costs
+    tens of microseconds, which is most of a pass at our image sizes. A uniform's value is state
+    of the GL program object and persists across ``glUseProgram`` switches, so a call with the
+    value the uniform already holds changes nothing: skipping it leaves the rendered images
+    bit-identical. Programs are made by pyrender; :class:`_UniformCachingProgramCache` turns each
+    into this class as it is created.
+    """
+
+    _locations: dict[str, int]
+    _values: dict[int, object]
+
+    def set_uniform(self, name: str, value: object, unsigned: bool = False) -> None:
+        loc = self._locations.get(name)
+        if loc is None:
+            loc = self._locations[name] = int(glGetUniformLocation(self._program_id, name))
+        if loc == -1:
+            return  # pyrender ignores uniforms the program does not have
+        if isinstance(value, np.ndarray):
+            key: object = (value.dtype.str, value.shape, value.tobytes(), unsigned)
+        else:
+            key = (type(value), value, unsigned)
+        if self._values.get(loc) == key:
+            return
+        self._values[loc] = key
+        super().set_uniform(name, value, unsigned)
+
+
+class _UniformCachingProgramCache(ShaderProgramCache):
+    """pyrender's shader cache handing out :class:`_UniformCachingProgram` programs."""
+
+    def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+        program = super().get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+        if not isinstance(program, _UniformCachingProgram):
+            program.__class__ = _UniformCachingProgram
+            program._locations = {}
+            program._values = {}
+        return program
+
+
+class _ProgramCachingRenderer(pyrender.renderer.Renderer):
+    """pyrender's renderer remembering, per primitive and flags, the shader program it chose.
+
+    pyrender rebuilds a primitive's shader defines (and queries GL for the texture units) at
+    every draw; they depend only on the primitive's buffers and material and on the flags, which
+    do not change for our meshes once made, so the choice is made once per (primitive, flags).
+    """
+
+    _programs: dict[tuple[object, int, int], ShaderProgram]
+    _max_lights: dict[int, list[int]]
+
+    def _compute_max_n_lights(self, flags):
+        out = self._max_lights.get(int(flags))
+        if out is None:
+            out = self._max_lights[int(flags)] = super()._compute_max_n_lights(flags)
+        return list(out)
+
+    def _get_primitive_program(self, primitive, flags, program_flags):
+        key = (primitive, int(flags), int(program_flags))  # the primitive itself: kept alive, never reused
+        program = self._programs.get(key)
+        if program is None or not program._in_context():
+            program = self._programs[key] = super()._get_primitive_program(primitive, flags, program_flags)
+        return program
+
+
 class _ActiveScene(pyrender.Scene):
     """A scene that shows pyrender's renderer only its *active* mesh nodes, in a fixed order.
 
@@ -472,11 +552,37 @@ class _ActiveScene(pyrender.Scene):
     def __init__(self, **kwargs) -> None:
         self._active: set[pyrender.Node] = set()
         self._order: dict[pyrender.Node, tuple[int, ...]] = {}
+        self._drawn: list[pyrender.Node] | None = None  # the active nodes sorted, until one changes
+        self._poses: dict[pyrender.Node, np.ndarray] = {}
         super().__init__(**kwargs)
+
+    # pyrender asks for the camera's and each mesh node's world pose at every draw, composing it
+    # along the node's path each time; poses change only through set_pose, add and remove here
+    def get_pose(self, node: pyrender.Node) -> np.ndarray:
+        pose = self._poses.get(node)
+        if pose is None:
+            pose = super().get_pose(node)
+            pose.setflags(write=False)  # shared between callers: a caller writing to it fails loudly
+            self._poses[node] = pose
+        return pose
+
+    def set_pose(self, node: pyrender.Node, pose: np.ndarray) -> None:
+        super().set_pose(node, pose)
+        self._poses.clear()
+
+    def add_node(self, node: pyrender.Node, parent_node: pyrender.Node | None = None) -> None:
+        super().add_node(node, parent_node)
+        self._poses.clear()
+
+    def remove_node(self, node: pyrender.Node) -> None:
+        super().remove_node(node)
+        self._poses.clear()
 
     @property
     def mesh_nodes(self) -> list[pyrender.Node]:
-        return sorted(self._active, key=self._order.__getitem__)
+        if self._drawn is None:
+            self._drawn = sorted(self._active, key=self._order.__getitem__)
+        return self._drawn
 
     @property
     def meshes(self) -> set[pyrender.Mesh]:
@@ -484,11 +590,15 @@ class _ActiveScene(pyrender.Scene):
 
     def activate(self, node: pyrender.Node, key: tuple[int, ...]) -> None:
         """Show ``node``; ``key`` fixes its place in the drawing order."""
-        self._order[node] = key
-        self._active.add(node)
+        if self._order.get(node) != key or node not in self._active:
+            self._order[node] = key
+            self._active.add(node)
+            self._drawn = None
 
     def deactivate(self, node: pyrender.Node) -> None:
-        self._active.discard(node)
+        if node in self._active:
+            self._active.discard(node)
+            self._drawn = None
 
 
 class _StaticMaterial(pyrender.MetallicRoughnessMaterial):

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from pathlib import Path
 from typing import Any, Literal
 
@@ -76,6 +77,7 @@ __all__ = [
     "MemorySpec",
     "SchedulerSpec",
     "SkylineSpec",
+    "RenderSpec",
     "RefineSpec",
     "TrackingSpec",
     "ExpectSpec",
@@ -456,6 +458,26 @@ class SkylineSpec(_Spec):
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
 
+class RenderSpec(_Spec):
+    """How the map's viewframes are rendered (:mod:`models.viewframes`): ``{workers: null,
+    viewframes_per_worker: 250}``. ``workers`` processes, each with its own offscreen renderer,
+    render shares of the route (the viewframes are the same as rendered in one process); null:
+    one worker per ``viewframes_per_worker`` route points, at most the machine's CPU count
+    (a worker costs a few seconds to start, so short routes render in the calling process);
+    1: in the calling process.
+    """
+
+    workers: int | None = Field(default=None, ge=1, le=256)
+    viewframes_per_worker: int = Field(default=250, ge=1, le=MAX_ROUTE_POINTS)
+
+    def worker_count(self, viewframes: int) -> int:
+        """The number of worker processes for a route of ``viewframes`` points (1: none)."""
+        if self.workers is not None:
+            return min(self.workers, max(1, viewframes))
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        return max(1, min(cpus, viewframes // self.viewframes_per_worker))
+
+
 class RefineSpec(_Spec):
     """Pose refinement after the decision (:mod:`models.refine`, :mod:`knowledge_sources.refiner`):
     ``{enabled: true, along_m: 20, across_m: 8, levels: 2, grid: 5, edge_weight: 2}``: positions
@@ -561,6 +583,7 @@ class Scenario(_Spec):
     memory: MemorySpec = MemorySpec()
     scheduler: SchedulerSpec = SchedulerSpec()
     skyline: SkylineSpec = SkylineSpec()
+    render: RenderSpec = RenderSpec()
     refine: RefineSpec = RefineSpec()
     tracking: TrackingSpec = TrackingSpec()
     expect: ExpectSpec | None = None

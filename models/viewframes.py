@@ -8,18 +8,34 @@ scenario's viewframes are :attr:`models.world.World.viewframes`.
 from __future__ import annotations
 
 import math
+import multiprocessing
 from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from models.camera_emulator import CameraEmulator, Pose
+from models.errors import RenderError
 from models.scenario import Scenario, SkylineSpec
 from models.skyline import skyline_from_depth
 from models.symbolic import SymbolicDescription, describe
 from models.terrain import Terrain
 
-__all__ = ["Viewframe", "without_landmark", "route_headings", "route_poses", "render_viewframes"]
+if TYPE_CHECKING:
+    from models.environment import EnvironmentModel
+    from models.scenario import CameraSpec
+
+__all__ = [
+    "Viewframe",
+    "without_landmark",
+    "route_headings",
+    "route_poses",
+    "render_viewframes",
+    "render_viewframes_parallel",
+]
 
 _SKYLINE = SkylineSpec()
 
@@ -100,6 +116,18 @@ def render_viewframes(
     carries its skyline at ``skyline_step_deg`` degrees per bin (the scenario's ``skyline.step_deg``)
     and, where a landmark is in view, also the same view without landmarks
     (:attr:`Viewframe.background`). ``progress(done, total)`` is called after each."""
+    return _render(emulator, poses, 0, skyline_step_deg=skyline_step_deg, progress=progress)
+
+
+def _render(
+    emulator: CameraEmulator,
+    poses: Sequence[Pose],
+    first: int,
+    *,
+    skyline_step_deg: float,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Viewframe]:
+    """The viewframes of ``poses``, numbered from ``first``."""
     env = emulator.environment
     fov = float(emulator.camera.fov_y_deg)
     frames = []
@@ -108,7 +136,68 @@ def render_viewframes(
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
         sky = skyline_from_depth(view.depth, fov_y_deg=fov, step_deg=skyline_step_deg)
         background = emulator.render_background(pose) if (view.mask >= 0).any() else None
-        frames.append(Viewframe(i, pose, view.image, view.depth, view.mask, desc, sky, background))
+        frames.append(Viewframe(first + i, pose, view.image, view.depth, view.mask, desc, sky, background))
         if progress is not None:
             progress(i + 1, len(poses))
+    return frames
+
+
+#: the worker process's camera emulator (made by :func:`_worker_start`)
+_WORKER: dict[str, CameraEmulator] = {}
+
+
+def _worker_start(environment: EnvironmentModel, camera: CameraSpec) -> None:
+    _WORKER["emulator"] = CameraEmulator(environment, camera)
+
+
+def _worker_render(poses: Sequence[Pose], first: int, skyline_step_deg: float) -> list[Viewframe]:
+    return _render(_WORKER["emulator"], poses, first, skyline_step_deg=skyline_step_deg)
+
+
+def render_viewframes_parallel(
+    environment: EnvironmentModel,
+    camera: CameraSpec,
+    poses: Sequence[Pose],
+    *,
+    workers: int,
+    skyline_step_deg: float = _SKYLINE.step_deg,
+    chunk: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Viewframe]:
+    """:func:`render_viewframes` of ``environment`` seen by ``camera`` at ``poses``, rendered by
+    ``workers`` processes (see the module docstring); equal to the serial result.
+
+    The route is cut into contiguous chunks of ``chunk`` poses (default: enough for eight chunks
+    per worker, so that a slow worker does not hold the others up and ``progress(done, total)``
+    is called as chunks come back, in route order). A worker that fails or dies raises
+    :class:`~models.errors.RenderError`.
+    """
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    n = len(poses)
+    if n == 0:
+        return []
+    size = max(1, chunk if chunk is not None else math.ceil(n / (8 * workers)))
+    starts = list(range(0, n, size))
+    frames: list[Viewframe] = []
+    context = multiprocessing.get_context("spawn")  # never fork a process that may hold a GL context
+    try:
+        with ProcessPoolExecutor(
+            max_workers=min(workers, len(starts)),
+            mp_context=context,
+            initializer=_worker_start,
+            initargs=(environment, camera),
+        ) as pool:
+            chunks = pool.map(
+                _worker_render,
+                [poses[s : s + size] for s in starts],
+                starts,
+                [float(skyline_step_deg)] * len(starts),
+            )
+            for part in chunks:
+                frames.extend(part)
+                if progress is not None:
+                    progress(len(frames), n)
+    except BrokenProcessPool as exc:
+        raise RenderError(f"a viewframe rendering worker process died: {exc}") from exc
     return frames

@@ -32,7 +32,7 @@ from models.sensor import SensorFrame, frames_from_files, simulate_frames
 from models.symbolic import landmark_priors
 from models.terrain import Terrain
 from models.viewframe_cache import ViewframeCache, cache_key
-from models.viewframes import Viewframe, render_viewframes, route_poses
+from models.viewframes import Viewframe, render_viewframes, render_viewframes_parallel, route_poses
 
 __all__ = ["World"]
 
@@ -100,7 +100,8 @@ class World:
     @cached_property
     def viewframes(self) -> list[Viewframe]:
         """The viewframe at every route point, rendered and symbolically described (or read from
-        the viewframe cache)."""
+        the viewframe cache); rendered by worker processes as the scenario's ``render`` block says
+        (:class:`models.scenario.RenderSpec`)."""
         key = None
         if self.cache is not None:
             key = cache_key(self.scenario, self.environment.terrain, lod=self._lod)
@@ -109,10 +110,20 @@ class World:
                 if self._progress is not None:
                     self._progress(len(cached), len(cached))
                 return cached
-        frames = render_viewframes(
-            self.emulator, self.poses, skyline_step_deg=self.scenario.skyline.step_deg, progress=self._progress
-        )
-        log.info("rendered %d viewframes of %s", len(frames), self.scenario.name)
+        step = self.scenario.skyline.step_deg
+        workers = self.scenario.render.worker_count(len(self.poses))
+        if workers > 1:
+            frames = render_viewframes_parallel(
+                self.environment,
+                self.scenario.camera,
+                self.poses,
+                workers=workers,
+                skyline_step_deg=step,
+                progress=self._progress,
+            )
+        else:
+            frames = render_viewframes(self.emulator, self.poses, skyline_step_deg=step, progress=self._progress)
+        log.info("rendered %d viewframes of %s in %d process(es)", len(frames), self.scenario.name, workers)
         if self.cache is not None and key is not None:
             self.cache.store(key, frames)
         return frames

@@ -296,3 +296,34 @@ def test_table_lists_every_field_of_every_level() -> None:
 
 def test_module_docstring_carries_the_table() -> None:
     assert levels.__doc__ is not None and levels.levels_table().splitlines()[2] in levels.__doc__
+
+
+def test_a_rendered_viewframe_becomes_its_message_and_survives_the_codec():
+    from blackboard.codec import decode, encode
+    from models.scenario import scenario_from_dict
+    from models.world import World
+
+    scenario = scenario_from_dict(
+        {
+            "name": "of",
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 48, "relief": 20.0, "seed": 1}},
+            "landmarks": [{"id": "H1", "kind": "house", "x": 230.0, "y": 240.0, "width": 16, "depth": 10, "height": 8}],
+            "route": [[170.0, 240.0], [200.0, 240.0], [330.0, 240.0]],
+            "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 800.0},
+        }
+    )
+    with World(scenario, cache=None) as world:
+        viewframes = world.viewframes
+    assert viewframes[1].background is not None and viewframes[2].background is None
+    for vf in viewframes:
+        msg = levels.Viewframe.of(vf)
+        assert msg.id() == levels.viewframe_id(vf.index)
+        assert msg.pose == [vf.pose.x, vf.pose.y, vf.pose.z, vf.pose.heading_deg, vf.pose.pitch_deg]
+        assert msg.mask.dtype == np.int16 and np.array_equal(msg.mask, vf.mask)
+        assert msg.description == vf.description.to_dict()
+        back = levels.Viewframe.from_body(decode(encode(msg.to_body())))
+        np.testing.assert_array_equal(back.image, vf.image)
+        np.testing.assert_array_equal(back.skyline, vf.skyline)
+        assert (back.background is None) == (vf.background is None)
+        if vf.background is not None:
+            np.testing.assert_array_equal(back.background, vf.background)

@@ -249,3 +249,43 @@ def test_views_do_not_depend_on_the_history_of_views():
         assert np.array_equal(a.image, b.image)
         assert np.array_equal(a.depth, b.depth)
         assert np.array_equal(a.mask, b.mask)
+
+
+def _views(cam, poses):
+    out = []
+    for p in poses:
+        v = cam.render(p)
+        out.append((v.image, v.depth, v.mask, cam.render_background(p)))
+    return out
+
+
+def test_the_draw_caches_leave_every_pixel_as_pyrender_draws_it(hills):
+    """The emulator's uniform, shader-program and pose caches skip only work whose result is
+    already in place: the images, depth maps, masks and backgrounds equal those of pyrender's own
+    shader programs, renderer and scene pose lookup, pixel for pixel, across a walk that changes
+    the level of detail and the landmarks drawn, and interleaved with a second emulator."""
+    import pyrender
+    from pyrender.shader_program import ShaderProgramCache
+
+    from models import camera_emulator
+
+    terrain, lms = hills
+    env = EnvironmentModel(terrain, lms, tile_cells=16)
+    rng = np.random.default_rng(8)
+    with CameraEmulator(env, CAMERA) as stock, CameraEmulator(env, CAMERA) as ours:
+        inner = stock._renderer._renderer
+        assert type(inner) is not pyrender.renderer.Renderer  # the caching renderer is in place
+        inner.__class__ = pyrender.renderer.Renderer
+        inner._program_cache = ShaderProgramCache(shader_dir=camera_emulator._lambert_shader_dir())
+
+        class _StockPoses(camera_emulator._ActiveScene):
+            def get_pose(self, node):
+                return pyrender.Scene.get_pose(self, node)
+
+        stock.scene.__class__ = _StockPoses
+        poses = [ours.pose_at(x, y, h) for x, y, h in rng.uniform([500, 500, -40], [800, 800, 80], (12, 3))]
+        poses += [ours.pose_at(600.0, 600.0, 20.0, pitch_deg=p) for p in (-3.0, 0.0, 4.0)]
+        for a, b in zip(_views(stock, poses), _views(ours, poses)):
+            for x, y in zip(a, b):
+                np.testing.assert_array_equal(x, y)
+        assert any((b[2] >= 0).any() for b in _views(ours, poses[:6]))  # landmarks were in view

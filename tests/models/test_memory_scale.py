@@ -13,7 +13,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from blackboard.codec import encode
@@ -79,16 +78,7 @@ def measure() -> dict:
     index.rank(viewframes[7].image)  # builds the packed ranking matrix
     store = {}
     for vf in viewframes:
-        p = vf.pose
-        msg = levels.Viewframe(
-            index=vf.index,
-            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
-            image=np.ascontiguousarray(vf.image),
-            mask=vf.mask.astype(np.int16),
-            description=vf.description.to_dict(),
-            skyline=vf.skyline,
-            background=None if vf.background is None else np.ascontiguousarray(vf.background),
-        )
+        msg = levels.Viewframe.of(vf)
         store[vf.index] = encode(msg.to_body())
     gc.collect()
     growth_kb = (_rss_kb() - before) / N_VIEWFRAMES

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from models.environment import build_environment
 from models.scenario import scenario_from_dict
 from models.skyline import profile_bins, skyline_from_depth
 from models.symbolic import SymbolicDescription
-from models.viewframes import render_viewframes, route_headings, route_poses
+from models.viewframes import render_viewframes, render_viewframes_parallel, route_headings, route_poses
 from models.world import World
 
 
@@ -78,3 +80,59 @@ def test_route_outside_the_terrain_is_a_scenario_error():
     s = _scenario([[100, 100], [900, 100]])
     with pytest.raises(ScenarioError, match=r"route\[1\]: \(900, 100\) is outside the terrain \(x 0..630"):
         build_environment(s)
+
+
+def _equal(a, b) -> bool:
+    return (
+        a.index == b.index
+        and a.pose == b.pose
+        and np.array_equal(a.image, b.image)
+        and np.array_equal(a.depth, b.depth)
+        and np.array_equal(a.mask, b.mask)
+        and np.array_equal(a.skyline, b.skyline, equal_nan=True)
+        and a.description == b.description
+        and ((a.background is None and b.background is None) or np.array_equal(a.background, b.background))
+    )
+
+
+def test_worker_processes_render_the_same_viewframes_as_one_process():
+    route = [[150.0 + 25.0 * i, 300.0 + 10.0 * math.sin(i / 2.0)] for i in range(14)]
+    s = _scenario(route)
+    env = build_environment(s)
+    poses = route_poses(s, env.terrain)
+    with CameraEmulator(env, s.camera) as cam:
+        serial = render_viewframes(cam, poses)
+    seen = []
+    # chunks of 3 poses: every worker renders several shares, out of route order
+    parallel = render_viewframes_parallel(
+        env, s.camera, poses, workers=2, chunk=3, progress=lambda done, total: seen.append((done, total))
+    )
+    assert [f.index for f in parallel] == list(range(14))
+    assert any(f.background is not None for f in serial) and any("H1" in f.description.visible for f in serial)
+    assert all(_equal(a, b) for a, b in zip(serial, parallel))
+    assert seen[-1] == (14, 14) and [d for d, _ in seen] == sorted(d for d, _ in seen)
+
+
+def test_the_world_renders_in_workers_when_the_scenario_says_so():
+    route = [[150.0 + 30.0 * i, 300.0] for i in range(6)]
+    with World(_scenario(route), cache=None) as one:
+        serial = one.viewframes
+    with World(_scenario(route, render={"workers": 2}), cache=None) as world:
+        assert world.scenario.render.worker_count(len(route)) == 2
+        assert all(_equal(a, b) for a, b in zip(serial, world.viewframes))
+        assert world._emulator is None  # no renderer opened in this process
+
+
+def test_render_workers_default_to_one_per_share_of_the_route_at_most_the_cpus():
+    import os
+
+    from models.scenario import RenderSpec
+
+    cpus = len(os.sched_getaffinity(0))
+    spec = RenderSpec()
+    assert spec.worker_count(10) == 1  # short routes render in the calling process
+    assert spec.worker_count(spec.viewframes_per_worker * 2) == min(2, cpus)
+    assert spec.worker_count(10**6) == cpus
+    assert RenderSpec(workers=3).worker_count(2) == 2  # never more workers than viewframes
+    with pytest.raises(ValueError, match="workers"):
+        RenderSpec(workers=0)
