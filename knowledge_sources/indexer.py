@@ -27,31 +27,50 @@ class AssociativeIndexer(KnowledgeSource):
     those viewframes by error variance. The
     scheduler merges the rankings of all shards (variances are comparable across banks and shards).
 
-    Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1). Memory
-    parameters (size, edge method, blur, bank size, shift search) come from the scenario through
-    the ``map`` hypothesis. Camera frames that
-    arrive before the shard is stored wait; viewframes missed as events are read back from the
-    blackboard, so an indexer that joins late or restarts still indexes everything.
+    Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1),
+    ``tracked`` (a tracker runs; default False). Memory parameters (size, edge method, blur, bank
+    size, shift search, the track window) come from the scenario through the ``map`` hypothesis.
+    Camera frames that arrive before the shard is stored wait; viewframes missed as events are
+    read back from the blackboard, so an indexer that joins late or restarts still indexes
+    everything.
+
+    The track's neighbourhood: when ``tracked`` and the route has at least
+    ``memory.window_route_points`` points, the ranking of frame t waits for the ``track`` of
+    frame t - 1 (as the scheduler's scene analysis does) and, while that track is ``tracking``,
+    holds only the viewframes of :func:`models.index.track_window` of its ``prior_next``; when it
+    is ``lost``, every ``memory.window_full_every``-th frame, and at frame 0 the ranking holds
+    every viewframe of the shard (see :class:`models.scenario.MemorySpec`). Waiting for the
+    track makes the window, and so the run's results, independent of timing.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
+    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
 
-    def __init__(self, name: str, *, shard: int = 0, shards: int = 1, **options: Any) -> None:
+    def __init__(self, name: str, *, shard: int = 0, shards: int = 1, tracked: bool = False, **options: Any) -> None:
         super().__init__(name, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
         self.shard = shard
         self.shards = shards
+        self.tracked = bool(tracked)
         self._images: dict[int, np.ndarray] = {}
         self._index: ViewframeIndex | None = None
         self._waiting: list[Hypothesis] = []
+        self._windowed = False  # the route is long enough for the track window (set with the map)
+        self._margin = 0
+        self._full_every = 1
+        self._tracks: dict[int, tuple[str, np.ndarray]] = {}  # frame -> (state, prior_next)
+        self._parked: dict[int, Hypothesis] = {}  # frame t - 1 -> frame t's camera frame, waiting for its track
+        #: per ranking posted: the frame and the (first, last) route points ranked, None: all
+        self.windows: dict[int, tuple[int, int] | None] = {}
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
         h = event.hypothesis
         if h.level == levels.VIEWFRAME and levels.Viewframe.from_hypothesis(h).index % self.shards != self.shard:
+            return None
+        if h.level == levels.TRACK and not self.tracked:
             return None
         return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
 
@@ -71,6 +90,12 @@ class AssociativeIndexer(KnowledgeSource):
                 self._waiting.append(h)
             else:
                 self._rank(h, board)
+        elif h.level == levels.TRACK:
+            track = levels.Track.from_hypothesis(h)
+            self._tracks[track.frame] = (track.state, track.prior_next)
+            parked = self._parked.pop(track.frame, None)
+            if parked is not None and self._index is not None:
+                self._rank(parked, board)
 
     def _build(self, mp: levels.Map, board: Board) -> None:
         from models.index import ViewframeIndex
@@ -85,6 +110,11 @@ class AssociativeIndexer(KnowledgeSource):
         index = ViewframeIndex(mp.memory, seed=self.shard)
         index.add((self._images[k] for k in mine), mine)
         self._index = index
+        spec = index.settings
+        self._windowed = (
+            self.tracked and spec.window_route_points is not None and mp.viewframes >= spec.window_route_points
+        )
+        self._margin, self._full_every = spec.window_margin, spec.window_full_every
         self._images.clear()
         levels.post(
             board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)), links=(levels.map_id(),)
@@ -92,9 +122,22 @@ class AssociativeIndexer(KnowledgeSource):
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
 
     def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
+        from models.index import track_window
+
         assert self._index is not None  # frames wait in _waiting until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
-        ranking = self._index.rank(frame.image)
+        window = None
+        if self._windowed and frame.frame > 0:
+            track = self._tracks.pop(frame.frame - 1, None)
+            if track is None:
+                self._parked[frame.frame - 1] = hypothesis  # ranked when the track of frame t - 1 comes
+                return
+            state, prior_next = track
+            if state == "tracking" and frame.frame % self._full_every != 0:
+                window = track_window(prior_next, margin=self._margin)
+        among = None if window is None else np.arange(window[0], window[1] + 1)
+        ranking = self._index.rank(frame.image, among=among)
+        self.windows[frame.frame] = window
         levels.post(
             board,
             levels.Ranking.of(

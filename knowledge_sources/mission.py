@@ -72,7 +72,13 @@ def agent_plan(
         ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate}),
     ]
     for s in range(shards):
-        plan.append(("knowledge_sources.indexer:AssociativeIndexer", f"indexer-{s}", {"shard": s, "shards": shards}))
+        plan.append(
+            (
+                "knowledge_sources.indexer:AssociativeIndexer",
+                f"indexer-{s}",
+                {"shard": s, "shards": shards, "tracked": tracked},
+            )
+        )
     sky = scenario.skyline
     match = {
         "step_deg": sky.step_deg,

@@ -612,18 +612,38 @@ class BankedMemory:
             self._packed = packed
         return self._packed
 
-    def rank(self, pattern: ArrayLike) -> Ranking:
-        """Merged ranking of all banks, best first."""
+    def rank(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
+        """Merged ranking of all banks, best first; with ``among`` (viewframe indices), of those
+        stored viewframes only (others named are ignored).
+
+        A ranking ``among`` a set is the ranking the memory gives when only those rows are
+        searched: each keeps the error variance of its own recall (each bank's recall energy is
+        the same), and the shift search's candidates are chosen among them
+        (:func:`_search`). So it costs in proportion to the set, and when the full ranking
+        shift-searches every row (at most :data:`SHIFT_SEARCH_TOP` rows, or ``max_shift`` 0)
+        its order is the full ranking's order restricted to the set.
+        """
         if not self.banks:
             return merge_rankings([])
         key = self.banks[0].query_key(pattern)
         matrix = self.ranking_matrix
         assert self._bank_power is not None and self._row_bank is not None  # set with the matrix
-        power = (np.abs(key) ** 2).ravel().astype(np.float32)
-        energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
-        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
-        c = _search(matrix, key, self.max_shift, scale[self._row_bank])
         viewframes = np.concatenate([b.viewframes for b in self.banks])
+        row_bank = self._row_bank
+        if among is not None:
+            rows = np.flatnonzero(np.isin(viewframes, np.asarray(among, dtype=np.int64).ravel()))
+            if rows.size == 0:
+                return _ranking(np.zeros(0, np.int64), np.zeros(0, np.float64))
+            matrix, viewframes, row_bank = matrix[rows], viewframes[rows], row_bank[rows]
+        power = (np.abs(key) ** 2).ravel().astype(np.float32)
+        if among is None:
+            energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
+        else:  # only the banks holding a row searched
+            banks = np.unique(row_bank)
+            energy = np.zeros(len(self.banks))
+            energy[banks] = np.sqrt(np.maximum(self._bank_power[banks] @ power, 0.0).astype(np.float64))
+        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
+        c = _search(matrix, key, self.max_shift, scale[row_bank])
         return _ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
 
     def state(self) -> dict[str, Any]:

@@ -32,7 +32,7 @@ from models.errors import AssociativeMemoryError
 from models.preprocess import preprocess
 from models.scenario import MemorySpec
 
-__all__ = ["ViewframeIndex", "memory_settings"]
+__all__ = ["WINDOW_TAIL", "track_window", "ViewframeIndex", "memory_settings"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,35 @@ def memory_settings(memory: MemorySpec | Mapping[str, Any] | None) -> MemorySpec
             where = ".".join(str(p) for p in first["loc"]) or "memory"
             raise AssociativeMemoryError(f"memory settings: {where}: {first['msg']}") from None
         raise AssociativeMemoryError(f"memory settings: malformed: {err}") from None
+
+
+#: the predicted probability a track window may leave out (half at each end)
+WINDOW_TAIL = 1e-3
+
+
+def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) -> tuple[int, int] | None:
+    """The route points ``(first, last)`` (inclusive) to rank for a frame given the tracker's
+    predicted probability of each route point ``prior`` (N,): the interval holding all but
+    ``tail`` of the mass (``tail / 2`` left out at each end), widened by ``margin`` points on
+    each side and clipped to the route; None (rank everything) when that covers half the route
+    or more, or when ``prior`` has no mass.
+    """
+    p = np.asarray(prior, dtype=np.float64).ravel()
+    if margin < 0:
+        raise ValueError(f"margin must be >= 0, got {margin}")
+    if not 0 <= tail < 1:
+        raise ValueError(f"tail must be in [0, 1), got {tail}")
+    p = np.where(np.isfinite(p) & (p > 0), p, 0.0)
+    total = float(p.sum())
+    if p.size == 0 or total <= 0:
+        return None
+    cdf = np.cumsum(p) / total
+    first = int(np.searchsorted(cdf, tail / 2, side="right"))
+    last = int(np.searchsorted(cdf, 1.0 - tail / 2, side="left"))
+    first, last = max(0, first - margin), min(p.size - 1, max(first, last) + margin)
+    if 2 * (last - first + 1) >= p.size:
+        return None
+    return first, last
 
 
 class ViewframeIndex:
@@ -101,10 +130,12 @@ class ViewframeIndex:
         """Store patterns already made by :meth:`pattern` (e.g. shared by several indices)."""
         self.memory.write_many(patterns, viewframes)
 
-    def rank(self, image: ArrayLike) -> Ranking:
-        """Every stored viewframe ordered by the error variance of ``image``'s recall, best first."""
-        return self.memory.rank(self.pattern(image))
+    def rank(self, image: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
+        """Every stored viewframe (or those ``among`` the viewframe indices given:
+        :meth:`models.associative.BankedMemory.rank`) ordered by the error variance of
+        ``image``'s recall, best first."""
+        return self.memory.rank(self.pattern(image), among=among)
 
-    def rank_pattern(self, pattern: ArrayLike) -> Ranking:
+    def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""
-        return self.memory.rank(pattern)
+        return self.memory.rank(pattern, among=among)

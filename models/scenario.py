@@ -317,6 +317,15 @@ class MemorySpec(_Spec):
     degree of pitch moves the horizon about 2.7 rows and one degree of heading about 2.0
     columns); ``key`` the K-GEN method of :mod:`models.memory_keys`.
 
+    The track's neighbourhood (:func:`models.index.track_window`): on routes of at least
+    ``window_route_points`` points (null: never), while the tracker is tracking, the indexers
+    rank for frame t only the route points where the track of frame t - 1 predicts frame t
+    (the interval holding all but 1e-3 of its ``prior_next``), widened by ``window_margin``
+    points on each side; every ``window_full_every``-th frame, and whenever the track is lost,
+    they rank every viewframe, so that a track that went wrong (a vehicle moved elsewhere) meets
+    the evidence against it. Short routes always rank everything: there the full ranking is
+    cheap, and a window can only lose evidence.
+
     The defaults were chosen on the tuning split of the evaluation set (``bench/evalset``,
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
@@ -338,6 +347,9 @@ class MemorySpec(_Spec):
     max_shift: tuple[int, int] = (8, 16)
     key: Literal["phase", "quantized"] = "phase"
     weight: float = Field(default=0.64, ge=0, le=1e3)
+    window_route_points: int | None = Field(default=2000, ge=1, le=MAX_ROUTE_POINTS)
+    window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
+    window_full_every: int = Field(default=10, ge=1, le=1_000_000)
 
     @field_validator("max_shift")
     @classmethod

@@ -7,12 +7,18 @@ scenario's viewframes are :attr:`models.world.World.viewframes`.
 
 from __future__ import annotations
 
+import collections
 import math
-import multiprocessing
+import os
+import pickle
+import queue
+import subprocess
+import sys
+import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from pathlib import Path
+from subprocess import PIPE
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -142,18 +148,6 @@ def _render(
     return frames
 
 
-#: the worker process's camera emulator (made by :func:`_worker_start`)
-_WORKER: dict[str, CameraEmulator] = {}
-
-
-def _worker_start(environment: EnvironmentModel, camera: CameraSpec) -> None:
-    _WORKER["emulator"] = CameraEmulator(environment, camera)
-
-
-def _worker_render(poses: Sequence[Pose], first: int, skyline_step_deg: float) -> list[Viewframe]:
-    return _render(_WORKER["emulator"], poses, first, skyline_step_deg=skyline_step_deg)
-
-
 def render_viewframes_parallel(
     environment: EnvironmentModel,
     camera: CameraSpec,
@@ -167,10 +161,11 @@ def render_viewframes_parallel(
     """:func:`render_viewframes` of ``environment`` seen by ``camera`` at ``poses``, rendered by
     ``workers`` processes (see the module docstring); equal to the serial result.
 
-    The route is cut into contiguous chunks of ``chunk`` poses (default: enough for eight chunks
-    per worker, so that a slow worker does not hold the others up and ``progress(done, total)``
-    is called as chunks come back, in route order). A worker that fails or dies raises
-    :class:`~models.errors.RenderError`.
+    The route is cut into contiguous shares of ``chunk`` poses (default: enough for eight shares
+    per worker, so that a slow worker does not hold the others up); each worker
+    (:mod:`models.render_worker`, its own process and EGL context) takes the next share when it
+    is done with one. ``progress(done, total)`` is called in this thread as shares come back. A
+    worker that fails or dies raises :class:`~models.errors.RenderError` with its message.
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
@@ -178,26 +173,77 @@ def render_viewframes_parallel(
     if n == 0:
         return []
     size = max(1, chunk if chunk is not None else math.ceil(n / (8 * workers)))
-    starts = list(range(0, n, size))
-    frames: list[Viewframe] = []
-    context = multiprocessing.get_context("spawn")  # never fork a process that may hold a GL context
+    shares = collections.deque((s, list(poses[s : s + size])) for s in range(0, n, size))
+    setup = pickle.dumps((environment, camera, float(skyline_step_deg)), protocol=pickle.HIGHEST_PROTOCOL)
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[1])
+    env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+    lock = threading.Lock()
+    done: queue.Queue[tuple[int, list[Viewframe]] | None] = queue.Queue()
+    errors: list[str] = []
+
+    def drive(proc: subprocess.Popen[bytes]) -> None:
+        assert proc.stdin is not None and proc.stdout is not None
+        try:
+            proc.stdin.write(setup)
+            while True:
+                with lock:
+                    if errors or not shares:
+                        break
+                    first, share = shares.popleft()
+                pickle.dump((first, share), proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+                proc.stdin.flush()
+                status, payload = pickle.load(proc.stdout)
+                if status != "ok":
+                    with lock:
+                        errors.append(str(payload))
+                    break
+                done.put((first, payload))
+        except (EOFError, OSError, pickle.UnpicklingError) as exc:
+            with lock:
+                errors.append(f"a viewframe rendering worker process exited ({exc!r}; its messages are above)")
+        finally:
+            try:
+                pickle.dump(None, proc.stdin)
+                proc.stdin.close()
+            except OSError:
+                pass
+            done.put(None)
+
+    count = min(workers, len(shares))
+    procs = [
+        subprocess.Popen([sys.executable, "-m", "models.render_worker"], stdin=PIPE, stdout=PIPE, env=env)
+        for _ in range(count)
+    ]
+    threads = [threading.Thread(target=drive, args=(p,), daemon=True) for p in procs]
+    parts: dict[int, list[Viewframe]] = {}
     try:
-        with ProcessPoolExecutor(
-            max_workers=min(workers, len(starts)),
-            mp_context=context,
-            initializer=_worker_start,
-            initargs=(environment, camera),
-        ) as pool:
-            chunks = pool.map(
-                _worker_render,
-                [poses[s : s + size] for s in starts],
-                starts,
-                [float(skyline_step_deg)] * len(starts),
-            )
-            for part in chunks:
-                frames.extend(part)
-                if progress is not None:
-                    progress(len(frames), n)
-    except BrokenProcessPool as exc:
-        raise RenderError(f"a viewframe rendering worker process died: {exc}") from exc
+        for t in threads:
+            t.start()
+        finished, rendered = 0, 0
+        while finished < count:
+            item = done.get()
+            if item is None:
+                finished += 1
+                continue
+            parts[item[0]] = item[1]
+            rendered += len(item[1])
+            if progress is not None:
+                progress(rendered, n)
+    finally:
+        for t in threads:
+            t.join(timeout=60)
+        for p in procs:
+            try:
+                p.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+            if p.stdout is not None:
+                p.stdout.close()
+    if errors:
+        raise RenderError(f"rendering viewframes in worker processes failed: {errors[0]}")
+    frames = [vf for first in sorted(parts) for vf in parts[first]]
+    if len(frames) != n:
+        raise RenderError(f"rendering viewframes in worker processes: {len(frames)} of {n} came back")
     return frames

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from blackboard.hypothesis import Hypothesis
@@ -75,3 +76,76 @@ def test_a_missing_viewframe_is_an_error(small_rendered: dict) -> None:
 def test_bad_shard_options() -> None:
     with pytest.raises(ValueError, match="shard"):
         AssociativeIndexer("indexer", shard=2, shards=2)
+
+
+def _track(frame: int, state: str, point: int, n: int) -> levels.Track:
+    prior = np.zeros(n, np.float32)
+    prior[point] = 1.0
+    return levels.Track(
+        frame=frame,
+        route_point=point,
+        arc_m=0.0,
+        position=[0.0, 0.0],
+        heading_deg=0.0,
+        confidence=0.9 if state == "tracking" else 0.1,
+        state=state,
+        evidence=True,
+        belief=prior,
+        prior_next=prior,
+        loglik=None,
+        dt=None,
+    )
+
+
+def test_while_tracking_the_ranking_holds_the_tracks_neighbourhood_and_when_lost_everything(
+    small_rendered: dict,
+) -> None:
+    bb = MemoryBlackboard()
+    indexer = AssociativeIndexer("indexer-0", tracked=True)
+    bb.add(indexer)
+    for h in small_rendered["viewframes"]:
+        _repost(bb, h)
+    n = len(small_rendered["viewframes"])
+    body = dict(small_rendered["map"].body)
+    body["memory"] = {**body["memory"], "window_route_points": n, "window_margin": 1, "window_full_every": 4}
+    bb.post(levels.MAP, body, id=levels.map_id())
+    bb.run()
+
+    def ranking(frame: int) -> levels.Ranking | None:
+        got = bb.user.get(levels.ranking_id(frame, 0))
+        return None if got is None else levels.Ranking.from_hypothesis(got)
+
+    full = {}
+    _frames_from_viewframes(bb, small_rendered, [0, 1])
+    bb.run()
+    assert ranking(0) is not None and set(ranking(0).viewframes) == set(range(n))  # frame 0: everything
+    assert ranking(1) is None  # waits for the track of frame 0
+    levels.post(bb.user, _track(0, "tracking", 2, n))  # frame 1 predicted at route point 2
+    bb.run()
+    got = ranking(1)
+    assert got is not None and indexer.windows[1] == (1, 3)
+    assert sorted(got.viewframes) == [1, 2, 3] and got.viewframes[0] == 1  # the frame is viewframe 1
+    full[1] = indexer._index.rank(levels.Viewframe.from_hypothesis(small_rendered["viewframes"][1]).image)
+    assert got.viewframes == [k for k in full[1].viewframes.tolist() if 1 <= k <= 3]  # the full order within it
+    for frame, state in [(2, "lost"), (3, "tracking"), (4, "tracking")]:
+        _frames_from_viewframes(bb, small_rendered, [frame])
+        levels.post(bb.user, _track(frame - 1, state, frame, n))
+        bb.run()
+    assert set(ranking(2).viewframes) == set(range(n)) and indexer.windows[2] is None  # lost: everything
+    assert sorted(ranking(3).viewframes) == [2, 3, 4] and indexer.windows[3] == (2, 4)
+    assert set(ranking(4).viewframes) == set(range(n)) and indexer.windows[4] is None  # every 4th frame: everything
+
+
+def test_an_untracked_indexer_never_waits_nor_windows(small_rendered: dict) -> None:
+    bb = MemoryBlackboard()
+    indexer = AssociativeIndexer("indexer-0")
+    bb.add(indexer)
+    for h in small_rendered["viewframes"]:
+        _repost(bb, h)
+    body = dict(small_rendered["map"].body)
+    body["memory"] = {**body["memory"], "window_route_points": 1, "window_margin": 0}
+    bb.post(levels.MAP, body, id=levels.map_id())
+    _frames_from_viewframes(bb, small_rendered, [0, 3])
+    levels.post(bb.user, _track(0, "tracking", 3, len(small_rendered["viewframes"])))
+    bb.run()
+    assert indexer.windows == {0: None, 3: None}

@@ -96,3 +96,66 @@ def test_whiten_is_a_setting_that_changes_the_pattern() -> None:
     on, off = ViewframeIndex(MemorySpec()).pattern(image), ViewframeIndex(MemorySpec(whiten=False)).pattern(image)
     np.testing.assert_allclose(on, preprocess(image), rtol=0, atol=1e-6)  # preprocess' defaults are the schema's
     assert np.abs(on - off).max() > 1e-3
+
+
+def _route_index(count: int, *, bank_size: int, max_shift: tuple[int, int], seed: int) -> tuple[ViewframeIndex, list]:
+    rng = np.random.default_rng(seed)
+    images = [scene(rng) for _ in range(count)]
+    index = ViewframeIndex(MemorySpec(size=64, bank_size=bank_size, max_shift=max_shift), seed=1)
+    index.add(images, range(count))
+    return index, images
+
+
+@pytest.mark.parametrize(
+    ("count", "bank_size", "max_shift"),
+    [
+        (30, 1, (2, 6)),  # the full ranking shift-searches every row (at most SHIFT_SEARCH_TOP)
+        (30, 2, (2, 6)),
+        (160, 2, (0, 0)),  # no shift search: every row keeps its zero-lag variance
+        (160, 1, (0, 0)),
+    ],
+)
+def test_a_ranking_among_a_window_is_the_full_rankings_order_within_it(count, bank_size, max_shift) -> None:
+    index, images = _route_index(count, bank_size=bank_size, max_shift=max_shift, seed=count + bank_size)
+    for frame, (first, last) in [(7, (0, 20)), (12, (5, 18)), (25, (19, 29))]:
+        query = np.roll(images[frame], 2, axis=1)
+        full = index.rank(query)
+        window = index.rank(query, among=np.arange(first, last + 1))
+        inside = [(int(k), v) for k, v in zip(full.viewframes, full.variances) if first <= k <= last]
+        assert window.viewframes.tolist() == [k for k, _ in inside]
+        np.testing.assert_allclose(window.variances, [v for _, v in inside], rtol=1e-5)
+        assert window.best == frame
+    # viewframes named but not stored are ignored; none stored: an empty ranking
+    assert index.rank(images[3], among=[3, 4, count + 50]).viewframes.tolist() in ([3, 4], [4, 3])
+    assert len(index.rank(images[3], among=[count + 1, count + 2])) == 0
+
+
+def test_a_window_on_a_long_route_is_searched_among_its_own_rows() -> None:
+    """Beyond SHIFT_SEARCH_TOP rows the full ranking shift-searches only its best candidates; a
+    window's ranking chooses its candidates among its rows, so it never ranks a row worse than
+    the full ranking does (the search only raises a similarity)."""
+    index, images = _route_index(160, bank_size=1, max_shift=(2, 6), seed=4)
+    query = np.roll(images[90], 3, axis=1)
+    full = index.rank(query)
+    window = index.rank(query, among=np.arange(70, 111))
+    v_full = dict(zip(full.viewframes.tolist(), full.variances.tolist()))
+    assert set(window.viewframes.tolist()) == set(range(70, 111))
+    assert all(v <= v_full[k] * (1 + 1e-5) for k, v in zip(window.viewframes.tolist(), window.variances.tolist()))
+    assert window.best == full.best == 90
+
+
+@pytest.mark.parametrize(
+    ("prior", "margin", "want"),
+    [
+        (np.eye(1, 100, 40).ravel(), 5, (35, 45)),  # all mass on point 40
+        (np.eye(1, 100, 2).ravel(), 5, (0, 7)),  # clipped at the route's start
+        (np.exp(-0.5 * ((np.arange(1000) - 600) / 10.0) ** 2), 16, (600 - 33 - 16, 600 + 33 + 16)),
+        (np.ones(100), 0, None),  # spread over the route: rank everything
+        (np.eye(1, 100, 40).ravel(), 30, None),  # the margin alone covers half the route
+        (np.zeros(100), 3, None),  # no mass
+    ],
+)
+def test_the_track_window_holds_the_predicted_mass_and_a_margin(prior, margin, want) -> None:
+    from models.index import track_window
+
+    assert track_window(prior, margin=margin) == want

@@ -136,3 +136,46 @@ def test_render_workers_default_to_one_per_share_of_the_route_at_most_the_cpus()
     assert RenderSpec(workers=3).worker_count(2) == 2  # never more workers than viewframes
     with pytest.raises(ValueError, match="workers"):
         RenderSpec(workers=0)
+
+
+def test_a_failing_worker_is_a_render_error_naming_the_cause():
+    from models.errors import RenderError
+
+    s = _scenario([[150.0, 300.0], [180.0, 300.0]])
+    env = build_environment(s)
+    with pytest.raises(RenderError, match="worker processes failed: AttributeError"):
+        render_viewframes_parallel(env, None, route_poses(s, env.terrain), workers=2)  # no camera
+
+
+def test_workers_start_from_a_script_without_a_main_guard(tmp_path):
+    """A worker is a fresh ``python -m models.render_worker``: it never imports the caller's
+    script again (a multiprocessing pool would, and a script without ``if __name__ ==
+    "__main__"`` would run twice and fail)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = tmp_path / "unguarded.py"
+    script.write_text(
+        "import sys\n"
+        "from models.environment import build_environment\n"
+        "from models.scenario import scenario_from_dict\n"
+        "from models.viewframes import render_viewframes_parallel, route_poses\n"
+        "s = scenario_from_dict({'name': 'u', 'terrain': {'cell_size': 10.0, 'procedural': {'size': 48,"
+        " 'relief': 20.0, 'seed': 1}}, 'route': [[100, 200], [130, 200], [160, 210], [190, 200]],"
+        " 'camera': {'width': 32, 'height': 24, 'fov_y_deg': 45, 'eye_height': 2.0, 'near': 1.0, 'far': 500.0}})\n"
+        "env = build_environment(s)\n"
+        "frames = render_viewframes_parallel(env, s.camera, route_poses(s, env.terrain), workers=2, chunk=1)\n"
+        "print('rendered', [f.index for f in frames])\n"
+    )
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run(
+        [sys.executable, str(script)],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**__import__("os").environ, "PYTHONPATH": str(root)},
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip().splitlines()[-1] == "rendered [0, 1, 2, 3]"
