@@ -88,12 +88,13 @@ def components(path: Path, cache_dir: Path) -> dict:
     render_s = time.perf_counter() - t0
     r3 = rss_mb()
     n = len(viewframes)
-    arrays = {
-        f.name: sum(getattr(vf, f.name).nbytes for vf in viewframes) / n
+    arrays = {  # optional arrays (a background only where a landmark is in view) count where present
+        f.name: sum(a.nbytes for vf in viewframes if isinstance(a := getattr(vf, f.name), np.ndarray)) / n
         for f in dataclasses.fields(viewframes[0])
-        if isinstance(getattr(viewframes[0], f.name), np.ndarray)
+        if any(isinstance(getattr(vf, f.name), np.ndarray) for vf in viewframes)
     }
     out["viewframes"] = n
+    out["render_workers"] = world.scenario.render.worker_count(n)
     out["render_s"] = render_s
     out["rss_environment_mb"] = r1 - r0
     out["rss_emulator_mb"] = r2 - r1

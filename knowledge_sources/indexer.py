@@ -35,12 +35,14 @@ class AssociativeIndexer(KnowledgeSource):
     everything.
 
     The track's neighbourhood: when ``tracked`` and the route has at least
-    ``memory.window_route_points`` points, the ranking of frame t waits for the ``track`` of
-    frame t - 1 (as the scheduler's scene analysis does) and, while that track is ``tracking``,
-    holds only the viewframes of :func:`models.index.track_window` of its ``prior_next``; when it
-    is ``lost``, every ``memory.window_full_every``-th frame, and at frame 0 the ranking holds
-    every viewframe of the shard (see :class:`models.scenario.MemorySpec`). Waiting for the
-    track makes the window, and so the run's results, independent of timing.
+    ``memory.window_route_points`` points, the ranking of frame t holds only the viewframes of
+    :func:`models.index.track_window` of the ``prior_next`` of the track of frame t - 1, when
+    that track is on the blackboard as the frame is ranked and says ``tracking``; otherwise
+    (no such track yet, the track ``lost``, every ``memory.window_full_every``-th frame, frame 0)
+    the ranking holds every viewframe of the shard (see :class:`models.scenario.MemorySpec`).
+    The indexer never waits for a track: a dead or late tracker costs the window, never a
+    ranking. So which frames get the window depends on timing: frames paced as a camera's are
+    ranked after the previous frame's track, frames posted in a burst mostly before it.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
@@ -60,7 +62,6 @@ class AssociativeIndexer(KnowledgeSource):
         self._margin = 0
         self._full_every = 1
         self._tracks: dict[int, tuple[str, np.ndarray]] = {}  # frame -> (state, prior_next)
-        self._parked: dict[int, Hypothesis] = {}  # frame t - 1 -> frame t's camera frame, waiting for its track
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
 
@@ -93,9 +94,8 @@ class AssociativeIndexer(KnowledgeSource):
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
             self._tracks[track.frame] = (track.state, track.prior_next)
-            parked = self._parked.pop(track.frame, None)
-            if parked is not None and self._index is not None:
-                self._rank(parked, board)
+            for old in [f for f in self._tracks if f < track.frame - 8]:
+                del self._tracks[old]  # only the latest tracks can still be the previous frame's
 
     def _build(self, mp: levels.Map, board: Board) -> None:
         from models.index import ViewframeIndex
@@ -127,14 +127,9 @@ class AssociativeIndexer(KnowledgeSource):
         assert self._index is not None  # frames wait in _waiting until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         window = None
-        if self._windowed and frame.frame > 0:
-            track = self._tracks.pop(frame.frame - 1, None)
-            if track is None:
-                self._parked[frame.frame - 1] = hypothesis  # ranked when the track of frame t - 1 comes
-                return
-            state, prior_next = track
-            if state == "tracking" and frame.frame % self._full_every != 0:
-                window = track_window(prior_next, margin=self._margin)
+        track = self._tracks.get(frame.frame - 1) if self._windowed and frame.frame > 0 else None
+        if track is not None and track[0] == "tracking" and frame.frame % self._full_every != 0:
+            window = track_window(track[1], margin=self._margin)
         among = None if window is None else np.arange(window[0], window[1] + 1)
         ranking = self._index.rank(frame.image, among=among)
         self.windows[frame.frame] = window

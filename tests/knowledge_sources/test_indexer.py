@@ -116,11 +116,12 @@ def test_while_tracking_the_ranking_holds_the_tracks_neighbourhood_and_when_lost
         return None if got is None else levels.Ranking.from_hypothesis(got)
 
     full = {}
-    _frames_from_viewframes(bb, small_rendered, [0, 1])
+    _frames_from_viewframes(bb, small_rendered, [0])
     bb.run()
     assert ranking(0) is not None and set(ranking(0).viewframes) == set(range(n))  # frame 0: everything
-    assert ranking(1) is None  # waits for the track of frame 0
     levels.post(bb.user, _track(0, "tracking", 2, n))  # frame 1 predicted at route point 2
+    bb.run()
+    _frames_from_viewframes(bb, small_rendered, [1])
     bb.run()
     got = ranking(1)
     assert got is not None and indexer.windows[1] == (1, 3)
@@ -128,9 +129,13 @@ def test_while_tracking_the_ranking_holds_the_tracks_neighbourhood_and_when_lost
     full[1] = indexer._index.rank(levels.Viewframe.from_hypothesis(small_rendered["viewframes"][1]).image)
     assert got.viewframes == [k for k in full[1].viewframes.tolist() if 1 <= k <= 3]  # the full order within it
     for frame, state in [(2, "lost"), (3, "tracking"), (4, "tracking")]:
-        _frames_from_viewframes(bb, small_rendered, [frame])
         levels.post(bb.user, _track(frame - 1, state, frame, n))
         bb.run()
+        _frames_from_viewframes(bb, small_rendered, [frame])
+        bb.run()
+    _frames_from_viewframes(bb, small_rendered, [6])  # the track of frame 5 never comes: no waiting
+    bb.run()
+    assert set(ranking(6).viewframes) == set(range(n)) and indexer.windows[6] is None
     assert set(ranking(2).viewframes) == set(range(n)) and indexer.windows[2] is None  # lost: everything
     assert sorted(ranking(3).viewframes) == [2, 3, 4] and indexer.windows[3] == (2, 4)
     assert set(ranking(4).viewframes) == set(range(n)) and indexer.windows[4] is None  # every 4th frame: everything
