@@ -14,8 +14,11 @@ tuning seeds. Each drive's frames are ranked by the real associative memory
 
 each for what the tracker observes (``--observe``, side by side in one run): ``associative``,
 the memory's ranking alone with its own calibration (the tracker before it observed every
-source), and ``fused``, every ranking source of the scenario (associative and skyline) fused by
-the scheduler's rule (knowledge_sources.fusion), with the defaults of the scenario schema.
+source), ``fused-robust``, every ranking source fused by the scheduler's rule
+(knowledge_sources.fusion) and re-standardised per frame at the first fusion rule's calibration
+(the tracker before its refit), and ``fused``, the same fusion's calibrated negative log
+posterior with the defaults of the scenario schema (``--set KEY=VALUE`` overrides them: the
+calibration's grid on the tuning split).
 
 Reported per drive and pooled: top-1 after a warm-up of 3 frames and within those 3 (a frame is
 right when its route point is the one nearest the true position), position error median and
@@ -24,7 +27,8 @@ on which the tracked route point is right again), the tracker's cost per frame o
 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
 tracker on one drive (``mapinterp run`` and ``--no-track``).
 
-    python bench/tracking.py [--split heldout|tuning|sim] [--observe associative fused] [--runs] [--json-only]
+    python bench/tracking.py [--split heldout|tuning|sim] [--observe associative fused-robust fused]
+                             [--set temperature=1.0 ...] [--runs] [--json-only]
 
 Prints JSON, then a table.
 """
@@ -60,13 +64,40 @@ from models.tracking import RouteFilter, smooth  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 WARM_UP = 3
 sys.path.insert(0, str(ROOT / "bench"))
-from tracking_data import OBSERVE, observed  # noqa: E402
+from tracking_data import observed  # noqa: E402
 
 sys.path.pop(0)
 #: the observation model's parameters fitted for the associative ranking alone on the evaluation
 #: set's tuning split (bench/tracking_calibrate.py --observe associative; BENCHMARKS.md): the
 #: tracker before it observed the fused ranking, run beside the defaults (fitted to the fusion)
-ASSOCIATIVE_CALIBRATION = {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0}
+ASSOCIATIVE_CALIBRATION = {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0, "scores": "robust"}
+#: what a run may observe, each with its calibration: ``associative`` (above), ``fused-robust``
+#: (the fused ranking re-standardised per frame at the calibration of the first fusion rule: the
+#: tracker before its observation was refitted to the calibrated fusion), ``fused`` (the defaults)
+CALIBRATIONS: dict[str, dict] = {
+    "associative": ASSOCIATIVE_CALIBRATION,
+    "fused-robust": {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0, "scores": "robust"},
+    "fused": {},
+}
+
+
+def source_of(observation: str) -> str:
+    """The ranking an observation of :data:`CALIBRATIONS` reads (bench/tracking_data.observed)."""
+    return observation.split("-")[0]
+
+
+def parse_set(items: Sequence[str]) -> dict:
+    """``KEY=VALUE`` overrides of the fused observation's tracking spec (numbers, or a word)."""
+    out: dict = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or key not in TrackingSpec.model_fields:
+            raise SystemExit(f"--set {item!r}: must be KEY=VALUE with KEY a field of tracking")
+        try:
+            out[key] = float(value)
+        except ValueError:
+            out[key] = value
+    return out
 
 
 def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list[int]:
@@ -266,15 +297,24 @@ def main() -> None:
     ap.add_argument(
         "--observe",
         nargs="+",
-        choices=OBSERVE,
-        default=list(OBSERVE),
+        choices=list(CALIBRATIONS),
+        default=list(CALIBRATIONS),
         help="what the tracker observes, side by side: the associative ranking alone (at its own calibration, "
-        "ASSOCIATIVE_CALIBRATION: the tracker before the fusion), every source fused (the defaults)",
+        "ASSOCIATIVE_CALIBRATION: the tracker before the fusion), every source fused at the first rule's "
+        "calibration (fused-robust), every source fused (the defaults)",
+    )
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a tracking parameter of the fused observation (calibration on the tuning split)",
     )
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args()
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
-    spec = TrackingSpec()
+    overrides = parse_set(args.set)
+    spec = TrackingSpec(**overrides)
     started = time.time()
     load = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
@@ -286,13 +326,15 @@ def main() -> None:
                 args.cache.write_bytes(pickle.dumps((ranked, what)))
         results = []
         for d, _, path in ranked:
-            tracking = load_scenario(path).tracking  # not the cached one: the defaults may have changed since
+            sc = load_scenario(path)  # not the cached one: the defaults may have changed since
+            tracking = sc.tracking
+            d["memory_weight"], d["skyline_weight"] = sc.memory.weight, sc.skyline.weight
             if args.no_times:
                 d["times"] = np.full(len(d["true_point"]), np.nan)
             runs = {}
             for o in args.observe:
-                obs = observed(d, o)
-                sp = tracking.model_copy(update=ASSOCIATIVE_CALIBRATION) if o == "associative" else tracking
+                obs = observed(d, source_of(o))
+                sp = TrackingSpec(**{**tracking.model_dump(), **overrides, **CALIBRATIONS[o]})
                 runs[o] = (obs, track_drive(d, sp, obs))
             r = score(d, runs, tracking)
             r["kind"] = d["kind"]
@@ -310,7 +352,8 @@ def main() -> None:
         "cost_10000_cells": cost_10000(spec),
         "whole_runs": whole,
         "observe": list(args.observe),
-        "associative_calibration": ASSOCIATIVE_CALIBRATION,
+        "calibrations": CALIBRATIONS,
+        "overrides": overrides,
         "drives": [
             {
                 "name": r["name"],

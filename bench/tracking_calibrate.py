@@ -5,7 +5,8 @@ scenarios' frames) over the bundled terrains and generated serpentine routes, wi
 seeds below; every frame ranked by the real associative memory (bench/tracking_data.py).
 
 Fit: the observation model of models/tracking.py gives each route point k of a frame the
-likelihood ``L_k = eps_f + exp(gain - z_k / temperature)``, ``eps_f = eps + margin_scale / margin``. Normalised over the route points, ``L_k / sum_j L_j`` is what one frame alone
+likelihood ``L_k = eps_f + exp(gain - z_k / temperature)`` (``z_k`` the observed value above the
+best, in nats for the calibrated fusion, ``--scores nats``, or in robust spreads, ``robust``), ``eps_f = eps + margin_scale / margin``. Normalised over the route points, ``L_k / sum_j L_j`` is what one frame alone
 says about where the camera is (a uniform prior); the parameters maximise the mean log of that
 probability at the true route point (nearest to the true position) over all tuning frames
 (Nelder-Mead in log-parameters). Also printed: the histograms of ``z`` for true and for other
@@ -21,7 +22,7 @@ The defaults of the scenario schema come from the evaluation set's TUNING split 
 another renderer than the viewframes', like the judged data), ranked by bench/tracking.py:
 
     python bench/tracking.py --split tuning --cache /tmp/tune.pkl --json-only > /dev/null
-    python bench/tracking_calibrate.py --evalset-tuning /tmp/tune.pkl --no-sim --observe fused
+    python bench/tracking_calibrate.py --evalset-tuning /tmp/tune.pkl --no-sim --observe fused [--scores nats]
 
     python bench/tracking_calibrate.py [--quick] [--cache /tmp/tracking_tune.npz] [--observe fused|associative]
 
@@ -46,7 +47,7 @@ import numpy as np  # noqa: E402
 from scipy.optimize import minimize  # noqa: E402
 
 from models.scenario import load_scenario  # noqa: E402
-from models.tracking import ObservationModel, RouteGrid, ranking_scores  # noqa: E402
+from models.tracking import SCORES, ObservationModel, RouteGrid, ranking_scores  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "bench"))
@@ -96,13 +97,13 @@ def harvest(quick: bool) -> list[dict]:
     return drives
 
 
-def frame_scores(drives: list[dict]) -> tuple[list[np.ndarray], list[float], list[int]]:
+def frame_scores(drives: list[dict], scores: str) -> tuple[list[np.ndarray], list[float], list[int]]:
     zs, margins, truths = [], [], []
     for d in drives:
         for v, t in zip(d["variances"], d["true_point"]):
             if t < 0:
                 continue
-            z, m = ranking_scores(v)
+            z, m = ranking_scores(v, scores=scores)
             zs.append(z)
             margins.append(m)
             truths.append(int(t))
@@ -122,14 +123,14 @@ def arc_frames(drives: list[dict]) -> list[tuple]:
     return out
 
 
-def _model(params: np.ndarray) -> ObservationModel:
+def _model(params: np.ndarray, scores: str) -> ObservationModel:
     temperature, eps, margin_scale, spread = np.exp(params)
-    return ObservationModel(float(temperature), 0.0, float(min(eps, 1.0)), float(margin_scale), float(spread))
+    return ObservationModel(float(temperature), 0.0, float(min(eps, 1.0)), float(margin_scale), float(spread), scores)
 
 
-def mean_log_density(params: np.ndarray, frames) -> float:
+def mean_log_density(params: np.ndarray, frames, scores: str) -> float:
     """Mean log of the single-frame density over arc length at the true arc (1/m)."""
-    model = _model(params)
+    model = _model(params, scores)
     if not (0.05 < model.temperature < 20 and 0.02 < model.spread < 3):
         return -1e9
     total = 0.0
@@ -142,15 +143,15 @@ def mean_log_density(params: np.ndarray, frames) -> float:
     return total / len(frames)
 
 
-def fit(frames) -> dict:
+def fit(frames, scores: str) -> dict:
     x0 = np.log([1.0, 0.01, 0.3, 0.4])
     res = minimize(
-        lambda p: -mean_log_density(p, frames),
+        lambda p: -mean_log_density(p, frames, scores),
         x0,
         method="Nelder-Mead",
         options={"maxiter": 500, "xatol": 1e-3, "fatol": 1e-5},
     )
-    m = _model(res.x)
+    m = _model(res.x, scores)
     length = float(np.mean([g.arc[-1] for g, _, _ in frames]))
     return {
         "temperature": m.temperature,
@@ -158,6 +159,7 @@ def fit(frames) -> dict:
         "eps": m.eps,
         "margin_scale": m.margin_scale,
         "spread": m.spread,
+        "scores": scores,
         "mean_log_density": float(-res.fun),
         "uniform_log_density": float(-math.log(length)),
     }
@@ -186,7 +188,7 @@ def histograms(zs, truths) -> list[dict]:
 def reliability(params: dict, frames) -> list[dict]:
     """Single-frame probability of the route point with the most density against how often it is right."""
     model = ObservationModel(
-        params["temperature"], params["gain"], params["eps"], params["margin_scale"], params["spread"]
+        params["temperature"], params["gain"], params["eps"], params["margin_scale"], params["spread"], params["scores"]
     )
     probs, right = [], []
     cache: dict[int, RouteGrid] = {}
@@ -226,7 +228,15 @@ def main() -> None:
     )
     ap.add_argument("--no-sim", action="store_true", help="without the simulated drives (with --evalset-tuning)")
     ap.add_argument("--observe", choices=OBSERVE, default="fused", help="the ranking a frame gives (module docstring)")
+    ap.add_argument(
+        "--scores",
+        choices=SCORES,
+        help="what the observed values are (models.tracking.ranking_scores): nats (the fused observation's "
+        "default: the calibrated fusion's negative log posterior) or robust (standardised per frame; the "
+        "associative observation's default)",
+    )
     args = ap.parse_args()
+    scores = args.scores or ("nats" if args.observe == "fused" else "robust")
     if args.no_sim:
         drives = []
     elif args.cache and args.cache.is_file():
@@ -244,12 +254,13 @@ def main() -> None:
         if args.observe == "fused" and d.get("skyline") is None and "skyline_weight" not in d:
             raise SystemExit(f"drive {d['name']}: ranked without the skyline (an old cache?): rank it again")
         d["variances"] = observed(d, args.observe)
-    zs, margins, truths = frame_scores(drives)
+    zs, margins, truths = frame_scores(drives, scores)
     frames = arc_frames(drives)
-    params = fit(frames)
+    params = fit(frames, scores)
     top1 = float(np.mean([int(np.nanargmin(z)) == t for z, t in zip(zs, truths)]))
     out = {
         "observe": args.observe,
+        "scores": scores,
         "drives": [{"name": d["name"], "seed": d["seed"], "frames": int(len(d["true_point"]))} for d in drives],
         "tuning_seeds": list(TUNING_SEEDS),
         "drive": TUNING_DRIVE,
@@ -262,7 +273,7 @@ def main() -> None:
     print(json.dumps(out, indent=1))
     print()
     print(f"{len(zs)} tuning frames, observing {args.observe}, ranking top-1 {top1:.3f}")
-    print("fit: " + ", ".join(f"{k} {v:.4g}" for k, v in params.items()))
+    print("fit: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in params.items()))
     print(f"{'z':>8} {'true':>6} {'other':>7} {'log ratio':>10}")
     for h in out["histogram"]:
         lr = "" if h["log_ratio"] is None else f"{h['log_ratio']:.2f}"

@@ -92,6 +92,7 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
         "variances": np.array(variances),
         "skyline": np.array(skyline) if refs is not None else None,
         "skyline_weight": float(sky.weight),
+        "memory_weight": float(sc.memory.weight),
         "truth": truth,
         "times": np.array([np.nan if f.time is None else f.time for f in frames], float),
         "true_point": true_point,
@@ -102,26 +103,33 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
 def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
     """What the tracker observes of each frame of a :func:`ranked_drive`, ``(T, N)`` indexed by
     route point (lower is better): ``"associative"``, the memory's error variances; ``"fused"``,
-    every ranking source of the drive fused by the scheduler's rule
-    (:func:`knowledge_sources.fusion.fuse_rankings`, the scenario's skyline weight), which is
-    the associative ranking itself when the drive has no skyline."""
-    from knowledge_sources.fusion import fuse_rankings
+    every ranking source of the drive fused by the scheduler's rule as the tracker takes it
+    (:func:`knowledge_sources.fusion.fused_log_posterior` at the scenario's ``memory.weight``
+    and ``skyline.weight``, the drive's ``memory_weight`` and ``skyline_weight``): the negative
+    log posterior in nats, which orders the viewframes as the fused ranking does (for a drive
+    without the skyline: the memory's weighted robust z-scores, an affine map of its errors)."""
+    from knowledge_sources.fusion import fused_log_posterior
+    from models.scenario import MemorySpec, SkylineSpec
 
     if observe not in OBSERVE:
         raise ValueError(f"observe must be one of {OBSERVE}, not {observe!r}")
     v = np.asarray(drive["variances"], dtype=np.float64)
     sky = drive.get("skyline")
-    if observe == "associative" or sky is None:
+    if observe == "associative":
         return v
     n = v.shape[1]
     labels = np.arange(n)
-    weights = {"associative": 1.0, "skyline": float(drive["skyline_weight"])}
+    weights = {
+        "associative": float(drive.get("memory_weight", MemorySpec().weight)),
+        "skyline": float(drive.get("skyline_weight", SkylineSpec().weight)),
+    }
+    rows = [("associative", v)] + ([] if sky is None else [("skyline", np.asarray(sky, dtype=np.float64))])
     out = np.full(v.shape, np.nan)
     for t in range(v.shape[0]):
         per = {}
-        for src, row in (("associative", v[t]), ("skyline", np.asarray(sky[t], dtype=np.float64))):
-            ok = np.isfinite(row)
-            per[src] = (labels[ok].tolist(), row[ok].tolist())
-        fused = fuse_rankings(per, weights=weights)
-        out[t] = ranking_vector([k for k, _ in fused], [f for _, f in fused], n)
+        for src, errors in rows:
+            ok = np.isfinite(errors[t])
+            per[src] = (labels[ok].tolist(), errors[t][ok].tolist())
+        lab, log_p = fused_log_posterior(per, weights={s: weights[s] for s in per})
+        out[t] = ranking_vector(lab.tolist(), (-log_p).tolist(), n)
     return out

@@ -50,8 +50,9 @@ Shards
     A source may post its ranking in shards (the associative memory: one per indexer, errors
     comparable across shards); :func:`fuse_shards` merges each source's shards by sorting
     (:func:`models.associative.merge_rankings`) and then fuses the sources. The scheduler (its
-    candidate weighting) and the tracker (its observation) both call it, so the two see one
-    and the same fused ranking of a frame.
+    candidate weighting) calls it, and the tracker (its observation) takes
+    :func:`shards_log_posterior` of the same shards, so the two see one and the same fused
+    ranking of a frame, the tracker with its calibrated scale.
 """
 
 from __future__ import annotations
@@ -64,7 +65,15 @@ import numpy as np
 if TYPE_CHECKING:
     from models.associative import Ranking as MemoryRanking
 
-__all__ = ["ABSOLUTE_SOURCES", "standardise", "evidence", "fuse_rankings", "fused_log_posterior", "fuse_shards"]
+__all__ = [
+    "ABSOLUTE_SOURCES",
+    "standardise",
+    "evidence",
+    "fuse_rankings",
+    "fused_log_posterior",
+    "fuse_shards",
+    "shards_log_posterior",
+]
 
 _MAD_TO_STD = 1.4826
 
@@ -180,6 +189,16 @@ def fused_log_posterior(
     return lab, ll - float(np.log(np.exp(ll - ll.max()).sum()) + ll.max())
 
 
+def _merged(shards: Mapping[str, Sequence[MemoryRanking]]) -> dict[str, tuple[list[int], list[float]]]:
+    from models.associative import merge_rankings
+
+    per_source = {}
+    for src, parts in shards.items():
+        merged = merge_rankings(list(parts))
+        per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
+    return per_source
+
+
 def fuse_shards(
     shards: Mapping[str, Sequence[MemoryRanking]],
     *,
@@ -192,10 +211,15 @@ def fuse_shards(
     :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights``, ``absolute`` as
     :func:`fuse_rankings`.
     """
-    from models.associative import merge_rankings
+    return fuse_rankings(_merged(shards), weights=weights, absolute=absolute)
 
-    per_source = {}
-    for src, parts in shards.items():
-        merged = merge_rankings(list(parts))
-        per_source[src] = (merged.viewframes.tolist(), merged.variances.tolist())
-    return fuse_rankings(per_source, weights=weights, absolute=absolute)
+
+def shards_log_posterior(
+    shards: Mapping[str, Sequence[MemoryRanking]],
+    *,
+    weights: Mapping[str, float] | None = None,
+    absolute: Collection[str] = ABSOLUTE_SOURCES,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fused_log_posterior` of each source's shards merged as :func:`fuse_shards` merges them
+    (the same order of viewframes for two or more sources; for one source the order of its errors)."""
+    return fused_log_posterior(_merged(shards), weights=weights, absolute=absolute)

@@ -5,8 +5,11 @@ uses (option ``sources``, the scheduler's: the associative memory's shards and t
 the scene analysis's decision (the landmark answers it got, and its single-frame answer),
 strictly in frame order, and keeps a :class:`~models.tracking.RouteFilter` (the model and its
 calibration are documented in :mod:`models.tracking`). It observes the sources fused by the
-scheduler's own rule (:func:`knowledge_sources.fusion.fuse_shards`, same weights), so the track
-and the single-frame decision rest on the same ranking. For each frame it posts a ``track`` hypothesis: the
+scheduler's own rule (same weights): with ``tracking.scores: nats`` (the default) the calibrated
+fusion's negative log posterior of each viewframe
+(:func:`knowledge_sources.fusion.shards_log_posterior`), with ``robust`` the fused scores of
+:func:`knowledge_sources.fusion.fuse_shards` as the scheduler has them, so the track and the
+single-frame decision rest on the same ranking. For each frame it posts a ``track`` hypothesis: the
 route point, arc length, ``(x, y)``, heading, confidence, ``tracking``/``lost`` state, the
 posterior mass of each route point (``belief``), the predicted probability of each route point for the next frame (``prior_next``, which the
 scheduler uses to condition the next frame's questions), the frame's per-route-point evidence
@@ -203,7 +206,7 @@ class Tracker(KnowledgeSource):
         }
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
-        from knowledge_sources.fusion import fuse_shards
+        from knowledge_sources.fusion import fuse_shards, shards_log_posterior
         from models.associative import Ranking as MemoryRanking
 
         f = self._filter
@@ -212,10 +215,15 @@ class Tracker(KnowledgeSource):
             src: [MemoryRanking.from_dict({"viewframes": k, "variances": v, "reliability": 0.0}) for k, v in parts]
             for src, parts in p.by_source().items()
         }
-        fused = fuse_shards(shards, weights=self.sources)  # the scheduler's ranking of this frame
+        if self.spec.scores == "nats":  # the scheduler's fused ranking, as negative log posteriors (nats)
+            labels, log_p = shards_log_posterior(shards, weights=self.sources)
+            viewframes, scores = labels.tolist(), (-log_p).tolist()
+        else:  # the scheduler's fused ranking as it is (scores standardised by the filter)
+            fused = fuse_shards(shards, weights=self.sources)
+            viewframes, scores = [k for k, _ in fused], [e for _, e in fused]
         ll = f.route_loglik(
-            [k for k, _ in fused],
-            [e for _, e in fused],
+            viewframes,
+            scores,
             answers=answers_of(p.position.steps),
             visible=self._visible,
         )

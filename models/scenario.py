@@ -528,7 +528,9 @@ class TrackingSpec(_Spec):
     jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
     frame's ranking (every ranking source the scheduler uses, fused by its rule:
     :mod:`knowledge_sources.fusion`) as a likelihood, ``log(eps_f + exp(gain - z / temperature))``
-    with ``z`` the fused score above the best in robust spreads, the floor ``eps_f = eps + margin_scale / margin``
+    with ``z`` the fused score above the best: with ``scores: nats`` the calibrated fusion's
+    negative log posterior as it is (nats), with ``robust`` standardised per frame by its robust
+    spread (the tracker before the calibrated fusion), the floor ``eps_f = eps + margin_scale / margin``
     higher when the ranking's margin is low, each route point's term spread along the route by a
     Gaussian of ``spread`` mean route spacings (the ranking's own along-route error);
     the parameters were measured on the fused ranking of the evaluation set's tuning split
@@ -551,11 +553,12 @@ class TrackingSpec(_Spec):
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
-    temperature: float = Field(default=1.11, gt=0, le=1000)
+    temperature: float = Field(default=1.0, gt=0, le=1000)
     gain: float = Field(default=0.0, ge=-100, le=100)
     eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0, le=1000)
     spread: float = Field(default=0.45, ge=0, le=1000)
+    scores: Literal["nats", "robust"] = "nats"
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)
     exit: float = Field(default=0.25, ge=0, le=1)

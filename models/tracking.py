@@ -19,13 +19,16 @@ Prediction (motion model)
     or by FFT for long kernels).
 
 Update (observation model)
-    The frame's ranking gives an error ``v_k`` per route point ``k``: the knowledge source passes
-    the ranking the single-frame decision uses, every ranking source (associative memory,
-    skyline) fused by the scheduler's rule (:mod:`knowledge_sources.fusion`; the fused score, or
-    the memory's error variance when it is the only source). With
-    ``v_best`` the smallest and ``r`` a robust spread of all of them (1.4826 times the median
-    absolute deviation about the median, as :func:`knowledge_sources.scene_analysis.ranking_weights`),
-    the score is ``z_k = (v_k - v_best) / r``. The likelihood of the camera being at arc length
+    The frame's ranking gives a value ``v_k`` per route point ``k`` (lower is better): the
+    knowledge source passes the ranking the single-frame decision uses, every ranking source
+    (associative memory, skyline) fused by the scheduler's rule (:mod:`knowledge_sources.fusion`).
+    With ``scores: nats`` (the default) ``v_k`` is the calibrated fusion's negative log posterior
+    of viewframe k (:func:`knowledge_sources.fusion.fused_log_posterior`, in nats, also for the
+    memory alone) and the score is ``z_k = v_k - v_best``, taken as it is: at temperature 1 the
+    observation is the fusion's own likelihood. With ``scores: robust`` (raw errors of no fixed
+    scale, the tracker before the calibrated fusion) the score is ``z_k = (v_k - v_best) / r``,
+    ``r`` a robust spread of all of them (1.4826 times the median absolute deviation about the
+    median, as :func:`knowledge_sources.scene_analysis.ranking_weights`). The likelihood of the camera being at arc length
     ``s`` is ``L(s) = eps_f + sum_k exp(gain - z_k / temperature) G(s - s_k)``: each route point's
     evidence falls off exponentially with its score and is spread along the route by a Gaussian
     ``G`` of ``spread`` mean route spacings around the point's arc length ``s_k`` (a camera
@@ -46,7 +49,9 @@ Update (observation model)
     ``temperature`` is over-confident for tracking (consecutive frames' errors are correlated,
     which a single-frame fit cannot see), so the defaults of
     :class:`models.scenario.TrackingSpec` are chosen on the tracked top-1 of the same split over
-    a grid of temperatures and spreads around the fit. The script also prints the empirical log
+    a grid of temperatures and spreads around the fit (bench/tracking.py ``--set``); for the
+    calibrated fusion's nats temperature 1, the fusion's likelihood as it is, lies on that
+    grid's plateau. The script also prints the empirical log
     ratio of the score histograms of true and other route points, and a reliability table (the
     single-frame probability of the chosen route point against how often it is right). A margin
     term did not improve the fit once the spread was modelled, so its default is 0.
@@ -93,6 +98,7 @@ __all__ = [
     "ranking_vector",
     "ranking_scores",
     "landmark_loglik",
+    "SCORES",
 ]
 
 #: kernels longer than this are convolved by FFT
@@ -105,6 +111,8 @@ _TINY = 1e-250
 SAMPLES_PER_LEG = 4
 #: the along-route spread of a route point's evidence is cut at this many legs either side
 _SPREAD_LEGS = 3
+#: what the observed values are (:func:`ranking_scores`; the scenario's ``tracking.scores``)
+SCORES = ("nats", "robust")
 
 
 @dataclass(frozen=True)
@@ -215,21 +223,27 @@ def ranking_vector(viewframes: Sequence[int], variances: Sequence[float], points
     return out
 
 
-def ranking_scores(variances: np.ndarray) -> tuple[np.ndarray, float]:
-    """Scores ``z = (v - v_best) / robust spread`` (NaN kept) and the margin.
+def ranking_scores(variances: np.ndarray, *, scores: str = "robust") -> tuple[np.ndarray, float]:
+    """Scores ``z`` (NaN kept) and the margin.
 
-    The margin is the best score among route points more than one point away from the best one
-    (``inf`` when there are none).
+    ``scores="robust"``: ``z = (v - v_best) / robust spread`` (raw errors of no fixed scale);
+    ``"nats"``: ``z = v - v_best`` (the observed values are already negative log-likelihoods in
+    nats, the calibrated fusion's). The margin is the best score among route points more than
+    one point away from the best one (``inf`` when there are none).
     """
+    if scores not in SCORES:
+        raise ValueError(f"scores must be one of {SCORES}, not {scores!r}")
     v = np.asarray(variances, dtype=np.float64)
     ok = np.isfinite(v)
     if ok.sum() == 0:
         return np.full(v.shape, np.nan), math.inf
     vv = v[ok]
-    med = float(np.median(vv))
-    spread = float(np.median(np.abs(vv - med))) * 1.4826
-    if not math.isfinite(spread) or spread <= 0:
-        spread = float(np.std(vv)) or 1.0
+    spread = 1.0
+    if scores == "robust":
+        med = float(np.median(vv))
+        spread = float(np.median(np.abs(vv - med))) * 1.4826
+        if not math.isfinite(spread) or spread <= 0:
+            spread = float(np.std(vv)) or 1.0
     z = (v - float(vv.min())) / spread
     best = int(np.nanargmin(z))
     far = np.abs(np.arange(v.size) - best) > 1
@@ -246,11 +260,12 @@ class ObservationModel:
     eps: float
     margin_scale: float = 0.0
     spread: float = 0.0
+    scores: str = "robust"
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
     def from_spec(cls, spec: TrackingSpec) -> ObservationModel:
-        return cls(spec.temperature, spec.gain, spec.eps, spec.margin_scale, spec.spread)
+        return cls(spec.temperature, spec.gain, spec.eps, spec.margin_scale, spec.spread, spec.scores)
 
     def floor(self, margin: float) -> float:
         """The likelihood floor ``eps_f`` for a ranking of margin ``margin``."""
@@ -260,7 +275,7 @@ class ObservationModel:
 
     def peaks(self, variances: np.ndarray) -> tuple[np.ndarray, float]:
         """``exp(gain - z_k / temperature)`` per route point ``(N,)`` (0 where no score) and the floor."""
-        z, margin = ranking_scores(variances)
+        z, margin = ranking_scores(variances, scores=self.scores)
         return np.exp(self.gain - np.nan_to_num(z, nan=np.inf) / self.temperature), self.floor(margin)
 
     def _spread_matrix(self, grid: RouteGrid) -> tuple[np.ndarray, np.ndarray]:

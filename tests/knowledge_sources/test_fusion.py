@@ -11,6 +11,7 @@ from knowledge_sources.fusion import (
     fuse_rankings,
     fuse_shards,
     fused_log_posterior,
+    shards_log_posterior,
     standardise,
 )
 
@@ -138,3 +139,8 @@ def test_fuse_shards_merges_each_source_then_fuses():
     # one source: its shards merged, its own errors best first (the identity of the fusion)
     only = fuse_shards({"associative": shards["associative"]})
     assert [k for k, _ in only] == list(np.argsort(a)) and [e for _, e in only] == sorted(a.tolist())
+    # the tracker's view of the same shards: the normalised log posterior, in the fused ranking's order
+    lab, log_p = shards_log_posterior(shards, weights=weights)
+    assert np.exp(log_p).sum() == pytest.approx(1.0)
+    fused = fuse_shards(shards, weights=weights)
+    np.testing.assert_allclose(-log_p[np.array([k for k, _ in fused])] + log_p.max(), [f for _, f in fused], atol=1e-9)

@@ -8,10 +8,12 @@ import time
 import numpy as np
 import pytest
 
-from models.scenario import TrackingSpec
+from knowledge_sources.fusion import fused_log_posterior
+from models.scenario import MemorySpec, TrackingSpec
 from models.tracking import MotionModel, RouteFilter, RouteGrid, ranking_scores, smooth
 
 SPACING = 40.0
+_WEIGHT = {"associative": MemorySpec().weight}
 
 
 def _route(n: int = 30) -> np.ndarray:
@@ -37,6 +39,12 @@ def _true_point(grid: RouteGrid, s: float) -> int:
 
 
 def _loglik(f: RouteFilter, v: np.ndarray) -> np.ndarray:
+    """The filter's evidence from a ranking's variances ``v``, as the tracker agent observes them: under
+    the default ``scores: nats`` the fusion's negative log posterior of the memory's ranking (its robust
+    z-scores at the memory's weight), under ``robust`` the variances themselves."""
+    if f.spec.scores == "nats":
+        labels, log_p = fused_log_posterior({"associative": (list(range(v.size)), list(v))}, weights=_WEIGHT)
+        return f.route_loglik(labels, -log_p)
     return f.route_loglik(np.arange(v.size), v)
 
 
@@ -161,6 +169,25 @@ def test_adjoint_is_the_transpose_of_predict():
         P = np.stack([motion.predict(eye[j], dt) for j in range(n)], axis=1)  # column j: from cell j
         g = np.random.default_rng(0).random(n)
         np.testing.assert_allclose(motion.adjoint(g, dt), P.T @ g, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("scale", [1.0, 10.0])
+def test_nats_scores_are_taken_as_they_are_robust_ones_are_standardised(scale):
+    """``scores: nats``: a route point 1 nat above the best has exp(-1 / temperature) of its
+    likelihood, whatever the others; ``robust``: scaling every error changes nothing."""
+    v = np.array([0.0, 1.0, 3.0, 5.0, 9.0]) * scale
+    z, _ = ranking_scores(v, scores="nats")
+    np.testing.assert_allclose(z, v)
+    zr, _ = ranking_scores(v, scores="robust")
+    np.testing.assert_allclose(zr, ranking_scores(v / scale, scores="robust")[0])
+    route = np.c_[np.arange(5) * SPACING, np.zeros(5)]
+    spec = TrackingSpec(temperature=2.0, spread=0.0, eps=0.0)
+    assert spec.scores == "nats"  # the default: the tracker observes the calibrated fusion
+    f = RouteFilter(route, spec=spec)
+    at = f.observation.loglik(v, f.grid)[np.searchsorted(f.grid.samples, f.grid.arc)]
+    np.testing.assert_allclose(at - at[0], -v / 2.0, atol=1e-9)
+    with pytest.raises(ValueError, match="scores must be one of"):
+        ranking_scores(v, scores="z")
 
 
 def test_low_margin_rankings_are_trusted_less():
