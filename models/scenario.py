@@ -472,16 +472,15 @@ class SkylineSpec(_Spec):
 
 
 class RenderSpec(_Spec):
-    """How the map's viewframes are rendered (:mod:`models.viewframes`): ``{workers: 1,
+    """How the map's viewframes are rendered (:mod:`models.viewframes`): ``{workers: null,
     viewframes_per_worker: 250}``. ``workers`` processes, each with its own offscreen renderer,
-    render shares of the route (the viewframes are the same as rendered in one process); 1 (the
-    default): in the calling process; null: one worker per ``viewframes_per_worker`` route
-    points, at most the machine's CPU count. One process is the default because Mesa's software
-    rasteriser already draws on every core and a worker costs seconds to start: on the 2-core
-    machine of BENCHMARKS.md two workers were slower than one process (see "Scale").
+    render shares of the route (the viewframes are the same as rendered in one process); null:
+    one worker per ``viewframes_per_worker`` route points, at most the machine's CPU count
+    (a worker costs a few seconds to start, so short routes render in the calling process);
+    1: in the calling process.
     """
 
-    workers: int | None = Field(default=1, ge=1, le=256)
+    workers: int | None = Field(default=None, ge=1, le=256)
     viewframes_per_worker: int = Field(default=250, ge=1, le=MAX_ROUTE_POINTS)
 
     def worker_count(self, viewframes: int) -> int:

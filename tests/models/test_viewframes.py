@@ -123,14 +123,13 @@ def test_the_world_renders_in_workers_when_the_scenario_says_so():
         assert world._emulator is None  # no renderer opened in this process
 
 
-def test_render_workers_default_to_the_calling_process_and_auto_is_one_per_share_at_most_the_cpus():
+def test_render_workers_default_to_one_per_share_of_the_route_at_most_the_cpus():
     import os
 
     from models.scenario import RenderSpec
 
     cpus = len(os.sched_getaffinity(0))
-    assert RenderSpec().worker_count(10**6) == 1  # the default: no worker processes
-    spec = RenderSpec(workers=None)  # auto
+    spec = RenderSpec()
     assert spec.worker_count(10) == 1  # short routes render in the calling process
     assert spec.worker_count(spec.viewframes_per_worker * 2) == min(2, cpus)
     assert spec.worker_count(10**6) == cpus
