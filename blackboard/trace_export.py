@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from blackboard.trace import TraceRecord
+from blackboard.trace_view import jsonable
 
 __all__ = ["to_chrome_trace", "chrome_trace_json"]
 
@@ -36,18 +37,6 @@ _BODY_CHARS = 200
 def _short(value: Any) -> Any:
     text = json.dumps(value, default=repr, sort_keys=True)
     return value if len(text) <= _BODY_CHARS else text[: _BODY_CHARS - 3] + "..."
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, (bytes, bytearray)):
-        return {"__bytes__": len(value)}
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return repr(value)
 
 
 def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
@@ -80,7 +69,7 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
         base = {"pid": _PID, "tid": tid}
         if kind in ("activation_finish", "activation_error") and r.get("duration_s") is not None:
             dur = max(0.0, float(r["duration_s"]))
-            args = {k: _jsonable(r[k]) for k in ("id", "version", "event", "rating", "reason", "message") if k in r}
+            args = {k: jsonable(r[k]) for k in ("id", "version", "event", "rating", "reason", "message") if k in r}
             events.append(
                 {
                     **base,
@@ -101,7 +90,7 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
                 "version": r.get("version"),
                 "links": list(r.get("links") or ()),
                 "credibility": r.get("credibility"),
-                "body": _short(_jsonable(r.get("body"))),
+                "body": _short(jsonable(r.get("body"))),
             }
             events.append(
                 {
@@ -135,7 +124,7 @@ def to_chrome_trace(records: Sequence[TraceRecord]) -> dict[str, Any]:
                     )
                     events.append({**base, "ph": "f", "bp": "e", "id": flow_id, "cat": "link", "name": name, "ts": ts})
         elif kind not in ("activation_start",):
-            args = {k: _jsonable(v) for k, v in r.items() if k not in ("t", "kind", "agent", "seq")}
+            args = {k: jsonable(v) for k, v in r.items() if k not in ("t", "kind", "agent", "seq")}
             events.append(
                 {
                     **base,

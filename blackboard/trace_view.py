@@ -32,6 +32,7 @@ __all__ = [
     "chain_tree",
     "chain_dot",
     "to_json",
+    "jsonable",
 ]
 
 _HYP_KINDS = ("post", "update")
@@ -279,7 +280,7 @@ def render_chain(chain: Sequence[TraceRecord]) -> str:
         if r.get("kind") == "missing":
             lines.append(f"{r['id']}: not in the trace")
             continue
-        body = json.dumps(_jsonable(r.get("body")), sort_keys=True)
+        body = json.dumps(jsonable(r.get("body")), sort_keys=True)
         body = body if len(body) <= 120 else body[:117] + "..."
         links = ", ".join(r.get("links") or ()) or "input"
         lines.append(
@@ -362,11 +363,13 @@ def chain_dot(chain: Sequence[TraceRecord]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _jsonable(value: Any) -> Any:
+def jsonable(value: Any) -> Any:
+    """``value`` as plain JSON data: dict keys as strings, tuples as lists, bytes as their length
+    (``{"__bytes__": n}``), anything else not JSON as its ``repr``."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, (bytes, bytearray)):
         return {"__bytes__": len(value)}
     if value is None or isinstance(value, (bool, int, float, str)):
@@ -376,4 +379,4 @@ def _jsonable(value: Any) -> Any:
 
 def to_json(value: Any | Iterable[TraceRecord]) -> str:
     """JSON text of a summary, a record list or a chain (bytes shown as their length)."""
-    return json.dumps(_jsonable(value), indent=2, sort_keys=True)
+    return json.dumps(jsonable(value), indent=2, sort_keys=True)

@@ -103,10 +103,7 @@ class AssociativeIndexer(KnowledgeSource):
         mine = [k for k in range(mp.viewframes) if k % self.shards == self.shard]
         for k in mine:
             if k not in self._images:
-                got = board.get(levels.viewframe_id(k))
-                if got is None:
-                    raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
-                self._images[k] = levels.Viewframe.from_hypothesis(got).image
+                self._images[k] = levels.Viewframe.read(board, k).image
         index = ViewframeIndex(mp.memory, seed=self.shard)
         index.add((self._images[k] for k in mine), mine)
         self._index = index

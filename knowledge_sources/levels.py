@@ -417,6 +417,15 @@ class Viewframe(Message):
             background=None if background is None else np.ascontiguousarray(background),
         )
 
+    @classmethod
+    def read(cls, board: Board, index: int) -> Self:
+        """Viewframe ``index`` read back from the blackboard, for an agent that missed its event
+        (it joined late or restarted); :class:`RuntimeError` when the board does not hold it."""
+        got = board.get(viewframe_id(index))
+        if got is None:
+            raise RuntimeError(f"viewframe {index} is on neither the event stream nor the blackboard")
+        return cls.from_hypothesis(got)
+
     def id(self) -> str:
         return viewframe_id(self.index)
 

@@ -92,10 +92,7 @@ class SkylineRanker(KnowledgeSource):
     def _build(self, mp: levels.Map, board: Board) -> None:
         for k in range(mp.viewframes):
             if k not in self._profiles:
-                got = board.get(levels.viewframe_id(k))
-                if got is None:
-                    raise RuntimeError(f"viewframe {k} is on neither the event stream nor the blackboard")
-                self._profiles[k] = np.asarray(levels.Viewframe.from_hypothesis(got).skyline, dtype=np.float32)
+                self._profiles[k] = np.asarray(levels.Viewframe.read(board, k).skyline, dtype=np.float32)
         labels = sorted(self._profiles)
         sizes = {self._profiles[k].size for k in labels}
         if len(sizes) != 1:
