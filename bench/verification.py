@@ -55,6 +55,22 @@ RULES = {
 ORACLE = "soft, information gain, perfect detector (ceiling)"
 
 
+def _analysis(ranking, visible, s, rule: dict) -> SceneAnalysis:
+    """The scene analysis of one frame under ``rule``, with the scheduler settings ``s``."""
+    return SceneAnalysis(
+        ranking,
+        visible,
+        strategy="associative",
+        candidates=s.candidates,
+        accept=s.accept,
+        reliability=s.reliability,
+        beta=s.beta,
+        floor=s.floor,
+        max_llr=s.max_llr,
+        **rule,
+    )
+
+
 def run_rules(data: dict, scenario, registry) -> list[dict]:
     """Each frame's outcome under every rule of :data:`RULES`."""
     s = scenario.scheduler
@@ -77,19 +93,9 @@ def run_rules(data: dict, scenario, registry) -> list[dict]:
             "in_candidates": truth in [k for k, _ in ranking[: s.candidates]],
             "landmarks_differ": visible[ranking[0][0]] != visible[truth],
         }
+
         for name, rule in RULES.items():
-            sa = SceneAnalysis(
-                ranking,
-                visible,
-                strategy="associative",
-                candidates=s.candidates,
-                accept=s.accept,
-                reliability=s.reliability,
-                beta=s.beta,
-                floor=s.floor,
-                max_llr=s.max_llr,
-                **rule,
-            )
+            sa = _analysis(ranking, visible, s, rule)
             while (q := sa.next_question()) is not None:
                 key = (fi, q.landmark, q.viewframe)
                 if key not in cache:
@@ -100,18 +106,7 @@ def run_rules(data: dict, scenario, registry) -> list[dict]:
                 d = cache[key]
                 sa.answer(q, d.present, score=d.score, llr=d.llr)
             rec[name] = {"viewframe": sa.decision.viewframe, "queries": sa.decision.queries}
-        sa = SceneAnalysis(
-            ranking,
-            visible,
-            strategy="associative",
-            candidates=s.candidates,
-            accept=s.accept,
-            reliability=s.reliability,
-            beta=s.beta,
-            floor=s.floor,
-            max_llr=s.max_llr,
-            **RULES["soft, information gain (default)"],
-        )
+        sa = _analysis(ranking, visible, s, RULES["soft, information gain (default)"])
         while (q := sa.next_question()) is not None:
             label = labels.get((fi, q.landmark, q.viewframe))
             sa.answer(
