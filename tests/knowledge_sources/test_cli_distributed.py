@@ -39,6 +39,13 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "knowledge_sources.cli", *args]
 
 
+def _doubler_agent(run_id: str, endpoint: str, secret: str) -> list[str]:
+    """``mapinterp agent`` running the test Doubler as ``doubler`` for run ``run_id`` at ``endpoint``."""
+    return _cli(
+        "agent", f"{AGENTS}:Doubler", "--name", "doubler", "--run-id", run_id, "--connect", endpoint, "--secret", secret
+    )
+
+
 class Proc:
     """A ``mapinterp`` subprocess whose stderr lines are read by a thread (no pipe ever fills)."""
 
@@ -166,18 +173,7 @@ def test_remote_agent_counts_like_a_local_one_and_exits_at_run_end(procs, tmp_pa
         rt = stack.enter_context(Runtime(run_id=run_id, zenoh=options, trace_path=trace))
         rt.expect_remote(["doubler"])
         agent = procs(
-            _cli(
-                "agent",
-                f"{AGENTS}:Doubler",
-                "--name",
-                "doubler",
-                "--run-id",
-                run_id,
-                "--connect",
-                endpoint,
-                "--secret",
-                rt.secret,
-            ),
+            _doubler_agent(run_id, endpoint, rt.secret),
             ROOT,
         )
         rt.add(f"{AGENTS}:Echo", name="echo")
@@ -236,18 +232,7 @@ def test_signal_stops_the_agent_cleanly(procs, tmp_path: Path, signum: int) -> N
     with Runtime(run_id=run_id, zenoh=ZenohOptions(listen=[endpoint]), trace_path=trace) as rt:
         rt.expect_remote(["doubler"])
         agent = procs(
-            _cli(
-                "agent",
-                f"{AGENTS}:Doubler",
-                "--name",
-                "doubler",
-                "--run-id",
-                run_id,
-                "--connect",
-                endpoint,
-                "--secret",
-                rt.secret,
-            ),
+            _doubler_agent(run_id, endpoint, rt.secret),
             ROOT,
         )
         agent.wait_line(lambda s: "joined run" in s)
@@ -278,18 +263,7 @@ def test_agent_whose_node_crashes_exits_with_an_error(procs, tmp_path: Path) -> 
     try:
         assert node.stdout is not None and node.stdout.readline() == "up\n"
         agent = procs(
-            _cli(
-                "agent",
-                f"{AGENTS}:Doubler",
-                "--name",
-                "doubler",
-                "--run-id",
-                run_id,
-                "--connect",
-                endpoint,
-                "--secret",
-                "s3cret",
-            ),
+            _doubler_agent(run_id, endpoint, "s3cret"),
             ROOT,
         )
         agent.wait_line(lambda s: "joined run" in s)
