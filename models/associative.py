@@ -262,7 +262,7 @@ def _search(
     if max_shift != (0, 0) and c.size:
         n = key.shape[0]
         rows = np.ascontiguousarray(matrix[top]).view(np.complex64).reshape(len(top), n, n // 2 + 1)
-        prod = rows * (key / _half_weights(n)).astype(np.complex64)[None]
+        prod = rows * (key / _parseval_weights(n)).astype(np.complex64)[None]
         lag = np.fft.irfft2(prod, s=(n, n), axes=(-2, -1))  # lag[r % n, c % n] is lag (r, c)
         rr = np.arange(-max_shift[0], max_shift[0] + 1) % n
         cc = np.arange(-max_shift[1], max_shift[1] + 1) % n
@@ -278,17 +278,6 @@ def _lowpass(n: int, sigma: float) -> NDArray[np.float64]:
     g = np.exp(-2.0 * np.pi**2 * sigma * sigma * f2)
     g.setflags(write=False)
     return g
-
-
-@lru_cache(maxsize=8)
-def _half_weights(n: int) -> NDArray[np.float64]:
-    """Parseval weights of the half spectrum (N, N // 2 + 1), as :class:`HolographicMemory` keeps."""
-    w = np.full((n, n // 2 + 1), 2.0 / (n * n))
-    w[:, 0] /= 2.0
-    if n % 2 == 0:
-        w[:, n // 2] /= 2.0
-    w.setflags(write=False)
-    return w
 
 
 def _config_state(mem: HolographicMemory | BankedMemory) -> dict[str, Any]:
