@@ -131,13 +131,7 @@ RULES: dict[str, Rule] = {
 
 def per_frame(data: dict[str, Any], *, truncate: float, max_roll: float) -> list[dict[str, Any]]:
     """Each frame's two sources' (labels, errors) with its truth and terrain."""
-    match = {
-        "step_deg": _SKY.step_deg,
-        "max_heading_deg": _SKY.max_heading_deg,
-        "max_pitch_deg": _SKY.max_pitch_deg,
-        "truncate_deg": truncate,
-        "max_roll_deg": max_roll,
-    }
+    match = {**_SKY.match_options(), "truncate_deg": truncate, "max_roll_deg": max_roll}
     out = []
     for i, name in enumerate(data["case"]):
         refs = data[f"ref:{name}"]

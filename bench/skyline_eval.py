@@ -52,13 +52,7 @@ def _wrap(d: float) -> float:
 def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int | None) -> dict:
     scenario = load_scenario(case.scenario_path)
     cam_spec, sky = scenario.camera, scenario.skyline
-    match = {
-        "step_deg": sky.step_deg,
-        "max_heading_deg": sky.max_heading_deg,
-        "max_pitch_deg": sky.max_pitch_deg,
-        "truncate_deg": sky.truncate_deg,
-        "max_roll_deg": sky.max_roll_deg,
-    }
+    match = sky.match_options()
     out: dict = {"case": case.name, "frames": 0, "ranks": {}, "cost_ms": {}}
     with World(scenario) as world:
         emulator = world.emulator

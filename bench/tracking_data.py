@@ -67,12 +67,7 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
     n = len(vfs)
     sky = sc.skyline
     refs = np.stack([v.skyline for v in vfs]) if sky.enabled else None
-    match = {
-        "step_deg": sky.step_deg,
-        "max_heading_deg": sky.max_heading_deg,
-        "max_pitch_deg": sky.max_pitch_deg,
-        "truncate_deg": sky.truncate_deg,
-    }
+    match = sky.match_options()
     variances, skyline, rank_ms = [], [], []
     for f in frames:
         t0 = time.perf_counter()

@@ -80,13 +80,7 @@ def agent_plan(
             )
         )
     sky = scenario.skyline
-    match = {
-        "step_deg": sky.step_deg,
-        "max_heading_deg": sky.max_heading_deg,
-        "max_pitch_deg": sky.max_pitch_deg,
-        "truncate_deg": sky.truncate_deg,
-        "max_roll_deg": sky.max_roll_deg,
-    }
+    match = sky.match_options()
     sources = {"associative": scenario.memory.weight}
     if sky.enabled:
         plan.append(

@@ -470,6 +470,16 @@ class SkylineSpec(_Spec):
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
+    def match_options(self) -> dict[str, float]:
+        """The keywords of :func:`models.skyline.match_skylines` (and of the skyline agent) these settings give."""
+        return {
+            "step_deg": self.step_deg,
+            "max_heading_deg": self.max_heading_deg,
+            "max_pitch_deg": self.max_pitch_deg,
+            "truncate_deg": self.truncate_deg,
+            "max_roll_deg": self.max_roll_deg,
+        }
+
 
 class RenderSpec(_Spec):
     """How the map's viewframes are rendered (:mod:`models.viewframes`): ``{workers: null,
