@@ -91,27 +91,15 @@ def main(args: argparse.Namespace) -> int:
             return name
 
         bar.update(task, description="plotting", total=5 + len(detailed), completed=0)
+        on_map = {
+            "terrain": env.terrain,
+            "landmarks": env.landmarks,
+            "route": scenario.route,
+            "poses": [v.pose for v in viewframes],
+        }
         written = [
-            save(
-                plot_positions(
-                    main_run,
-                    terrain=env.terrain,
-                    landmarks=env.landmarks,
-                    route=scenario.route,
-                    poses=[v.pose for v in viewframes],
-                ),
-                "positions.png",
-            ),
-            save(
-                plot_track(
-                    main_run,
-                    terrain=env.terrain,
-                    landmarks=env.landmarks,
-                    route=scenario.route,
-                    poses=[v.pose for v in viewframes],
-                ),
-                "track.png",
-            ),
+            save(plot_positions(main_run, **on_map), "positions.png"),
+            save(plot_track(main_run, **on_map), "track.png"),
             save(plot_belief(main_run), "belief.png"),
             save(plot_rankings(main_run), "rankings.png"),
             save(plot_queries(runs), "queries.png"),
