@@ -388,6 +388,42 @@ def test_run_with_remote_detectors(procs, small: Path, tmp_path: Path, agents_fi
 
 
 @pytest.mark.slow
+def test_sharded_indexers_in_other_processes_give_the_results_of_one_process(
+    procs, small_data: dict, tmp_path: Path
+) -> None:
+    """The route split into three shards (``memory.shard_size`` 3 of 8 route points), each indexer
+    a ``mapinterp agent`` process standing in for another host: every frame's answer and ranking
+    are those of the same scenario in one process, and of the unsharded scenario."""
+    import yaml
+
+    whole = tmp_path / "whole.yaml"
+    whole.write_text(yaml.safe_dump(small_data))
+    sharded = tmp_path / "sharded.yaml"
+    sharded.write_text(yaml.safe_dump({**small_data, "memory": {"shard_size": 3}}))
+    indexers = [name for _, name, _ in agent_plan(load_scenario(sharded)) if name.startswith("indexer-")]
+    assert indexers == ["indexer-0", "indexer-1", "indexer-2"]
+    out = tmp_path / "r.json"
+    remote = [arg for name in indexers for arg in ("--remote", name)]
+    run = procs(
+        _cli("run", str(sharded), "--listen", loopback_endpoint(), *remote, "--out", str(out), "--no-progress"),
+        tmp_path,
+    )
+    agents = [procs(argv, tmp_path) for argv in _remote_commands(run, len(indexers))]
+    assert run.wait(3 * PATIENCE_S) == 0, run.text
+    assert all(a.wait() == 0 for a in agents), [a.text for a in agents]
+    results = load_results(out)
+    assert {results["agents"][name] for name in indexers} == {"ok"}
+    keys = ("frame", "viewframe", "queries", "backtracks", "correct")
+    for local in (run_mission(sharded), run_mission(whole)):
+        assert [{k: f[k] for k in keys} for f in results["frames"]] == [
+            {k: f[k] for k in keys} for f in local["frames"]
+        ]
+        for fr, fl in zip(results["frames"], local["frames"]):  # every shard's viewframes ranked, in one order
+            assert [k for k, _ in fr["ranking"]] == [k for k, _ in fl["ranking"]]
+    assert len(results["frames"]) == 8 and all(f["viewframe"] is not None for f in results["frames"])
+
+
+@pytest.mark.slow
 def test_run_fails_when_a_remote_agent_never_joins(procs, small: Path, tmp_path: Path) -> None:
     wait_s = 10.0  # the house agent must join within it, also on a loaded machine
     run = procs(
