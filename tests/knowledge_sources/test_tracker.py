@@ -266,3 +266,59 @@ def test_belief_plot_shows_the_belief_and_says_when_there_is_none():
     assert {t.get_text() for t in ax.get_legend().get_texts()} >= {"true route point", "track", "lost"}
     empty = plot_belief({"frames": [{"frame": 0, "truth_viewframe": None, "viewframe": 1}]})
     assert "no track" in empty.axes[0].texts[0].get_text()
+
+
+def _child_agent_pid(name: str) -> int:
+    """The pid of this process's child hosting agent ``name`` (processes mode: its spec is on its command line)."""
+    import os
+
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            ppid = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            argv = (entry / "cmdline").read_bytes().split(b"\0")
+        except (OSError, IndexError, ValueError):
+            continue
+        if ppid == os.getpid() and b"blackboard.agent_host" in argv and f'"name": "{name}"'.encode() in b" ".join(argv):
+            return int(entry.name)
+    raise AssertionError(f"no child process hosts agent {name!r}")
+
+
+@pytest.mark.slow
+def test_a_late_tracker_costs_the_frames_it_missed_and_then_tracks_again(tmp_path, small_data):
+    """The tracker's process stopped (SIGSTOP) after its 4th track for longer than the scheduler's
+    ``track_timeout_s``, then continued (SIGCONT): alive all along (its zenoh lease outlives the
+    pause), late. The frames whose previous track did not come in time are decided blind and say
+    so; once the tracker is back, the frames are conditioned on its tracks again; nothing is dead."""
+    import os
+    import signal
+    import threading
+
+    small_data["scheduler"] = {**small_data.get("scheduler", {}), "track_timeout_s": 1.5}
+    path = _drive(tmp_path, small_data)
+    pause_s = 5.0  # well under zenoh's 10 s lease: the tracker is late, not dead
+    paused: list[int] = []
+
+    def on_hypothesis(level: str, body: object, timestamp: float) -> None:
+        if level == levels.TRACK and not paused and body["frame"] == 3:  # type: ignore[index]
+            pid = _child_agent_pid("tracker")
+            os.kill(pid, signal.SIGSTOP)
+            paused.append(pid)
+            threading.Timer(pause_s, os.kill, (pid, signal.SIGCONT)).start()
+
+    results = run_mission(path, processes=True, on_hypothesis=on_hypothesis, timeout_s=120)
+    assert paused, "the tracker's 4th track never came"
+    assert results["agents"]["tracker"] == "ok", results["agents"]
+    frames = results["frames"]
+    assert len(frames) == 14 and all(not f["missing"] and f["frame_only"]["viewframe"] is not None for f in frames)
+    blind = [
+        f["frame"] for f in frames if any(d.startswith("tracker: no track of frame") for d in f.get("degraded", []))
+    ]
+    assert blind, [f.get("degraded") for f in frames]
+    assert 5 in blind and min(blind) >= 4  # frame 5 waited for the paused track 4; the ones before had theirs
+    assert all(not frames[k]["track_prior"] for k in blind)
+    # back: the frames after the blind ones are conditioned on the tracker's tracks again
+    after = [f for f in frames if f["frame"] > max(blind)]
+    assert after and all(f["track_prior"] for f in after), [(f["frame"], f["track_prior"]) for f in after]
+    assert not any(d.startswith("agent tracker dead") for d in results["degraded"])
