@@ -145,6 +145,7 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         (200, 150),
         {"palette": "green", "sun_elevation_deg": 55.0, "fog_m": 3000.0},
         {"jpeg_quality": None, "noise": 5.0},
+        drives=("kidnap",),
     ),
     TerrainEntry(
         "t-contours-fbm",
