@@ -183,22 +183,67 @@ def banks(count: int) -> dict:
 
 
 _CHILD = """
-import json, resource, sys, time
+import cProfile, json, resource, sys, time
+import numpy as np
 from knowledge_sources.mission import run_mission
+opts = json.loads(sys.argv[3])
+prof = cProfile.Profile() if opts.get("profile") else None
 t0 = time.perf_counter()
-res = run_mission(sys.argv[1], trace_path=sys.argv[2])
+if prof is not None:
+    prof.enable()
+ranked = {}  # source -> [viewframes ranked per ranking]
+def seen(level, body, stamp):
+    if level == "ranking":
+        ranked.setdefault(body.get("source", "associative"), []).append(len(body["viewframes"]))
+res = run_mission(sys.argv[1], trace_path=sys.argv[2], paced=opts["paced"], on_hypothesis=seen)
+if prof is not None:
+    prof.disable()
+    prof.dump_stats(opts["profile"])
 wall = time.perf_counter() - t0
 s = res["summary"]
+lat = [f["latency_ms"] for f in res["frames"] if f["latency_ms"] is not None]
+windows = [f for f in res["frames"] if f.get("state") == "tracking"]
 print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "wall_s": wall,
                   "setup_s": wall - (s["localization_s"] or 0.0), "frames": s["frames"], "top1": s["top1"],
-                  "frames_per_s": s["frames_per_s"], "latency_ms_p50": s["latency_ms_p50"]}))
+                  "top1_frame_only": s["top1_frame_only"], "mean_error_m": s["mean_error_m"],
+                  "tracking_frames": s["tracking"], "localization_s": s["localization_s"],
+                  "frames_per_s": s["frames_per_s"], "latency_ms_p50": s["latency_ms_p50"],
+                  "latency_ms_p95": float(np.percentile(lat, 95)) if lat else None,
+                  "degraded": res["degraded"][:5],
+                  "ranked_mean": {k: float(np.mean(v)) for k, v in ranked.items()},
+                  "ranked_windowed": {k: int(sum(x < max(v) for x in v)) for k, v in ranked.items()}}))
 """
 
 
-def mission(path: Path, cache: str, trace: Path) -> dict:
+def drive_scenario(path: Path, *, frames: int, overrides: dict[str, object] | None = None) -> Path:
+    """A copy of the generated scenario ``path`` whose camera frames are a *drive*
+    (:class:`models.scenario.DriveSpec`): ``frames`` consecutive frames from the start of the route,
+    2 s apart at 8-20 m/s (16-40 m, about one route point of 25 m per frame), with the drive's
+    lateral and heading errors; the same drive (seeded) at every route length, so routes that
+    share their first rows (the generator's serpentine rows hold 160 points) share the frames'
+    poses. ``overrides``: ``{"block.field": value}`` set in the copy (e.g. ``memory.window_route_points``)."""
+    import yaml
+
+    data = yaml.safe_load(path.read_text())
+    data["sensor"] = {"simulate": {"drive": {"frames": frames, "start": 0.0}}}
+    for dotted, value in (overrides or {}).items():
+        block, _, name = dotted.partition(".")
+        data.setdefault(block, {})[name] = value
+    tag = "".join(f"-{k}={v}" for k, v in sorted((overrides or {}).items())).replace("/", "_")
+    out = path.with_name(f"{path.stem}-drive{tag}.yaml")
+    out.write_text(yaml.safe_dump(data, sort_keys=False))
+    return out
+
+
+def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile: Path | None = None) -> dict:
+    """One whole mission in a child process (every agent in it); ``paced``: the camera posts
+    each frame once the previous frame's track (tracking on) is posted, else all at once (burst);
+    ``profile``: a cProfile of the child's run (all threads' work only where cProfile sees it: the
+    calling thread; see :func:`profile_frames`)."""
     env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl"}
+    opts = {"paced": paced, "profile": None if profile is None else str(profile)}
     done = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(path), str(trace)],
+        [sys.executable, "-c", _CHILD, str(path), str(trace), json.dumps(opts)],
         cwd=HERE.parent,
         env=env,
         capture_output=True,
@@ -209,7 +254,39 @@ def mission(path: Path, cache: str, trace: Path) -> dict:
         raise RuntimeError(f"mission run failed: {done.stderr[-2000:]}")
     out = json.loads(done.stdout.strip().splitlines()[-1])
     out["trace_mb"] = trace.stat().st_size / MB
+    out["load_avg"] = os.getloadavg()
     return out
+
+
+def _override(text: str) -> tuple[str, object]:
+    import yaml
+
+    key, sep, value = text.partition("=")
+    if not sep or "." not in key:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected block.field=value (YAML value)")
+    return key, yaml.safe_load(value)
+
+
+def _print_drives(n: str, r: dict) -> None:
+    drives = {k: v for k, v in r.items() if k.startswith("mission drive")}
+    if not drives:
+        return
+    print(f"route of {n} viewframes, drive missions (paced on the track, cache filled)")
+    head = ("run", "frames", "frames/s", "p50 ms", "p95 ms", "top-1", "frame-only", "tracking", "setup s", "load")
+    print(f"  {head[0]:<44}" + "".join(f"{h:>11}" for h in head[1:]))
+    for label, m in drives.items():
+        cells = (
+            m["frames"],
+            f"{m['frames_per_s']:.2f}" if m["frames_per_s"] else "-",
+            f"{m['latency_ms_p50']:.0f}",
+            f"{m['latency_ms_p95']:.0f}" if m["latency_ms_p95"] is not None else "-",
+            f"{m['top1']:.1%}" if m["top1"] is not None else "-",
+            f"{m['top1_frame_only']:.1%}" if m["top1_frame_only"] is not None else "-",
+            m["tracking_frames"],
+            f"{m['setup_s']:.0f}",
+            f"{m['load_avg'][0]:.1f}",
+        )
+        print(f"  {label[len('mission ') :]:<44}" + "".join(f"{c!s:>11}" for c in cells))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -217,6 +294,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", type=int, nargs="*", default=[1000], help="route lengths (default 1000)")
     parser.add_argument("--frames", type=int, default=20, help="simulated camera frames per route")
     parser.add_argument("--no-mission", action="store_true", help="skip the whole-mission child runs")
+    parser.add_argument(
+        "--mission",
+        choices=("drive", "burst"),
+        default="drive",
+        help="drive (default): --frames consecutive frames of a drive from the route's start, each posted once "
+        "the previous frame's track is out, with a filled cache (a cold run first fills it); burst: frames at every "
+        "(route / frames)-th route point posted at once, cold and warm",
+    )
+    parser.add_argument("--no-components", action="store_true", help="skip the in-process memory breakdown")
+    parser.add_argument(
+        "--cache-dir",
+        type=Path,
+        default=None,
+        help="the viewframe cache of the drive missions (default: a temp folder)",
+    )
+    parser.add_argument(
+        "--variant",
+        type=_override,
+        nargs="*",
+        action="append",
+        default=[],
+        help="drive: also run the mission with these scenario settings (block.field=value ...), once per --variant",
+    )
     parser.add_argument(
         "--banks-only",
         action="store_true",
@@ -251,10 +351,20 @@ def main(argv: list[str] | None = None) -> int:
         for n in args.sizes:
             path = _make_scenario(n, tmp, args.frames)
             cache_dir = tmp / f"cache{n}"
-            r = {"components": components(path, cache_dir)}
-            if not args.no_mission:
+            r: dict = {}
+            if not args.no_components:
+                r["components"] = components(path, cache_dir)
+            if not args.no_mission and args.mission == "burst":
                 r["mission_cold"] = mission(path, "off", tmp / f"cold{n}.trace")
                 r["mission_warm"] = mission(path, str(cache_dir), tmp / f"warm{n}.trace")
+            elif not args.no_mission:
+                drive_cache = str(args.cache_dir or cache_dir)
+                runs = {"drive": {}}
+                for variant in args.variant:
+                    runs["drive " + " ".join(f"{k}={v}" for k, v in variant)] = dict(variant)
+                for label, overrides in runs.items():
+                    drive = drive_scenario(path, frames=args.frames, overrides=overrides)
+                    r[f"mission {label}"] = mission(drive, drive_cache, tmp / f"drive{n}.trace", paced=True)
             results["routes"][str(n)] = r
     results["machine"]["load_avg_end"] = os.getloadavg()
     results["machine"]["peak_rss_bench_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -262,6 +372,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.json_only:
         print()
         for n, r in results["routes"].items():
+            _print_drives(n, r)
+            if "components" not in r:
+                continue
             c = r["components"]
             print(f"route of {n} viewframes (memory size {c['memory_size']})")
             rows = [

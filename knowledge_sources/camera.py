@@ -15,29 +15,53 @@ __all__ = ["Camera"]
 log = logging.getLogger(__name__)
 
 
+#: what a camera paced on answers waits for before posting the next frame
+PACE_LEVELS = (levels.POSITION, levels.TRACK)
+
+
 class Camera(KnowledgeSource):
     """Reads the scenario's camera images, or simulates them along the route, and posts each on
-    ``sensor_frame``, all at once or paced at ``rate_hz``. The true pose, when known, goes to the separate ``truth`` level, which no
-    agent consumes: it is there for evaluation only. The mission starts when every associative
-    indexer shard has posted ``index`` (the vehicle drives once its map is prepared), so no frame
-    waits for a memory still being built.
+    ``sensor_frame``: all at once, at ``rate_hz`` (a camera's fixed rate), or paced on answers
+    (``pace``: the next frame once the previous frame's ``position``, or its ``track``, is
+    posted: the system's capacity with every frame's predecessor answered, so the tracker and
+    the indexers' track window apply to every frame). The true pose, when known, goes to the
+    separate ``truth`` level, which no agent consumes: it is there for evaluation only. The
+    mission starts when every associative indexer shard has posted ``index`` (the vehicle
+    drives once its map is prepared), so no frame waits for a memory still being built.
+
+    Paced on ``track``, a tracker that never answers a frame stops the camera there: the run
+    then ends at quiescence with the later frames reported as never posted.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.INDEX,)
+    consumes: ClassVar[tuple[str, ...]] = (levels.INDEX, *PACE_LEVELS)
     produces: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
     exclusive: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
 
-    def __init__(self, name: str, *, rate_hz: float | None = None, **options: Any) -> None:
-        """``rate_hz``: post frames at this rate, as a camera would (default: all at once)."""
+    def __init__(self, name: str, *, rate_hz: float | None = None, pace: str | None = None, **options: Any) -> None:
+        """``rate_hz``: post frames at this rate, as a camera would; ``pace``: ``"position"`` or
+        ``"track"``, post each frame once that level's hypothesis of the frame before is posted
+        (default, neither: all at once)."""
         super().__init__(name, **options)
         if rate_hz is not None and not rate_hz > 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        if pace is not None and pace not in PACE_LEVELS:
+            raise ValueError(f"pace must be one of {', '.join(PACE_LEVELS)} or None, got {pace!r}")
+        if pace is not None and rate_hz is not None:
+            raise ValueError("give rate_hz or pace, not both")
         self.rate_hz = rate_hz
+        self.pace = pace
         self._ready: set[int] = set()
         self._started = False
+        self._frames: list[Any] = []  # paced: the frames, posted one by one
+        self._next = 0
 
     def precondition(self, event: Event) -> float | None:
-        return 1.0 if event.kind is EventKind.POSTED else None
+        if event.kind is not EventKind.POSTED:
+            return None
+        level = event.hypothesis.level
+        if level == levels.INDEX or (self.pace is not None and level == self.pace):
+            return 1.0
+        return None
 
     def input_error(self, err: Exception) -> str | None:
         return input_error_message(err)  # the scenario's files: the run stops with their error
@@ -45,6 +69,12 @@ class Camera(KnowledgeSource):
     def act(self, event: Event, board: Board) -> None:
         from models.world import World
 
+        if event.hypothesis.level != levels.INDEX:  # paced: an answer; the next frame once it is the last posted's
+            answered = int(event.hypothesis.body["frame"])
+            if self._next < len(self._frames) and answered == self._frames[self._next - 1].index:
+                self._post(self._frames[self._next], board)
+                self._next += 1
+            return
         index = levels.Index.from_hypothesis(event.hypothesis)
         self._ready.add(index.shard)
         if self._started or len(self._ready) < index.shards:
@@ -55,17 +85,29 @@ class Camera(KnowledgeSource):
             raise LookupError("the map is indexed but not on the blackboard")
         with World.from_scenario(levels.Map.from_hypothesis(got).path) as world:
             frames = world.sensor_frames
+        if self.pace is not None:
+            self._frames, self._next = list(frames), 1
+            if frames:
+                self._post(frames[0], board)
+            log.info(
+                "%s: posting %d camera frames, each after the %s of the one before", self.name, len(frames), self.pace
+            )
+            return
         start = time.perf_counter()
         for f in frames:
             if self.rate_hz is not None:
                 delay = start + f.index / self.rate_hz - time.perf_counter()
                 if delay > 0:
                     time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
-            posted = levels.post(
-                board,
-                levels.SensorFrame(frame=f.index, image=f.image, source=f.source, time=f.time),
-                links=(levels.map_id(),),
-            )
-            if f.truth is not None:
-                levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))
+            self._post(f, board)
         log.info("%s: posted %d camera frames", self.name, len(frames))
+
+    def _post(self, f: Any, board: Board) -> None:
+        """Post one camera frame (a :class:`models.sensor.SensorFrame`) and its truth."""
+        posted = levels.post(
+            board,
+            levels.SensorFrame(frame=f.index, image=f.image, source=f.source, time=f.time),
+            links=(levels.map_id(),),
+        )
+        if f.truth is not None:
+            levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))

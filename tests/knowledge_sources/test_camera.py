@@ -62,3 +62,33 @@ def test_camera_needs_the_map(small_rendered: dict) -> None:
 def test_rate_must_be_positive() -> None:
     with pytest.raises(ValueError, match="rate_hz"):
         Camera("camera", rate_hz=0)
+
+
+def test_pace_options_are_checked() -> None:
+    with pytest.raises(ValueError, match="pace"):
+        Camera("camera", pace="ranking")
+    with pytest.raises(ValueError, match="not both"):
+        Camera("camera", pace="track", rate_hz=2.0)
+
+
+@pytest.mark.parametrize("track", [True, False])
+def test_a_paced_camera_posts_each_frame_after_the_answer_to_the_one_before(small, track: bool) -> None:
+    """Paced: frame k + 1 is posted only after the track of frame k (tracking on), or its position
+    (tracking off); every frame is still localized."""
+    from knowledge_sources.mission import run_mission
+
+    order: list[tuple[str, int]] = []
+
+    def seen(level: str, body, stamp: float) -> None:
+        if level in (levels.SENSOR_FRAME, levels.POSITION, levels.TRACK):
+            order.append((level, int(body["frame"])))
+
+    results = run_mission(small, paced=True, track=track, on_hypothesis=seen)
+    n = len(SMALL["route"])
+    assert results["summary"]["posted"] == n and results["summary"]["localized"] == n
+    answer = levels.TRACK if track else levels.POSITION
+    where = {item: i for i, item in enumerate(order)}
+    for k in range(n - 1):
+        assert where[(answer, k)] < where[(levels.SENSOR_FRAME, k + 1)]
+    if track:  # so the track of the frame before was there for every frame's ranking
+        assert all(f["track_prior"] for f in results["frames"][1:])
