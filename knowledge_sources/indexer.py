@@ -12,7 +12,7 @@ from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 
 if TYPE_CHECKING:
-    from models.index import ViewframeIndex
+    from models.index import TrackWindows, ViewframeIndex
 
 __all__ = ["AssociativeIndexer"]
 
@@ -58,10 +58,8 @@ class AssociativeIndexer(KnowledgeSource):
         self._images: dict[int, np.ndarray] = {}
         self._index: ViewframeIndex | None = None
         self._waiting: list[Hypothesis] = []
-        self._windowed = False  # the route is long enough for the track window (set with the map)
-        self._margin = 0
-        self._full_every = 1
-        self._tracks: dict[int, tuple[str, np.ndarray]] = {}  # frame -> (state, prior_next)
+        self._windows: TrackWindows | None = None  # the track window rule (set with the map)
+        self._early: list[tuple[int, str, np.ndarray]] = []  # tracks that came before the map
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
 
@@ -93,12 +91,13 @@ class AssociativeIndexer(KnowledgeSource):
                 self._rank(h, board)
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
-            self._tracks[track.frame] = (track.state, track.prior_next)
-            for old in [f for f in self._tracks if f < track.frame - 8]:
-                del self._tracks[old]  # only the latest tracks can still be the previous frame's
+            if self._windows is None:
+                self._early.append((track.frame, track.state, track.prior_next))
+            else:
+                self._windows.add(track.frame, track.state, track.prior_next)
 
     def _build(self, mp: levels.Map, board: Board) -> None:
-        from models.index import ViewframeIndex
+        from models.index import TrackWindows, ViewframeIndex
 
         mine = [k for k in range(mp.viewframes) if k % self.shards == self.shard]
         for k in mine:
@@ -107,11 +106,10 @@ class AssociativeIndexer(KnowledgeSource):
         index = ViewframeIndex(mp.memory, seed=self.shard)
         index.add((self._images[k] for k in mine), mine)
         self._index = index
-        spec = index.settings
-        self._windowed = (
-            self.tracked and spec.window_route_points is not None and mp.viewframes >= spec.window_route_points
-        )
-        self._margin, self._full_every = spec.window_margin, spec.window_full_every
+        self._windows = TrackWindows(index.settings, viewframes=mp.viewframes, tracked=self.tracked)
+        for early in self._early:
+            self._windows.add(*early)
+        self._early.clear()
         self._images.clear()
         levels.post(
             board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)), links=(levels.map_id(),)
@@ -119,14 +117,9 @@ class AssociativeIndexer(KnowledgeSource):
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
 
     def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
-        from models.index import track_window
-
-        assert self._index is not None  # frames wait in _waiting until the index is built
+        assert self._index is not None and self._windows is not None  # frames wait until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
-        window = None
-        track = self._tracks.get(frame.frame - 1) if self._windowed and frame.frame > 0 else None
-        if track is not None and track[0] == "tracking" and frame.frame % self._full_every != 0:
-            window = track_window(track[1], margin=self._margin)
+        window = self._windows.window(frame.frame)
         among = None if window is None else np.arange(window[0], window[1] + 1)
         ranking = self._index.rank(frame.image, among=among)
         self.windows[frame.frame] = window

@@ -59,17 +59,25 @@ TRACKER = "tracker"
 
 
 def agent_plan(
-    scenario: Scenario, *, strategy: str | None = None, frame_rate: float | None = None, track: bool | None = None
+    scenario: Scenario,
+    *,
+    strategy: str | None = None,
+    frame_rate: float | None = None,
+    track: bool | None = None,
+    paced: bool = False,
 ) -> list[tuple[str, str, dict[str, Any]]]:
     """The agents of a mission: ``(factory, name, options)`` triples, options being plain data.
 
-    ``track``: include the tracker (default: the scenario's ``tracking.enabled``)."""
+    ``track``: include the tracker (default: the scenario's ``tracking.enabled``); ``paced``:
+    the camera posts each frame once the frame before is answered (its track when tracking,
+    else its position)."""
     sched = scenario.scheduler
     tracked = scenario.tracking.enabled if track is None else bool(track)
     shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
+    pace = (levels.TRACK if tracked else levels.POSITION) if paced else None
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
-        ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate}),
+        ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate, "pace": pace}),
     ]
     for s in range(shards):
         plan.append(
@@ -84,7 +92,11 @@ def agent_plan(
     sources = {"associative": scenario.memory.weight}
     if sky.enabled:
         plan.append(
-            ("knowledge_sources.skyline:SkylineRanker", "skyline", {"fov_y_deg": scenario.camera.fov_y_deg, **match})
+            (
+                "knowledge_sources.skyline:SkylineRanker",
+                "skyline",
+                {"fov_y_deg": scenario.camera.fov_y_deg, **match, "tracked": tracked},
+            )
         )
         sources["skyline"] = sky.weight
     named: dict[str, str] = {}
@@ -147,7 +159,7 @@ def agent_plan(
                     "levels": ref.levels,
                     "grid": ref.grid,
                     "edge_weight": ref.edge_weight,
-                    **match,
+                    **{k: v for k, v in match.items() if k != "roll_candidates"},  # one reference per match
                     "max_roll_deg": ref.max_roll_deg,
                 },
             )
@@ -205,6 +217,7 @@ def run_mission(
     secret: str | None = None,
     auth: bool | None = None,
     on_hypothesis: Callable[[str, Any, float], None] | None = None,
+    paced: bool = False,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -226,6 +239,10 @@ def run_mission(
         Called as positions are posted.
     frame_rate : float, optional
         The camera posts frames at this rate (Hz), as a real one would; default all at once.
+    paced : bool
+        The camera posts each frame once the frame before is answered (its track when tracking,
+        else its position): the system's capacity with the track of every frame's predecessor
+        there as the frame is ranked. Not with ``frame_rate``.
     kill_after : (agent, level, n), optional
         Fault injection for tests and demos: kill ``agent`` once ``n`` hypotheses are posted on
         ``level``.
@@ -269,6 +286,8 @@ def run_mission(
             renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
             timeout_s += 0.2 * n_frames * renders
     _check_numbers(n_frames, timeout_s=timeout_s, frame_rate=frame_rate, wait_remote_s=wait_remote_s)
+    if paced and frame_rate is not None:
+        raise UsageError("--rate", "a camera paced on answers has no fixed rate: give one of the two")
     done = 0
     posted: dict[str, int] = {}
 
@@ -287,7 +306,7 @@ def run_mission(
         if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
             runtime.kill(kill_after[0])
 
-    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate, track=track)
+    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate, track=track, paced=paced)
     remote = sorted(set(remote))
     unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
     if unknown:

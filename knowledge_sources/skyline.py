@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import logging
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
-from models.skyline import DEFAULT_MAX_ROLL_DEG
+from models.skyline import DEFAULT_MAX_ROLL_DEG, DEFAULT_ROLL_CANDIDATES
+
+if TYPE_CHECKING:
+    from models.index import TrackWindows
 
 __all__ = ["SkylineRanker", "SKYLINE_SOURCE"]
 
@@ -30,11 +33,16 @@ class SkylineRanker(KnowledgeSource):
     (:mod:`knowledge_sources.fusion`).
 
     Options (from the scenario's ``skyline`` block and camera): ``fov_y_deg``, ``step_deg``,
-    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``. Camera frames that arrive before the
+    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``roll_candidates``;
+    ``tracked`` (a tracker runs; default False). Camera frames that arrive before the
     map is complete wait; viewframes missed as events are read back from the blackboard.
+
+    The track's neighbourhood: when ``tracked``, the ranking of a frame holds the viewframes of
+    the associative indexers' track window (the same rule, :class:`models.index.TrackWindows`,
+    with the map's ``memory`` settings), so the two sources rank the same route points.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME)
+    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
 
     def __init__(
@@ -47,6 +55,8 @@ class SkylineRanker(KnowledgeSource):
         max_pitch_deg: float,
         truncate_deg: float,
         max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
+        roll_candidates: int | None = DEFAULT_ROLL_CANDIDATES,
+        tracked: bool = False,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -62,6 +72,14 @@ class SkylineRanker(KnowledgeSource):
             "truncate_deg": float(truncate_deg),
             "max_roll_deg": float(max_roll_deg),
         }
+        if roll_candidates is not None and int(roll_candidates) < 1:
+            raise ValueError(f"roll_candidates must be >= 1 or None, got {roll_candidates}")
+        self.roll_candidates = None if roll_candidates is None else int(roll_candidates)
+        self.tracked = bool(tracked)
+        self._windows: TrackWindows | None = None
+        self._early: list[tuple[int, str, np.ndarray]] = []  # tracks that came before the map
+        #: per ranking posted: the frame and the (first, last) route points ranked, None: all
+        self.windows: dict[int, tuple[int, int] | None] = {}
         self._profiles: dict[int, np.ndarray] = {}
         self._refs: np.ndarray | None = None
         self._labels: np.ndarray | None = None
@@ -69,6 +87,8 @@ class SkylineRanker(KnowledgeSource):
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
+            return None
+        if event.hypothesis.level == levels.TRACK and not self.tracked:
             return None
         return 2.0 if event.hypothesis.level != levels.SENSOR_FRAME else 1.0
 
@@ -88,8 +108,16 @@ class SkylineRanker(KnowledgeSource):
                 self._waiting.append(h)
             else:
                 self._rank(h, board)
+        elif h.level == levels.TRACK:
+            track = levels.Track.from_hypothesis(h)
+            if self._windows is None:
+                self._early.append((track.frame, track.state, track.prior_next))
+            else:
+                self._windows.add(track.frame, track.state, track.prior_next)
 
     def _build(self, mp: levels.Map, board: Board) -> None:
+        from models.index import TrackWindows, memory_settings
+
         for k in range(mp.viewframes):
             if k not in self._profiles:
                 self._profiles[k] = np.asarray(levels.Viewframe.read(board, k).skyline, dtype=np.float32)
@@ -100,13 +128,17 @@ class SkylineRanker(KnowledgeSource):
         self._labels = np.asarray(labels, dtype=np.int64)
         self._refs = np.stack([self._profiles[k] for k in labels])
         self._profiles.clear()
+        self._windows = TrackWindows(memory_settings(mp.memory), viewframes=mp.viewframes, tracked=self.tracked)
+        for early in self._early:
+            self._windows.add(*early)
+        self._early.clear()
         log.info("%s: %d viewframe skylines of %d bins", self.name, len(labels), self._refs.shape[1])
 
     def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
         from models.associative import reliability
         from models.skyline import match_skylines, skyline_from_image
 
-        assert self._refs is not None and self._labels is not None
+        assert self._refs is not None and self._labels is not None and self._windows is not None
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         query = skyline_from_image(frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"])
         if query.size != self._refs.shape[1]:
@@ -114,8 +146,14 @@ class SkylineRanker(KnowledgeSource):
                 f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "
                 f"viewframes {self._refs.shape[1]} (another field of view?)"
             )
-        m = match_skylines(query, self._refs, **self.match)
-        order = np.lexsort((self._labels, m.error))
+        window = self._windows.window(frame.frame)
+        refs, labels = self._refs, self._labels
+        if window is not None:
+            lo, hi = np.searchsorted(labels, window[0], side="left"), np.searchsorted(labels, window[1], side="right")
+            refs, labels = refs[lo:hi], labels[lo:hi]
+        self.windows[frame.frame] = window
+        m = match_skylines(query, refs, roll_candidates=self.roll_candidates, **self.match)
+        order = np.lexsort((labels, m.error))
         rel = reliability(m.error)
         levels.post(
             board,
@@ -124,7 +162,7 @@ class SkylineRanker(KnowledgeSource):
                 frame_time=hypothesis.timestamp,
                 shard=0,
                 shards=1,
-                viewframes=[int(k) for k in self._labels[order]],
+                viewframes=[int(k) for k in labels[order]],
                 variances=[float(e) for e in m.error[order]],
                 reliability=float(rel),
                 source=SKYLINE_SOURCE,

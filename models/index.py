@@ -32,7 +32,7 @@ from models.errors import AssociativeMemoryError
 from models.preprocess import preprocess
 from models.scenario import MemorySpec
 
-__all__ = ["WINDOW_TAIL", "track_window", "ViewframeIndex", "memory_settings"]
+__all__ = ["WINDOW_TAIL", "track_window", "TrackWindows", "ViewframeIndex", "memory_settings"]
 
 log = logging.getLogger(__name__)
 
@@ -64,9 +64,12 @@ WINDOW_TAIL = 1e-3
 def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) -> tuple[int, int] | None:
     """The route points ``(first, last)`` (inclusive) to rank for a frame given the tracker's
     predicted probability of each route point ``prior`` (N,): the interval holding all but
-    ``tail`` of the mass (``tail / 2`` left out at each end), widened by ``margin`` points on
-    each side and clipped to the route; None (rank everything) when that covers half the route
-    or more, or when ``prior`` has no mass.
+    ``tail`` of the mass above the prior's floor (its minimum, taken off every point: the
+    tracker's prediction spreads its kidnap probability evenly over the route, and that even
+    part, which the periodic full rankings are for, would otherwise widen the window to nearly
+    the whole route), ``tail / 2`` left out at each end, widened by ``margin`` points on each
+    side and clipped to the route; None (rank everything) when that covers half the route or
+    more, or when ``prior`` has no mass above its floor.
     """
     p = np.asarray(prior, dtype=np.float64).ravel()
     if margin < 0:
@@ -74,6 +77,8 @@ def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) ->
     if not 0 <= tail < 1:
         raise ValueError(f"tail must be in [0, 1), got {tail}")
     p = np.where(np.isfinite(p) & (p > 0), p, 0.0)
+    if p.size:
+        p = p - p.min()
     total = float(p.sum())
     if p.size == 0 or total <= 0:
         return None
@@ -84,6 +89,46 @@ def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) ->
     if 2 * (last - first + 1) >= p.size:
         return None
     return first, last
+
+
+class TrackWindows:
+    """The track window rule of :class:`~models.scenario.MemorySpec` for one ranking agent: keeps
+    the latest tracks as they are posted and says which route points to rank for each frame.
+
+    ``settings``: the memory settings (``window_route_points``, ``window_margin``,
+    ``window_full_every``); ``viewframes``: the route's points; ``tracked``: a tracker runs.
+    Without a tracker, or on a route shorter than ``window_route_points``, every frame ranks
+    everything. The associative indexers and the skyline ranker use the same rule, so for a
+    frame they rank the same route points.
+    """
+
+    #: tracks older than this many frames before the newest are dropped
+    KEEP = 8
+
+    def __init__(self, settings: MemorySpec, *, viewframes: int, tracked: bool) -> None:
+        self.enabled = bool(
+            tracked and settings.window_route_points is not None and viewframes >= settings.window_route_points
+        )
+        self.margin = settings.window_margin
+        self.full_every = settings.window_full_every
+        self._tracks: dict[int, tuple[str, NDArray[np.float32]]] = {}
+
+    def add(self, frame: int, state: str, prior_next: ArrayLike) -> None:
+        """The track of ``frame``: its ``state`` and its predicted probability of each route point
+        for the next frame."""
+        self._tracks[frame] = (state, np.asarray(prior_next, dtype=np.float32))
+        for old in [f for f in self._tracks if f < frame - self.KEEP]:
+            del self._tracks[old]  # only the latest tracks can still be the previous frame's
+
+    def window(self, frame: int) -> tuple[int, int] | None:
+        """The route points ``(first, last)`` to rank for ``frame``, or None: all of them (frame 0,
+        every ``full_every``-th frame, no track of the frame before yet, that track lost)."""
+        if not self.enabled or frame <= 0 or frame % self.full_every == 0:
+            return None
+        track = self._tracks.get(frame - 1)
+        if track is None or track[0] != "tracking":
+            return None
+        return track_window(track[1], margin=self.margin)
 
 
 class ViewframeIndex:

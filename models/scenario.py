@@ -455,7 +455,9 @@ class SkylineSpec(_Spec):
     ``{enabled: true, step_deg: 0.5, max_heading_deg: 12, max_pitch_deg: 4, truncate_deg: 2,
     max_roll_deg: 3, weight: 3.8}``. ``max_roll_deg`` bounds the tilt of the camera's profile
     against a viewframe's that the matching fits (the camera's roll;
-    :func:`models.skyline.match_skylines`), chosen on the evaluation set's tuning split.
+    :func:`models.skyline.match_skylines`), chosen on the evaluation set's tuning split;
+    ``roll_candidates`` (null: all) is how many viewframes, the best of a roll-free first pass,
+    the roll is fitted for (the roll fit is most of a match's cost; BENCHMARKS.md, "Scale").
     ``weight`` is the skyline's weight in the fusion of ranking sources, in nats per degree of
     matching error (:mod:`knowledge_sources.fusion`; the memory's is ``memory.weight``),
     calibrated with the memory's on the tuning split (``bench/fusion_sweep.py --fit``;
@@ -468,9 +470,10 @@ class SkylineSpec(_Spec):
     max_pitch_deg: float = Field(default=4.0, ge=0, le=30)
     truncate_deg: float = Field(default=2.0, gt=0, le=90)
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
+    roll_candidates: int | None = Field(default=64, ge=1, le=MAX_ROUTE_POINTS)
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
-    def match_options(self) -> dict[str, float]:
+    def match_options(self) -> dict[str, float | int | None]:
         """The keywords of :func:`models.skyline.match_skylines` (and of the skyline agent) these settings give."""
         return {
             "step_deg": self.step_deg,
@@ -478,6 +481,7 @@ class SkylineSpec(_Spec):
             "max_pitch_deg": self.max_pitch_deg,
             "truncate_deg": self.truncate_deg,
             "max_roll_deg": self.max_roll_deg,
+            "roll_candidates": self.roll_candidates,
         }
 
 

@@ -83,6 +83,7 @@ DEFAULT_MAX_HEADING_DEG = _DEFAULTS.max_heading_deg
 DEFAULT_MAX_PITCH_DEG = _DEFAULTS.max_pitch_deg
 DEFAULT_TRUNCATE_DEG = _DEFAULTS.truncate_deg
 DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
+DEFAULT_ROLL_CANDIDATES = _DEFAULTS.roll_candidates
 #: images are reduced to at most this many rows before the boundary search
 WORK_ROWS = 128
 
@@ -373,6 +374,7 @@ def match_skylines(
     max_pitch_deg: float = DEFAULT_MAX_PITCH_DEG,
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
     max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
+    roll_candidates: int | None = DEFAULT_ROLL_CANDIDATES,
     min_overlap: float = _MIN_OVERLAP,
 ) -> SkylineMatch:
     """Match the camera profile ``query`` (n,) with ``references`` (V, n) over heading shifts.
@@ -380,6 +382,12 @@ def match_skylines(
     Both must be on the same grid (``step_deg``, same n). See the module docstring for the
     model and the robust error. A reference without enough overlap at any shift scores
     ``truncate_deg`` with zero offsets.
+
+    Two stages when the roll is fitted (``max_roll_deg`` > 0) and ``roll_candidates`` is less
+    than V: every reference is matched without roll (the roll fit is most of a match's cost),
+    then the ``roll_candidates`` best of that pass (ties: the first reference) are matched again
+    with the roll; their results are those of a one-stage match, the others' the roll-free ones.
+    None: the roll is fitted for every reference.
     """
     q = np.asarray(query, dtype=np.float64).ravel()
     r = np.asarray(references, dtype=np.float64)
@@ -389,6 +397,24 @@ def match_skylines(
         raise ValueError(f"references must have shape (V, {q.size}) like the query, not {r.shape}")
     if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0 or not 0 <= max_roll_deg < 45:
         raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0, max_roll_deg in [0, 45)")
+    if roll_candidates is not None and roll_candidates < 1:
+        raise ValueError(f"roll_candidates must be >= 1 or None, got {roll_candidates}")
+    if max_roll_deg > 0 and roll_candidates is not None and roll_candidates < len(r):
+        kw = {
+            "step_deg": step_deg,
+            "max_heading_deg": max_heading_deg,
+            "max_pitch_deg": max_pitch_deg,
+            "truncate_deg": truncate_deg,
+            "min_overlap": min_overlap,
+        }
+        flat = match_skylines(q, r, max_roll_deg=0.0, roll_candidates=None, **kw)
+        best = np.argsort(flat.error, kind="stable")[:roll_candidates]
+        rolled = match_skylines(q, r[best], max_roll_deg=max_roll_deg, roll_candidates=None, **kw)
+        fields = ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg")
+        out = {f: np.array(getattr(flat, f), dtype=np.float64) for f in fields}
+        for f in fields:
+            out[f][best] = getattr(rolled, f)
+        return SkylineMatch(**out)
     v, n = r.shape
     smax = min(int(round(max_heading_deg / step_deg)), n - 1)
     shifts = np.arange(-smax, smax + 1)

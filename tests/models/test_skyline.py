@@ -198,3 +198,41 @@ def test_the_fitted_tilt_is_bounded_and_robust_to_an_occluder():
 def test_matching_rejects_mismatched_grids():
     with pytest.raises(ValueError, match="references must have shape"):
         match_skylines(np.zeros(81), np.zeros((3, 75)))
+
+
+def _route_of_profiles(count: int, n: int, seed: int) -> np.ndarray:
+    """``count`` reference profiles of ``n`` bins along a route: windows of one long random-walk
+    panorama, each a few bins on from the one before and slowly changing, as route views are."""
+    rng = np.random.default_rng(seed)
+    pano = np.cumsum(rng.normal(0, 0.4, 3 * count + n))
+    drift = np.cumsum(rng.normal(0, 0.05, (count, n)), axis=0)
+    return np.stack([pano[3 * i : 3 * i + n] + drift[i] for i in range(count)])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_two_stage_match_keeps_the_full_matchs_best(seed):
+    """Roll fitted only for the best ``roll_candidates`` of a roll-free pass: on a seeded route of
+    400 references, the best 5 are the one-stage match's, in its order (further down the order
+    may differ: a reference outside the roll-free best 64 keeps its roll-free error), the
+    candidates have its errors and shifts, the other references their roll-free results."""
+    rng = np.random.default_rng(100 + seed)
+    n = 81
+    refs = _route_of_profiles(400, n, seed)
+    az = profile_azimuths(n)
+    j = int(rng.integers(20, 380))
+    q = np.roll(refs[j], 3) - 0.4 - math.tan(math.radians(1.5)) * az + rng.normal(0, 0.1, n)
+    q[:3] = np.nan
+    full = match_skylines(q, refs, roll_candidates=None)
+    two = match_skylines(q, refs, roll_candidates=64)
+    flat = match_skylines(q, refs, max_roll_deg=0.0)
+    best_full = np.argsort(full.error, kind="stable")[:5]
+    assert np.array_equal(np.argsort(two.error, kind="stable")[:5], best_full)
+    assert best_full[0] == j
+    cand = np.argsort(flat.error, kind="stable")[:64]
+    rest = np.setdiff1d(np.arange(len(refs)), cand)
+    for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
+        assert np.array_equal(getattr(two, f)[cand], getattr(full, f)[cand])
+        assert np.array_equal(getattr(two, f)[rest], getattr(flat, f)[rest])
+    assert two.roll_deg[j] == pytest.approx(1.5, abs=0.3)
+    with pytest.raises(ValueError, match="roll_candidates"):
+        match_skylines(q, refs, roll_candidates=0)
