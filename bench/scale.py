@@ -187,18 +187,38 @@ import cProfile, json, resource, sys, time
 import numpy as np
 from knowledge_sources.mission import run_mission
 opts = json.loads(sys.argv[3])
-prof = cProfile.Profile() if opts.get("profile") else None
+profiles = {}  # agent -> cProfile of its activations on the localization levels (not the map's)
+busy = {}  # agent -> [seconds of those activations (profiled: with cProfile's overhead), count]
+from blackboard.agent import AgentRunner
+plain = AgentRunner._run_one
+def timed(self):
+    level = self._agenda[0][2].hypothesis.level if self._agenda else None
+    if level in ("viewframe", "map", "scenario", "index", None):
+        return plain(self)
+    prof = profiles.setdefault(self.name, cProfile.Profile()) if opts.get("profile") else None
+    t = time.perf_counter()
+    if prof is not None:
+        prof.enable()
+    try:
+        return plain(self)
+    finally:
+        if prof is not None:
+            prof.disable()
+        b = busy.setdefault(self.name, [0.0, 0])
+        b[0] += time.perf_counter() - t
+        b[1] += 1
+AgentRunner._run_one = timed
 t0 = time.perf_counter()
-if prof is not None:
-    prof.enable()
 ranked = {}  # source -> [viewframes ranked per ranking]
 def seen(level, body, stamp):
     if level == "ranking":
         ranked.setdefault(body.get("source", "associative"), []).append(len(body["viewframes"]))
 res = run_mission(sys.argv[1], trace_path=sys.argv[2], paced=opts["paced"], on_hypothesis=seen)
-if prof is not None:
-    prof.disable()
-    prof.dump_stats(opts["profile"])
+if profiles:
+    import os
+    os.makedirs(opts["profile"], exist_ok=True)
+    for name, prof in profiles.items():
+        prof.dump_stats(os.path.join(opts["profile"], name + ".prof"))
 wall = time.perf_counter() - t0
 s = res["summary"]
 lat = [f["latency_ms"] for f in res["frames"] if f["latency_ms"] is not None]
@@ -211,7 +231,8 @@ print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_max
                   "latency_ms_p95": float(np.percentile(lat, 95)) if lat else None,
                   "degraded": res["degraded"][:5],
                   "ranked_mean": {k: float(np.mean(v)) for k, v in ranked.items()},
-                  "ranked_windowed": {k: int(sum(x < max(v) for x in v)) for k, v in ranked.items()}}))
+                  "ranked_windowed": {k: int(sum(x < max(v) for x in v)) for k, v in ranked.items()},
+                  "agent_busy_s": {k: {"s": v[0], "activations": v[1]} for k, v in sorted(busy.items())}}))
 """
 
 
@@ -238,8 +259,8 @@ def drive_scenario(path: Path, *, frames: int, overrides: dict[str, object] | No
 def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile: Path | None = None) -> dict:
     """One whole mission in a child process (every agent in it); ``paced``: the camera posts
     each frame once the previous frame's track (tracking on) is posted, else all at once (burst);
-    ``profile``: a cProfile of the child's run (all threads' work only where cProfile sees it: the
-    calling thread; see :func:`profile_frames`)."""
+    ``profile``: a folder for one cProfile per agent of its activations on the localization levels
+    (camera frames onwards; each agent's own thread), and each agent's busy seconds in them."""
     env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl"}
     opts = {"paced": paced, "profile": None if profile is None else str(profile)}
     done = subprocess.run(
@@ -304,6 +325,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--no-components", action="store_true", help="skip the in-process memory breakdown")
     parser.add_argument(
+        "--profile",
+        type=Path,
+        default=None,
+        help="drive: a cProfile per agent of the first drive mission, in this folder",
+    )
+    parser.add_argument(
         "--cache-dir",
         type=Path,
         default=None,
@@ -362,9 +389,12 @@ def main(argv: list[str] | None = None) -> int:
                 runs = {"drive": {}}
                 for variant in args.variant:
                     runs["drive " + " ".join(f"{k}={v}" for k, v in variant)] = dict(variant)
-                for label, overrides in runs.items():
+                for i, (label, overrides) in enumerate(runs.items()):
                     drive = drive_scenario(path, frames=args.frames, overrides=overrides)
-                    r[f"mission {label}"] = mission(drive, drive_cache, tmp / f"drive{n}.trace", paced=True)
+                    prof = args.profile / str(n) if args.profile is not None and i == 0 else None
+                    r[f"mission {label}"] = mission(
+                        drive, drive_cache, tmp / f"drive{n}.trace", paced=True, profile=prof
+                    )
             results["routes"][str(n)] = r
     results["machine"]["load_avg_end"] = os.getloadavg()
     results["machine"]["peak_rss_bench_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

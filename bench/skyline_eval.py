@@ -49,10 +49,15 @@ def _wrap(d: float) -> float:
     return abs((d + 180.0) % 360.0 - 180.0)
 
 
-def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int | None) -> dict:
+def evaluate_case(
+    case, *, weights: list[float], refine: bool, max_frames: int | None, roll_candidates: list[str] = ()
+) -> dict:
+    """``roll_candidates``: also rank with each of these skyline ``roll_candidates`` ("none": all),
+    as sources ``skyline rc=K`` and ``fused@w rc=K`` (w the first weight), in the same run."""
     scenario = load_scenario(case.scenario_path)
     cam_spec, sky = scenario.camera, scenario.skyline
     match = sky.match_options()
+    variants = {rc: {**match, "roll_candidates": None if rc == "none" else int(rc)} for rc in roll_candidates}
     out: dict = {"case": case.name, "frames": 0, "ranks": {}, "cost_ms": {}}
     with World(scenario) as world:
         emulator = world.emulator
@@ -62,6 +67,8 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
         refs = np.stack([v.skyline for v in vfs])
         labels = [v.index for v in vfs]
         ranks: dict[str, list[int]] = {"associative": [], "skyline": [], **{f"fused@{w:g}": [] for w in weights}}
+        for rc in variants:
+            ranks[f"skyline rc={rc}"], ranks[f"fused@{weights[0]:g} rc={rc}"] = [], []
         t_assoc = t_sky = t_ref = 0.0
         pos_err, pos_err_route, head_err, head_err_route, renders, scores = [], [], [], [], [], []
         frames = case.frames[:max_frames] if max_frames else case.frames
@@ -82,6 +89,12 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
             }
             ranks["associative"].append(_rank_of(truth, fuse_rankings({"associative": per["associative"]})))
             ranks["skyline"].append(_rank_of(truth, fuse_rankings({"skyline": per["skyline"]})))
+            for rc, opts in variants.items():
+                e = match_skylines(q, refs, **opts).error.tolist()
+                ranks[f"skyline rc={rc}"].append(_rank_of(truth, fuse_rankings({"skyline": (labels, e)})))
+                both = {"associative": per["associative"], "skyline": (labels, e)}
+                fused = fuse_rankings(both, weights={"associative": scenario.memory.weight, "skyline": weights[0]})
+                ranks[f"fused@{weights[0]:g} rc={rc}"].append(_rank_of(truth, fused))
             fused_first = None
             for w in weights:
                 fused = fuse_rankings(per, weights={"associative": scenario.memory.weight, "skyline": w})
@@ -100,7 +113,8 @@ def evaluate_case(case, *, weights: list[float], refine: bool, max_frames: int |
                     levels=scenario.refine.levels,
                     grid=scenario.refine.grid,
                     edge_weight=scenario.refine.edge_weight,
-                    **{**match, "max_roll_deg": scenario.refine.max_roll_deg},
+                    **{k: v for k, v in match.items() if k != "roll_candidates"},  # one reference per match
+                    max_roll_deg=scenario.refine.max_roll_deg,
                 )
                 t_ref += time.perf_counter() - t3
                 pos_err.append(math.hypot(r.x - fr.x, r.y - fr.y))
@@ -175,10 +189,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-refine", action="store_true")
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--names", nargs="*", default=None, help="terrain names (default all of the split)")
+    ap.add_argument(
+        "--roll-candidates",
+        nargs="*",
+        default=[],
+        help="also rank with these skyline roll_candidates (integers, or none: all), in the same run",
+    )
     args = ap.parse_args(argv)
     results = []
     for case in cases(args.split, kinds=["sweep"], names=args.names):
-        results.append(evaluate_case(case, weights=args.weights, refine=not args.no_refine, max_frames=args.max_frames))
+        results.append(
+            evaluate_case(
+                case,
+                weights=args.weights,
+                refine=not args.no_refine,
+                max_frames=args.max_frames,
+                roll_candidates=args.roll_candidates,
+            )
+        )
         print(f"# {case.name}: " + json.dumps(summarize(results[-1:])["cases"][case.name]), file=sys.stderr, flush=True)
     summary = summarize(results)
     print(json.dumps({"split": args.split, "summary": summary}, indent=1))

@@ -183,7 +183,7 @@ class SceneAnalysis:
         ``soft``: answers' log-likelihood ratios are clipped to ``[-max_llr, max_llr]``.
     beta : float
         Sharpness of the ranking weights (:func:`ranking_weights`).
-    track_prior : mapping viewframe -> probability, optional
+    track_prior : mapping viewframe -> probability, or array (N,) of each route point's, optional
         The tracker's prior over route points for this frame (see "Candidates and their weights").
 
     Every default is the scenario schema's (:class:`models.scenario.SchedulerSpec`).
@@ -200,7 +200,7 @@ class SceneAnalysis:
     reliability: float = _DEFAULTS.reliability
     priors: Mapping[str, float] | None = None
     beta: float = _DEFAULTS.beta
-    track_prior: Mapping[int, float] | None = None
+    track_prior: Mapping[int, float] | np.ndarray | None = None
     backtracking: Backtracking = _DEFAULTS.backtracking
     questions: QuestionOrder = _DEFAULTS.questions
     floor: float = _DEFAULTS.floor
@@ -244,11 +244,19 @@ class SceneAnalysis:
                 if self.strategy == "associative"
                 else np.ones(len(ranked))
             )
-            prod = {k: float(w[i]) * float(tp.get(k, 0.0)) for i, k in enumerate(ranked)}
-            keep = sorted(prod, key=lambda k: (-prod[k], self._rank[k]))
+            at = np.asarray(ranked, dtype=np.int64)
+            if isinstance(tp, np.ndarray):  # per route point: looked up in numpy, not per viewframe in Python
+                flat = np.asarray(tp, dtype=np.float64).ravel()
+                tpv = np.zeros(len(at))
+                inside = (at >= 0) & (at < flat.size)
+                tpv[inside] = flat[at[inside]]
+            else:
+                tpv = np.array([float(tp.get(k, 0.0)) for k in ranked], dtype=np.float64)
+            prod = np.asarray(w, dtype=np.float64) * tpv
+            keep = np.lexsort((np.arange(len(ranked)), -prod))  # by weight, ties in ranking order
             if self.strategy == "associative":
                 keep = keep[: self.candidates]
-            self._weights = {k: prod[k] for k in keep if prod[k] > 0}
+            self._weights = {ranked[i]: float(prod[i]) for i in keep.tolist() if prod[i] > 0}
             if not self._weights:  # a prior that excludes every ranked viewframe: ignore it
                 self._weights = {k: float(w[i]) for i, k in enumerate(ranked[: self.candidates])}
         elif self.strategy == "associative":

@@ -32,6 +32,8 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+import numpy as np
+
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
@@ -258,7 +260,7 @@ class Scheduler(KnowledgeSource):
             reliability=self.reliability,
             beta=self.beta,
             priors=mp.priors,
-            track_prior=None if prior is None else {k: float(p) for k, p in enumerate(prior)},
+            track_prior=None if prior is None else np.asarray(prior, dtype=np.float64),
             backtracking=self.backtracking,
             questions=self.questions,
             floor=self.floor,

@@ -64,12 +64,15 @@ WINDOW_TAIL = 1e-3
 def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) -> tuple[int, int] | None:
     """The route points ``(first, last)`` (inclusive) to rank for a frame given the tracker's
     predicted probability of each route point ``prior`` (N,): the interval holding all but
-    ``tail`` of the mass above the prior's floor (its minimum, taken off every point: the
-    tracker's prediction spreads its kidnap probability evenly over the route, and that even
-    part, which the periodic full rankings are for, would otherwise widen the window to nearly
-    the whole route), ``tail / 2`` left out at each end, widened by ``margin`` points on each
-    side and clipped to the route; None (rank everything) when that covers half the route or
-    more, or when ``prior`` has no mass above its floor.
+    ``tail`` of the mass above the prior's floor (its median, taken off every point: the
+    tracker's prediction spreads its kidnap probability evenly over the route's length, so
+    most points carry that floor and nothing else, and that even part, which the periodic full
+    rankings are for, would otherwise widen the window to nearly the whole route), ``tail / 2``
+    left out at each end, widened by ``margin`` points on each side and clipped to the route;
+    None (rank everything) when that covers half the route or more, or when ``prior`` has no
+    mass above its floor. On a route of unequal legs the floor is uneven (proportional to the
+    route length nearest each point), and what the median leaves of it can still widen the
+    window to the whole route.
     """
     p = np.asarray(prior, dtype=np.float64).ravel()
     if margin < 0:
@@ -78,7 +81,7 @@ def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) ->
         raise ValueError(f"tail must be in [0, 1), got {tail}")
     p = np.where(np.isfinite(p) & (p > 0), p, 0.0)
     if p.size:
-        p = p - p.min()
+        p = np.maximum(p - float(np.median(p)), 0.0)
     total = float(p.sum())
     if p.size == 0 or total <= 0:
         return None

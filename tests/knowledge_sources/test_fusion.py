@@ -144,3 +144,42 @@ def test_fuse_shards_merges_each_source_then_fuses():
     assert np.exp(log_p).sum() == pytest.approx(1.0)
     fused = fuse_shards(shards, weights=weights)
     np.testing.assert_allclose(-log_p[np.array([k for k, _ in fused])] + log_p.max(), [f for _, f in fused], atol=1e-9)
+
+
+def _fused_by_hand(rankings, weights):
+    """The fusion written out per viewframe (a dict over the union of the ranked viewframes)."""
+    from knowledge_sources.fusion import ABSOLUTE_SOURCES, evidence
+
+    universe = sorted({int(k) for labels, _ in rankings.values() for k in labels})
+    total = dict.fromkeys(universe, 0.0)
+    for s, (labels, errors) in rankings.items():
+        u = evidence(errors, absolute=s in ABSOLUTE_SOURCES)
+        mine = dict(zip((int(k) for k in labels), u.tolist()))
+        for k in universe:
+            total[k] += weights[s] * mine.get(k, float(u.max()))
+    low = min(total.values())
+    return {k: v - low for k, v in total.items()}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fusion_of_a_window_and_a_full_ranking_is_the_per_viewframe_rule(seed):
+    """Sources that ranked different viewframes (a track window beside a full ranking, shards in
+    any order): the fused scores are those of the rule written out per viewframe."""
+    from knowledge_sources.fusion import fuse_rankings, fused_log_posterior
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    full = rng.permutation(n)
+    window = rng.permutation(np.arange(120, 170))
+    rankings = {
+        "associative": (window.tolist(), rng.gamma(2.0, 1.0, window.size).tolist()),
+        "skyline": (full.tolist(), rng.uniform(0.2, 2.0, n).tolist()),
+    }
+    weights = {"associative": 0.64, "skyline": 3.8}
+    want = _fused_by_hand(rankings, weights)
+    got = fuse_rankings(rankings, weights=weights)
+    assert [k for k, _ in got] == sorted(want, key=lambda k: (want[k], k))
+    assert np.allclose([v for _, v in got], [want[k] for k, _ in got], rtol=0, atol=1e-12)
+    labels, log_p = fused_log_posterior(rankings, weights=weights)
+    assert labels.tolist() == sorted(want)
+    assert np.argmax(log_p) == labels.tolist().index(got[0][0])

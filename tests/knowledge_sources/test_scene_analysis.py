@@ -320,3 +320,28 @@ def test_information_gain_picks_the_discriminating_landmark():
     by_ig = SceneAnalysis(ranking, visible, questions="information").next_question()
     assert by_p.landmark == "S"
     assert by_ig.landmark == "D"
+
+
+@pytest.mark.parametrize("strategy", ["associative", "prior"])
+def test_a_track_prior_per_route_point_is_the_same_prior_as_a_mapping(strategy):
+    """The scheduler passes the track's prediction as an array over route points: the candidates,
+    their weights and the first question are those of the same prior as a mapping."""
+    import numpy as np
+
+    rng = np.random.default_rng(5)
+    n = 400
+    ranking = sorted(
+        ((int(k), float(v)) for k, v in zip(rng.permutation(n), rng.gamma(2.0, 1.0, n))), key=lambda t: t[1]
+    )
+    prior = rng.dirichlet(np.full(n, 0.3)).astype(np.float32)
+    prior[:50] = 0.0
+    visible = {k: frozenset({f"L{k % 7}"}) for k in range(n)}
+    a = SceneAnalysis(ranking, visible, strategy=strategy, track_prior={k: float(p) for k, p in enumerate(prior)})
+    b = SceneAnalysis(ranking, visible, strategy=strategy, track_prior=np.asarray(prior, dtype=np.float64)[: n - 10])
+    c = SceneAnalysis(
+        ranking, visible, strategy=strategy, track_prior={k: float(p) for k, p in enumerate(prior[: n - 10])}
+    )
+    assert b._weights == c._weights and list(b._weights) == list(c._weights)  # a prior shorter than the route
+    b = SceneAnalysis(ranking, visible, strategy=strategy, track_prior=np.asarray(prior, dtype=np.float64))
+    assert b._weights == a._weights and list(b._weights) == list(a._weights)
+    assert b.next_question() == a.next_question()
