@@ -188,7 +188,7 @@ import numpy as np
 from knowledge_sources.mission import run_mission
 opts = json.loads(sys.argv[3])
 profiles = {}  # agent -> cProfile of its activations on the localization levels (not the map's)
-busy = {}  # agent -> [seconds of those activations (profiled: with cProfile's overhead), count]
+busy = {}  # agent -> [wall seconds of those activations (profiled: with cProfile's overhead), count, CPU seconds]
 from blackboard.agent import AgentRunner
 plain = AgentRunner._run_one
 def timed(self):
@@ -196,7 +196,7 @@ def timed(self):
     if level in ("viewframe", "map", "scenario", "index", None):
         return plain(self)
     prof = profiles.setdefault(self.name, cProfile.Profile()) if opts.get("profile") else None
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.thread_time()
     if prof is not None:
         prof.enable()
     try:
@@ -204,9 +204,10 @@ def timed(self):
     finally:
         if prof is not None:
             prof.disable()
-        b = busy.setdefault(self.name, [0.0, 0])
+        b = busy.setdefault(self.name, [0.0, 0, 0.0])
         b[0] += time.perf_counter() - t
         b[1] += 1
+        b[2] += time.thread_time() - c
 AgentRunner._run_one = timed
 t0 = time.perf_counter()
 ranked = {}  # source -> [viewframes ranked per ranking]
@@ -232,7 +233,7 @@ print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_max
                   "degraded": res["degraded"][:5],
                   "ranked_mean": {k: float(np.mean(v)) for k, v in ranked.items()},
                   "ranked_windowed": {k: int(sum(x < max(v) for x in v)) for k, v in ranked.items()},
-                  "agent_busy_s": {k: {"s": v[0], "activations": v[1]} for k, v in sorted(busy.items())}}))
+                  "agent_busy_s": {k: {"s": v[0], "activations": v[1], "cpu_s": v[2]} for k, v in sorted(busy.items())}}))
 """
 
 
@@ -308,6 +309,16 @@ def _print_drives(n: str, r: dict) -> None:
             f"{m['load_avg'][0]:.1f}",
         )
         print(f"  {label[len('mission ') :]:<44}" + "".join(f"{c!s:>11}" for c in cells))
+    agents = sorted({a for m in drives.values() for a in m.get("agent_busy_s", {})})
+    print("  CPU ms per frame of each agent's activations on the localization levels (run order as above):")
+    for a in agents:
+        per = [m["agent_busy_s"].get(a) for m in drives.values()]
+        cells = [f"{x['cpu_s'] / mm['frames'] * 1000:.1f}" if x else "-" for x, mm in zip(per, drives.values())]
+        print(f"    {a:<20}" + "".join(f"{c:>11}" for c in cells))
+    for label, m in drives.items():
+        print(
+            f"  {label[len('mission ') :]}: viewframes ranked per ranking (mean) {m.get('ranked_mean')}, rankings windowed {m.get('ranked_windowed')}"
+        )
 
 
 def main(argv: list[str] | None = None) -> int:

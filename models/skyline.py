@@ -341,10 +341,24 @@ def skyline_from_image(image: NDArray, *, fov_y_deg: float, step_deg: float = DE
 
 
 def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np.float64]:
-    """Median of the finite entries of each row (``cnt`` of them, >= 1): NaNs sort last."""
-    srt = np.sort(d, axis=1)
-    rows = np.arange(len(d))
-    return 0.5 * (srt[rows, (cnt - 1) // 2] + srt[rows, cnt // 2])
+    """Median of the finite entries of each row (``cnt`` of them, >= 1): NaNs sort last.
+
+    Rows without a NaN (most, where both profiles are valid throughout the overlap) take their
+    two middle values from a partition, O(m) instead of a sort's O(m log m); the same values."""
+    m = d.shape[1]
+    full = cnt == m
+    out = np.empty(len(d))
+    if full.any():
+        lo, hi = (m - 1) // 2, m // 2
+        part = np.partition(d[full], (lo, hi) if lo != hi else lo, axis=1)
+        out[full] = 0.5 * (part[:, lo] + part[:, hi])
+    rest = ~full
+    if rest.any():
+        srt = np.sort(d[rest], axis=1)
+        c = cnt[rest]
+        rows = np.arange(len(srt))
+        out[rest] = 0.5 * (srt[rows, (c - 1) // 2] + srt[rows, c // 2])
+    return out
 
 
 @dataclass(frozen=True)
