@@ -12,9 +12,20 @@ Per route length it measures, in this process:
   (bytes allocated, traced with ``tracemalloc``);
 * the viewframe cache: the entry's bytes on disk and the time to read it back;
 
-and, in child processes (one process per run, every agent in it), the whole mission with a trace:
-peak RSS (``ru_maxrss``), map and setup time, frames/s and the trace file's size, once with the
-cache off (cold) and once with a filled cache (warm).
+and, in child processes (one process per run, every agent in it), the whole mission with a trace.
+By default (``--mission drive``) the camera frames are a *drive* (:func:`drive_scenario`):
+``--frames`` consecutive frames along the start of the route, each posted once the previous
+frame's track is out (the camera paced on answers, :class:`knowledge_sources.camera.Camera`), so
+that the tracker and the track window apply as with a real camera; the cache (``--cache-dir``)
+is filled by the first run, and frames/s and latency count from the first frame, i.e. from when
+the map is up. Per run: frames/s, latency p50/p95, top-1 of the track and of the single-frame
+decisions, each agent's CPU seconds per frame in its activations on the localization levels,
+how many rankings were windowed; ``--variant block.field=value`` adds runs with other scenario
+settings (a change turned off, for a ratio in one run); ``--profile DIR`` writes a cProfile per
+agent. With ``--mission burst`` (the first version of this benchmark), frames at every
+(route / frames)-th route point are posted at once, cold and warm: peak RSS (``ru_maxrss``), map
+and setup time, frames/s and the trace file's size, once with the cache off (cold) and once with
+a filled cache (warm).
 
 Prints JSON, then a table.
 
@@ -22,6 +33,7 @@ Or, with ``--banks-only``, the memory banks alone (random patterns, N=128, bank_
 in complex128 and complex64), in fresh child processes.
 
     python bench/scale.py [--sizes 1000 2000] [--frames 20] [--no-mission] [--banks-only] [--json-only]
+        [--mission drive|burst] [--no-components] [--cache-dir DIR] [--variant a.b=v ...] [--profile DIR]
 """
 
 from __future__ import annotations

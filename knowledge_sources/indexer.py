@@ -20,7 +20,8 @@ log = logging.getLogger(__name__)
 
 
 class AssociativeIndexer(KnowledgeSource):
-    """Stores the viewframes of its shard (``index % shards == shard``) in a
+    """Stores the viewframes of its shard (``index // block == shard``, consecutive route points,
+    or without ``block`` ``index % shards == shard``) in a
     :class:`~models.index.ViewframeIndex` (a banked holographic memory, ``memory.bank_size``
     viewframes per bank, with the scenario's preprocessing)
     and posts ``index`` once its shard is stored, then, for each camera frame, the ranking of
@@ -28,7 +29,11 @@ class AssociativeIndexer(KnowledgeSource):
     scheduler merges the rankings of all shards (variances are comparable across banks and shards).
 
     Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1),
-    ``tracked`` (a tracker runs; default False). Memory parameters (size, edge method, blur, bank
+    ``block`` (route points per shard, consecutive; a mission gives ``memory.shard_size``;
+    default None: every ``shards``-th point), ``tracked`` (a tracker runs; default False).
+    Consecutive blocks keep a track window on one or two shards: the others post an empty
+    ranking without preprocessing the frame, so a windowed frame's cost does not grow with the
+    number of shards. Memory parameters (size, edge method, blur, bank
     size, shift search, the track window) come from the scenario through the ``map`` hypothesis.
     Camera frames that arrive before the shard is stored wait; viewframes missed as events are
     read back from the blackboard, so an indexer that joins late or restarts still indexes
@@ -48,12 +53,24 @@ class AssociativeIndexer(KnowledgeSource):
     consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
 
-    def __init__(self, name: str, *, shard: int = 0, shards: int = 1, tracked: bool = False, **options: Any) -> None:
+    def __init__(
+        self,
+        name: str,
+        *,
+        shard: int = 0,
+        shards: int = 1,
+        block: int | None = None,
+        tracked: bool = False,
+        **options: Any,
+    ) -> None:
         super().__init__(name, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
+        if block is not None and int(block) < 1:
+            raise ValueError(f"block must be >= 1 or None, got {block}")
         self.shard = shard
         self.shards = shards
+        self.block = None if block is None else int(block)
         self.tracked = bool(tracked)
         self._images: dict[int, np.ndarray] = {}
         self._index: ViewframeIndex | None = None
@@ -67,7 +84,7 @@ class AssociativeIndexer(KnowledgeSource):
         if event.kind is not EventKind.POSTED:
             return None
         h = event.hypothesis
-        if h.level == levels.VIEWFRAME and levels.Viewframe.from_hypothesis(h).index % self.shards != self.shard:
+        if h.level == levels.VIEWFRAME and not self._mine(levels.Viewframe.from_hypothesis(h).index):
             return None
         if h.level == levels.TRACK and not self.tracked:
             return None
@@ -96,10 +113,16 @@ class AssociativeIndexer(KnowledgeSource):
             else:
                 self._windows.add(track.frame, track.state, track.prior_next)
 
+    def _mine(self, k: int) -> bool:
+        """Viewframe ``k`` is of this shard."""
+        if self.block is not None:
+            return min(k // self.block, self.shards - 1) == self.shard
+        return k % self.shards == self.shard
+
     def _build(self, mp: levels.Map, board: Board) -> None:
         from models.index import TrackWindows, ViewframeIndex
 
-        mine = [k for k in range(mp.viewframes) if k % self.shards == self.shard]
+        mine = [k for k in range(mp.viewframes) if self._mine(k)]
         for k in mine:
             if k not in self._images:
                 self._images[k] = levels.Viewframe.read(board, k).image

@@ -84,7 +84,7 @@ def agent_plan(
             (
                 "knowledge_sources.indexer:AssociativeIndexer",
                 f"indexer-{s}",
-                {"shard": s, "shards": shards, "tracked": tracked},
+                {"shard": s, "shards": shards, "block": scenario.memory.shard_size, "tracked": tracked},
             )
         )
     sky = scenario.skyline

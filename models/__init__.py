@@ -37,8 +37,9 @@ bank
     One holographic memory (:class:`models.associative.HolographicMemory`) holding at most
     ``memory.bank_size`` viewframes; a :class:`~models.associative.BankedMemory` holds several.
 shard
-    The viewframes one associative indexer agent holds: those with
-    ``viewframe index % shards == shard``, about ``memory.shard_size`` of them, in as many banks
+    The viewframes one associative indexer agent holds: in a mission ``memory.shard_size``
+    consecutive route points (``viewframe index // shard_size == shard``; an indexer started
+    without that block size holds ``viewframe index % shards == shard``), in as many banks
     as needed. Rankings of shards and banks merge (their variances are comparable).
 index
     :class:`models.index.ViewframeIndex`, the preprocessing + keys + banks + ranking of one set of

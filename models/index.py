@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import ValidationError
 
-from models.associative import BankedMemory, Ranking
+from models.associative import BankedMemory, Ranking, merge_rankings
 from models.errors import AssociativeMemoryError
 from models.preprocess import preprocess
 from models.scenario import MemorySpec
@@ -181,7 +181,10 @@ class ViewframeIndex:
     def rank(self, image: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """Every stored viewframe (or those ``among`` the viewframe indices given:
         :meth:`models.associative.BankedMemory.rank`) ordered by the error variance of
-        ``image``'s recall, best first."""
+        ``image``'s recall, best first. ``among`` naming none of the stored viewframes: the empty
+        ranking, without preprocessing the image (a shard outside a track window)."""
+        if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
+            return merge_rankings([])
         return self.memory.rank(self.pattern(image), among=among)
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:

@@ -154,3 +154,37 @@ def test_an_untracked_indexer_never_waits_nor_windows(small_rendered: dict) -> N
     levels.post(bb.user, _track(0, "tracking", 3, len(small_rendered["viewframes"])))
     bb.run()
     assert indexer.windows == {0: None, 3: None}
+
+
+def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small_rendered: dict) -> None:
+    """Shards of consecutive route points (``block``): a windowed frame's ranking comes from the
+    shards the window covers; the others post an empty ranking; together the full order within it."""
+    bb = MemoryBlackboard()
+    n = len(small_rendered["viewframes"])
+    indexers = [AssociativeIndexer(f"indexer-{b}", shard=b, shards=3, block=3, tracked=True) for b in range(3)]
+    for ix in indexers:
+        bb.add(ix)
+    for h in small_rendered["viewframes"]:
+        _repost(bb, h)
+    body = dict(small_rendered["map"].body)
+    body["memory"] = {**body["memory"], "window_route_points": n, "window_margin": 0, "window_full_every": 10}
+    bb.post(levels.MAP, body, id=levels.map_id())
+    bb.run()
+    stored = {i.shard: i.viewframes for i in (levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX))}
+    assert stored == {0: 3, 1: 3, 2: 2}
+    _frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    full = {b: levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(0, b))) for b in range(3)}
+    assert [sorted(full[b].viewframes) for b in range(3)] == [[0, 1, 2], [3, 4, 5], [6, 7]]
+    levels.post(bb.user, _track(0, "tracking", 4, n))  # frame 1 predicted at route point 4 only
+    bb.run()
+    _frames_from_viewframes(bb, small_rendered, [1])
+    bb.run()
+    got = {b: levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(1, b))) for b in range(3)}
+    assert all(ix.windows[1] == (4, 4) for ix in indexers)
+    assert got[0].viewframes == [] and got[2].viewframes == [] and got[1].viewframes == [4]
+
+
+def test_bad_block_option() -> None:
+    with pytest.raises(ValueError, match="block"):
+        AssociativeIndexer("indexer", block=0)
