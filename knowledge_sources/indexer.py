@@ -41,7 +41,7 @@ class AssociativeIndexer(KnowledgeSource):
 
     The track's neighbourhood: when ``tracked`` and the route has at least
     ``memory.window_route_points`` points, the ranking of frame t holds only the viewframes of
-    :func:`models.index.track_window` of the ``prior_next`` of the track of frame t - 1, when
+    :func:`models.index.TrackWindows` (the ``window_next`` of the track of frame t - 1, widened), when
     that track is on the blackboard as the frame is ranked and says ``tracking``; otherwise
     (no such track yet, the track ``lost``, every ``memory.window_full_every``-th frame, frame 0)
     the ranking holds every viewframe of the shard (see :class:`models.scenario.MemorySpec`).
@@ -76,7 +76,7 @@ class AssociativeIndexer(KnowledgeSource):
         self._index: ViewframeIndex | None = None
         self._waiting: list[Hypothesis] = []
         self._windows: TrackWindows | None = None  # the track window rule (set with the map)
-        self._early: list[tuple[int, str, np.ndarray]] = []  # tracks that came before the map
+        self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
 
@@ -109,9 +109,9 @@ class AssociativeIndexer(KnowledgeSource):
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
             if self._windows is None:
-                self._early.append((track.frame, track.state, track.prior_next))
+                self._early.append((track.frame, track.state, track.window_next))
             else:
-                self._windows.add(track.frame, track.state, track.prior_next)
+                self._windows.add(track.frame, track.state, track.window_next)
 
     def _mine(self, k: int) -> bool:
         """Viewframe ``k`` is of this shard."""

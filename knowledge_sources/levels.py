@@ -737,6 +737,13 @@ class Track(Message):
     prior_next: np.ndarray = field(metadata=_doc("(N,) float32 predicted probability for the next frame", ndim=1))
     loglik: np.ndarray | None = field(metadata=_doc("(S,) float32 the frame's evidence on the route, or null", ndim=1))
     dt: float | None = field(metadata=_doc("seconds since the previous frame, or null"))
+    window_next: list | None = field(
+        default=None,
+        metadata=_doc(
+            "[first, last] route points holding the motion's prediction for the next frame (all but "
+            "models.index.WINDOW_TAIL of prior_next without its kidnap part, which is even over the route), or null"
+        ),
+    )
 
     def id(self) -> str:
         return track_id(self.frame)

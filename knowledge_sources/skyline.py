@@ -77,7 +77,7 @@ class SkylineRanker(KnowledgeSource):
         self.roll_candidates = None if roll_candidates is None else int(roll_candidates)
         self.tracked = bool(tracked)
         self._windows: TrackWindows | None = None
-        self._early: list[tuple[int, str, np.ndarray]] = []  # tracks that came before the map
+        self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
         self._profiles: dict[int, np.ndarray] = {}
@@ -111,9 +111,9 @@ class SkylineRanker(KnowledgeSource):
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
             if self._windows is None:
-                self._early.append((track.frame, track.state, track.prior_next))
+                self._early.append((track.frame, track.state, track.window_next))
             else:
-                self._windows.add(track.frame, track.state, track.prior_next)
+                self._windows.add(track.frame, track.state, track.window_next)
 
     def _build(self, mp: levels.Map, board: Board) -> None:
         from models.index import TrackWindows, memory_settings

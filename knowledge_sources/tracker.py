@@ -208,6 +208,7 @@ class Tracker(KnowledgeSource):
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         from knowledge_sources.fusion import fuse_shards, shards_log_posterior
         from models.associative import Ranking as MemoryRanking
+        from models.index import WINDOW_TAIL
 
         f = self._filter
         assert f is not None and p.position is not None
@@ -233,7 +234,9 @@ class Tracker(KnowledgeSource):
         self._last_time = None if p.time is None else float(p.time)
         est = f.step(ll, dt=dt)
         assert est.belief is not None
-        prior_next = f.grid.point_mass(f.prior(dt)).astype(np.float32)
+        prediction = f.prior(dt)
+        prior_next = f.grid.point_mass(prediction).astype(np.float32)
+        window = f.window_next(prediction, tail=WINDOW_TAIL)
         levels.post(
             board,
             levels.Track(
@@ -249,6 +252,7 @@ class Tracker(KnowledgeSource):
                 prior_next=prior_next,
                 loglik=None if ll is None else ll.astype(np.float32),
                 dt=dt,
+                window_next=None if window is None else [int(window[0]), int(window[1])],
             ),
             links=tuple(dict.fromkeys(p.links)),
             credibility=float(min(1.0, max(0.0, est.confidence))),

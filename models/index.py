@@ -20,7 +20,7 @@ The pipeline's parts are :mod:`models.preprocess`, :mod:`models.memory_keys` and
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -32,7 +32,7 @@ from models.errors import AssociativeMemoryError
 from models.preprocess import preprocess
 from models.scenario import MemorySpec
 
-__all__ = ["WINDOW_TAIL", "track_window", "TrackWindows", "ViewframeIndex", "memory_settings"]
+__all__ = ["WINDOW_TAIL", "track_window", "widen_window", "TrackWindows", "ViewframeIndex", "memory_settings"]
 
 log = logging.getLogger(__name__)
 
@@ -61,18 +61,17 @@ def memory_settings(memory: MemorySpec | Mapping[str, Any] | None) -> MemorySpec
 WINDOW_TAIL = 1e-3
 
 
-def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) -> tuple[int, int] | None:
+def track_window(
+    prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL, widest: float = 0.5
+) -> tuple[int, int] | None:
     """The route points ``(first, last)`` (inclusive) to rank for a frame given the tracker's
     predicted probability of each route point ``prior`` (N,): the interval holding all but
-    ``tail`` of the mass above the prior's floor (its median, taken off every point: the
-    tracker's prediction spreads its kidnap probability evenly over the route's length, so
-    most points carry that floor and nothing else, and that even part, which the periodic full
-    rankings are for, would otherwise widen the window to nearly the whole route), ``tail / 2``
-    left out at each end, widened by ``margin`` points on each side and clipped to the route;
-    None (rank everything) when that covers half the route or more, or when ``prior`` has no
-    mass above its floor. On a route of unequal legs the floor is uneven (proportional to the
-    route length nearest each point), and what the median leaves of it can still widen the
-    window to the whole route.
+    ``tail`` of the mass (``tail / 2`` left out at each end), widened by ``margin`` points on
+    each side and clipped to the route; None (rank everything) when that covers ``widest`` of
+    the route or more (default half), or when ``prior`` has no mass. The tracker computes it
+    from its prediction without the kidnap part (:class:`knowledge_sources.levels.Track`'s
+    ``window_next``): the kidnap probability, even over the route, would widen any window to
+    nearly the whole route.
     """
     p = np.asarray(prior, dtype=np.float64).ravel()
     if margin < 0:
@@ -80,8 +79,6 @@ def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) ->
     if not 0 <= tail < 1:
         raise ValueError(f"tail must be in [0, 1), got {tail}")
     p = np.where(np.isfinite(p) & (p > 0), p, 0.0)
-    if p.size:
-        p = np.maximum(p - float(np.median(p)), 0.0)
     total = float(p.sum())
     if p.size == 0 or total <= 0:
         return None
@@ -89,7 +86,18 @@ def track_window(prior: ArrayLike, *, margin: int, tail: float = WINDOW_TAIL) ->
     first = int(np.searchsorted(cdf, tail / 2, side="right"))
     last = int(np.searchsorted(cdf, 1.0 - tail / 2, side="left"))
     first, last = max(0, first - margin), min(p.size - 1, max(first, last) + margin)
-    if 2 * (last - first + 1) >= p.size:
+    if last - first + 1 >= widest * p.size:
+        return None
+    return first, last
+
+
+def widen_window(window: Sequence[int] | None, *, margin: int, points: int) -> tuple[int, int] | None:
+    """A window ``(first, last)`` widened by ``margin`` points on each side and clipped to a route
+    of ``points``; None (rank everything) when it is None or covers half the route or more."""
+    if window is None:
+        return None
+    first, last = max(0, int(window[0]) - margin), min(points - 1, int(window[1]) + margin)
+    if last < first or 2 * (last - first + 1) >= points:
         return None
     return first, last
 
@@ -112,26 +120,28 @@ class TrackWindows:
         self.enabled = bool(
             tracked and settings.window_route_points is not None and viewframes >= settings.window_route_points
         )
+        self.points = int(viewframes)
         self.margin = settings.window_margin
         self.full_every = settings.window_full_every
-        self._tracks: dict[int, tuple[str, NDArray[np.float32]]] = {}
+        self._tracks: dict[int, tuple[str, tuple[int, int] | None]] = {}
 
-    def add(self, frame: int, state: str, prior_next: ArrayLike) -> None:
-        """The track of ``frame``: its ``state`` and its predicted probability of each route point
-        for the next frame."""
-        self._tracks[frame] = (state, np.asarray(prior_next, dtype=np.float32))
+    def add(self, frame: int, state: str, window_next: Sequence[int] | None) -> None:
+        """The track of ``frame``: its ``state`` and the route points ``[first, last]`` its motion
+        predicts for the next frame (the Track's ``window_next``; None: no such window)."""
+        self._tracks[frame] = (state, None if window_next is None else (int(window_next[0]), int(window_next[1])))
         for old in [f for f in self._tracks if f < frame - self.KEEP]:
             del self._tracks[old]  # only the latest tracks can still be the previous frame's
 
     def window(self, frame: int) -> tuple[int, int] | None:
         """The route points ``(first, last)`` to rank for ``frame``, or None: all of them (frame 0,
-        every ``full_every``-th frame, no track of the frame before yet, that track lost)."""
+        every ``full_every``-th frame, no track of the frame before yet, that track lost or without
+        a window, the window with its margin half the route or more)."""
         if not self.enabled or frame <= 0 or frame % self.full_every == 0:
             return None
         track = self._tracks.get(frame - 1)
         if track is None or track[0] != "tracking":
             return None
-        return track_window(track[1], margin=self.margin)
+        return widen_window(track[1], margin=self.margin, points=self.points)
 
 
 class ViewframeIndex:

@@ -320,7 +320,8 @@ class MemorySpec(_Spec):
     The track's neighbourhood (:func:`models.index.track_window`): on routes of at least
     ``window_route_points`` points (null: never), while the tracker is tracking, the indexers
     rank for frame t only the route points where the track of frame t - 1 predicts frame t
-    (the interval holding all but 1e-3 of its ``prior_next``), widened by ``window_margin``
+    (the interval holding all but 1e-3 of its ``prior_next`` without the kidnap part, the
+    track's ``window_next``), widened by ``window_margin``
     points on each side, when that track is there as the frame is ranked (an indexer never
     waits for it); every ``window_full_every``-th frame, and whenever the track is lost or not
     there, they rank every viewframe, so that a track that went wrong (a vehicle moved elsewhere) meets

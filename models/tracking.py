@@ -556,6 +556,23 @@ class RouteFilter:
             return self.belief.copy()
         return self.motion.predict(self.belief, dt)
 
+    def window_next(self, prediction: np.ndarray, *, tail: float) -> tuple[int, int] | None:
+        """The route points ``(first, last)`` holding all but ``tail`` of ``prediction`` (``(C,)``, from
+        :meth:`prior`) without its kidnap part, the ``p_kidnap`` spread evenly over the cells (that
+        even part would widen any such interval to nearly the whole route); ``tail / 2`` is left
+        out at each end. None: no mass outside the kidnap part (before the first frame)."""
+        if self.frames == 0:
+            return None
+        moved = np.maximum(prediction - self.motion.p_kidnap / prediction.size, 0.0)
+        p = self.grid.point_mass(moved)
+        total = float(p.sum())
+        if not total > 0:
+            return None
+        cdf = np.cumsum(p) / total
+        first = int(np.searchsorted(cdf, tail / 2, side="right"))
+        last = int(np.searchsorted(cdf, 1.0 - tail / 2, side="left"))
+        return min(first, len(p) - 1), min(max(first, last), len(p) - 1)
+
     def step(self, route_loglik: np.ndarray | None, *, dt: float | None = None) -> TrackEstimate:
         """Predict (``dt`` seconds since the previous frame, or None: no time) and update."""
         pred = self.prior(dt)

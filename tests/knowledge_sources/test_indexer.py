@@ -94,6 +94,7 @@ def _track(frame: int, state: str, point: int, n: int) -> levels.Track:
         prior_next=prior,
         loglik=None,
         dt=None,
+        window_next=[point, point],
     )
 
 

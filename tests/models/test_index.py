@@ -161,33 +161,22 @@ def test_the_track_window_holds_the_predicted_mass_and_a_margin(prior, margin, w
     assert track_window(prior, margin=margin) == want
 
 
-def test_the_kidnap_floor_of_a_prediction_does_not_widen_the_track_window() -> None:
-    """The tracker's prediction spreads its kidnap probability evenly over the route: the
-    window is that of the peaked part alone (without taking the floor off it would cover the route)."""
-    from models.index import track_window
-
-    n = 5000
-    peak = np.exp(-0.5 * ((np.arange(n) - 2500) / 3.0) ** 2)
-    prior = 0.98 * peak / peak.sum() + 0.02 / n
-    assert track_window(prior, margin=16) == track_window(peak, margin=16)
-    lo, hi = track_window(prior, margin=16)
-    assert lo > 2450 and hi < 2550
-
-
 def test_track_windows_follow_the_memory_settings() -> None:
-    from models.index import TrackWindows, track_window
+    from models.index import TrackWindows
     from models.scenario import MemorySpec
 
     spec = MemorySpec(window_route_points=100, window_margin=2, window_full_every=5)
-    prior = np.eye(1, 200, 50).ravel()
     w = TrackWindows(spec, viewframes=200, tracked=True)
-    w.add(0, "tracking", prior)
-    w.add(1, "lost", prior)
-    w.add(3, "tracking", prior)
-    w.add(4, "tracking", prior)
-    assert w.window(1) == track_window(prior, margin=2) == (48, 52)
+    w.add(0, "tracking", [50, 50])
+    w.add(1, "lost", [50, 50])
+    w.add(3, "tracking", [50, 51])
+    w.add(4, "tracking", [50, 50])
+    w.add(6, "tracking", None)
+    w.add(7, "tracking", [0, 120])
+    assert w.window(1) == (48, 52)
     assert w.window(0) is None and w.window(2) is None  # frame 0; the track before is lost
     assert w.window(3) is None  # no track of frame 2
-    assert w.window(4) == (48, 52) and w.window(5) is None  # every 5th frame: everything
+    assert w.window(4) == (48, 53) and w.window(5) is None  # every 5th frame: everything
+    assert w.window(7) is None and w.window(8) is None  # no window; half the route or more
     assert TrackWindows(spec, viewframes=99, tracked=True).enabled is False  # a short route
     assert TrackWindows(spec, viewframes=200, tracked=False).enabled is False

@@ -220,3 +220,22 @@ def test_cost_per_frame_for_10000_cells():
     # the goal is 1 ms (bench/tracking.py measures it); here a loose bound
     assert per_frame_ms < 10.0, per_frame_ms
     assert math.isfinite(f.belief.sum())
+
+
+def test_the_next_window_holds_the_motions_prediction_without_the_kidnap_part():
+    """On a long route, after frames of evidence near one point, the interval of the prediction
+    without its kidnap part is a few route points wide, and holds where the vehicle goes next;
+    with the kidnap part (spread over the route) the same interval covers nearly the whole route."""
+    from models.index import WINDOW_TAIL, track_window
+
+    n = 3000
+    route = [[25.0 * i, 0.0] for i in range(n)]
+    f = RouteFilter(route, spec=TrackingSpec())
+    assert f.window_next(f.prior(2.0), tail=WINDOW_TAIL) is None  # no frame yet
+    for t in range(6):
+        est = f.step(f.grid.from_points(-0.5 * np.abs(np.arange(n) - (1000.0 + t))), dt=2.0)
+    assert est.route_point == 1005
+    pred = f.prior(2.0)
+    first, last = f.window_next(pred, tail=WINDOW_TAIL)
+    assert first <= 1005 < 1007 <= last and last - first < 60
+    assert track_window(f.grid.point_mass(pred), margin=0, widest=1.0)[1] - first > n // 2
