@@ -222,10 +222,10 @@ def timed(self):
         b[2] += time.thread_time() - c
 AgentRunner._run_one = timed
 t0 = time.perf_counter()
-ranked = {}  # source -> [viewframes ranked per ranking]
+ranked = {}  # (source, shard) -> [viewframes ranked per ranking]
 def seen(level, body, stamp):
     if level == "ranking":
-        ranked.setdefault(body.get("source", "associative"), []).append(len(body["viewframes"]))
+        ranked.setdefault((body.get("source", "associative"), body["shard"]), []).append(len(body["viewframes"]))
 res = run_mission(sys.argv[1], trace_path=sys.argv[2], paced=opts["paced"], on_hypothesis=seen)
 if profiles:
     import os
@@ -243,8 +243,11 @@ print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_max
                   "frames_per_s": s["frames_per_s"], "latency_ms_p50": s["latency_ms_p50"],
                   "latency_ms_p95": float(np.percentile(lat, 95)) if lat else None,
                   "degraded": res["degraded"][:5],
-                  "ranked_mean": {k: float(np.mean(v)) for k, v in ranked.items()},
-                  "ranked_windowed": {k: int(sum(x < max(v) for x in v)) for k, v in ranked.items()},
+                  "ranked_mean": {src: float(np.mean([x for (s, _), v in ranked.items() if s == src for x in v]))
+                                  for src in {s for s, _ in ranked}},
+                  # rankings of fewer viewframes than their shard's fullest (a track window)
+                  "ranked_windowed": {src: int(sum(x < max(v) for (s, _), v in ranked.items() if s == src for x in v))
+                                      for src in {s for s, _ in ranked}},
                   "agent_busy_s": {k: {"s": v[0], "activations": v[1], "cpu_s": v[2]} for k, v in sorted(busy.items())}}))
 """
 
