@@ -33,7 +33,8 @@ class LandmarkDetectorAgent(KnowledgeSource):
 
     Options: ``threshold`` (score for "present"), ``absent_threshold`` (below it, "absent"; in
     between the answer is undecided), ``calibration`` (``{kind or family: [bias, weights...]}``)
-    and ``align_deg`` (pose errors the ratio tolerates, (pitch, heading) degrees), each
+    ``align_deg`` (pose errors the ratio tolerates, (pitch, heading) degrees) and ``scales``
+    (template scales it searches, the schema's ``scheduler.detector_scales``), each
     defaulting to the scenario schema's ``scheduler`` settings; ``camera_height`` and
     ``fov_y_deg`` (the scenario camera's rows and vertical field of view: they turn ``align_deg``
     into pixels; without them the detector's own default search); ``cache`` (frames and
@@ -51,6 +52,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
         absent_threshold: float = _DEFAULTS.absent_threshold,
         calibration: dict[str, Any] | None = None,
         align_deg: tuple[float, float] | list[float] = _DEFAULTS.align_deg,
+        scales: tuple[float, ...] | list[float] = _DEFAULTS.detector_scales,
         camera_height: int | None = None,
         fov_y_deg: float | None = None,
         cache: int = 64,
@@ -61,6 +63,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
         self.absent_threshold = float(absent_threshold)
         self.calibration = dict(_DEFAULTS.calibration if calibration is None else calibration)
         self.align_deg = (float(align_deg[0]), float(align_deg[1]))
+        self.scales = tuple(float(v) for v in scales)
         self.camera_height = None if camera_height is None else int(camera_height)
         self.fov_y_deg = None if fov_y_deg is None else float(fov_y_deg)
         self.cache = int(cache)
@@ -78,6 +81,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
             absent_threshold=self.absent_threshold,
             calibration=self.calibration,
             align_px=align,
+            scales=self.scales,
         )
 
     def precondition(self, event: Event) -> float | None:

@@ -118,6 +118,7 @@ def agent_plan(
                     "absent_threshold": sched.absent_threshold,
                     "calibration": {k: list(v) for k, v in sched.calibration.items()},
                     "align_deg": list(sched.align_deg),
+                    "scales": list(sched.detector_scales),
                     "camera_height": scenario.camera.height,
                     "fov_y_deg": scenario.camera.fov_y_deg,
                 },

@@ -65,6 +65,7 @@ __all__ = [
     "Calibration",
     "LR_FEATURES",
     "KIND_FAMILY",
+    "ANY_KIND",
     "align_pixels",
 ]
 
@@ -232,6 +233,10 @@ class EdgeTemplateDetector:
     align_px : (rows, cols)
         Half-size of the likelihood ratio's alignment search in pixels: the pose errors it must
         tolerate (pitch moves the view vertically, heading horizontally), see :func:`align_pixels`.
+    scales : tuple of float
+        Template scales the likelihood ratio's edge score and contrast are searched over (a
+        position error along the route makes a near landmark larger or smaller than the viewframe
+        shows it); default: the scenario schema's ``scheduler.detector_scales``.
     """
 
     name: str = "edge-template"
@@ -244,6 +249,7 @@ class EdgeTemplateDetector:
     axis: str = "both"
     calibration: Calibration | None = None
     align_px: tuple[int, int] = (9, 16)
+    scales: tuple[float, ...] = _DEFAULTS.detector_scales
 
     def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float] | None:
         """The uncalibrated evidence (:data:`LR_FEATURES`): ``(statistic, score, contrast)``,
@@ -273,7 +279,12 @@ class EdgeTemplateDetector:
         statistic = self._colour_statistic(image, view, sil)
         if statistic is None:
             return None
-        return statistic, self._edge_score(image, view, sil)[0], self._contrast(image, view, sil)
+        return statistic, self._scaled_edge_score(image, view, sil), self._contrast(image, view, sil)
+
+    def _search(self, rows: int, cols: int) -> tuple[int, int]:
+        """The likelihood ratio's alignment search, ``(rows, cols)`` half-sizes, for a landmark box
+        of ``rows`` x ``cols`` pixels: the pose errors (``align_px``) plus parallax."""
+        return self.align_px[0] + int(0.25 * rows), self.align_px[1] + int(0.5 * cols)
 
     def _contrast(self, image: np.ndarray, view: CandidateView, sil: np.ndarray, *, ring: int = 3) -> float:
         k = 2 * ring + 1
@@ -282,13 +293,41 @@ class EdgeTemplateDetector:
         r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
         m_in = sil[r0:r1, c0:c1].astype(np.float32)
         m_ring = (big & ~sil)[r0:r1, c0:c1].astype(np.float32)
-        sr = self.align_px[0] + int(0.25 * (r1 - r0))
-        sc = self.align_px[1] + int(0.5 * (c1 - c0))
-        pad = max(sr, sc) + 1
-        cam = np.pad(_gray(image), pad, mode="edge")[r0 - sr + pad : r1 + sr + pad, c0 - sc + pad : c1 + sc + pad]
+        sr, sc = self._search(r1 - r0, c1 - c0)
+        cam = _gray(image)
+        best = -np.inf
+        for s in self.scales:
+            inner, outer = _scaled_mask(m_in, s), _scaled_mask(m_ring, s)
+            win = _window(cam, (r0 + r1) / 2, (c0 + c1) / 2, inner.shape, sr, sc, mode="edge")
+            best = max(best, float(_ring_contrast(win, inner, outer).max()))
         assert view.without is not None  # checked by the callers
         behind = _gray(view.without)[r0:r1, c0:c1]
-        return float(_ring_contrast(cam, m_in, m_ring).max()) - float(_ring_contrast(behind, m_in, m_ring).max())
+        return best - float(_ring_contrast(behind, m_in, m_ring).max())
+
+    def _scaled_edge_score(self, image: np.ndarray, view: CandidateView, sil: np.ndarray) -> float:
+        """The energy-aware edge correlation of :meth:`_edge_score`, searched over the likelihood
+        ratio's alignment search and over ``scales`` of the template about the silhouette's
+        centre: the likelihood ratio's ``score`` feature."""
+        k = 2 * self.dilate + 1
+        region = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
+        rows, cols = np.nonzero(region)
+        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        template = _highpass(edge_image(view.image, axis=self.axis))[r0:r1, c0:c1]
+        tmask = region[r0:r1, c0:c1].astype(np.float32)
+        sr, sc = self._search(r1 - r0, c1 - c0)
+        edges = _highpass(edge_image(image, axis=self.axis))
+        best = 0.0
+        for s in self.scales:
+            m = _scaled_mask(tmask, s)
+            weighted = cv2.resize(template, (m.shape[1], m.shape[0]), interpolation=cv2.INTER_LINEAR) * m
+            norm = float((weighted * weighted).sum())
+            if norm < 1e-9:
+                continue
+            win = _window(edges, (r0 + r1) / 2, (c0 + c1) / 2, m.shape, sr, sc, mode="constant")
+            cross = cv2.matchTemplate(win, weighted, cv2.TM_CCORR)
+            energy = cv2.matchTemplate(win * win, m, cv2.TM_CCORR)
+            best = max(best, float((2.0 * cross / (norm + energy + 1e-12)).max()))
+        return best
 
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
         sil = self._check(image, view)
@@ -302,7 +341,8 @@ class EdgeTemplateDetector:
         if self.calibration is not None and view.without is not None:
             statistic = self._colour_statistic(image, view, sil)
             if statistic is not None:
-                llr = self.calibration.llr((statistic, best, self._contrast(image, view, sil)))
+                features = (statistic, self._scaled_edge_score(image, view, sil), self._contrast(image, view, sil))
+                llr = self.calibration.llr(features)
         lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
         if best >= self.threshold:
             return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}{lr}", llr, statistic)
@@ -361,11 +401,34 @@ class EdgeTemplateDetector:
         if d2 < 1e-9:
             return None  # the landmark has the colour of what lies behind it: no colour evidence
         h, w = sil.shape
-        sr = self.align_px[0] + int(0.25 * (r1 - r0))
-        sc = self.align_px[1] + int(0.5 * (c1 - c0))
+        sr, sc = self._search(r1 - r0, c1 - c0)
         win = _chromaticity(image)[max(0, r0 - sr) : min(h, r1 + sr), max(0, c0 - sc) : min(w, c1 + sc)]
         ssd0, ssd1 = (_masked_ssd(win, t, m) for t in (t0, t1))
         return (float(ssd0.min()) - float(ssd1.min())) / d2
+
+
+def _scaled_mask(mask: np.ndarray, scale: float) -> np.ndarray:
+    """A 0/1 float mask resized by ``scale`` (at least 2 x 2 pixels)."""
+    if scale == 1.0:
+        return mask
+    size = (max(2, int(round(mask.shape[1] * scale))), max(2, int(round(mask.shape[0] * scale))))
+    return (cv2.resize(mask, size, interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
+
+
+def _window(
+    image: np.ndarray, row: float, col: float, shape: tuple[int, ...], sr: int, sc: int, *, mode: str
+) -> np.ndarray:
+    """The part of ``image`` (H, W) where a template of ``shape`` centred at ``(row, col)`` can
+    lie when shifted by up to ``sr`` rows and ``sc`` columns, padded (``mode``: ``"edge"``, or
+    ``"constant"`` zeros) where it leaves the image: (shape[0] + 2 sr, shape[1] + 2 sc) float32."""
+    th, tw = int(shape[0]), int(shape[1])
+    top = int(round(row - th / 2)) - sr
+    left = int(round(col - tw / 2)) - sc
+    h, w = image.shape[:2]
+    pad = max(0, -top, -left, top + th + 2 * sr - h, left + tw + 2 * sc - w)
+    padded = np.pad(image, pad, mode=mode) if pad else image  # type: ignore[call-overload]
+    out = padded[top + pad : top + pad + th + 2 * sr, left + pad : left + pad + tw + 2 * sc]
+    return np.ascontiguousarray(out, dtype=np.float32)
 
 
 def _gray(image: np.ndarray) -> np.ndarray:
@@ -456,7 +519,10 @@ def align_pixels(
     return rows, cols
 
 
-#: landmark kind -> detector family (the calibration is per family); other kinds: "outline"
+#: the calibration key that serves every kind with no entry of its own nor of its family's
+ANY_KIND = "any"
+
+#: landmark kind -> detector family (a calibration may be given per family); other kinds: "outline"
 KIND_FAMILY: dict[str, str] = {"house": "outline", "barn": "outline", "tower": "vertical", "silo": "vertical"}
 
 
@@ -466,15 +532,18 @@ def default_registry(
     absent_threshold: float = _DEFAULTS.absent_threshold,
     calibration: Mapping[str, Sequence[float]] | None = None,
     align_px: tuple[int, int] | None = None,
+    scales: Sequence[float] = _DEFAULTS.detector_scales,
 ) -> DetectorRegistry:
     """Detectors for the bundled landmark kinds: houses and barns (wide boxes) by their outline,
     towers and silos (tall, narrow) by their vertical edges; any other kind by the box outline.
 
     ``threshold`` / ``absent_threshold``: the present/absent score thresholds;
-    ``calibration``: ``{kind or family: [bias, weights...]}`` (:class:`Calibration`; a kind's
-    own entry wins over its family's, :data:`KIND_FAMILY`; ``None``: no likelihood ratio, pass
+    ``calibration``: ``{kind, family or "any": [bias, weights...]}`` (:class:`Calibration`; a
+    kind's own entry wins over its family's, :data:`KIND_FAMILY`, which wins over ``"any"``,
+    :data:`ANY_KIND`; ``None``: no likelihood ratio, pass
     the schema's ``scheduler.calibration`` for the calibrated one); ``align_px``: the likelihood
-    ratio's alignment search (:func:`align_pixels`). The values come from the scenario's
+    ratio's alignment search (:func:`align_pixels`); ``scales``: the template scales it searches
+    (:class:`EdgeTemplateDetector`). The values come from the scenario's
     ``scheduler`` block (:class:`models.scenario.SchedulerSpec`).
     """
     cal = {k: Calibration.from_sequence(v) for k, v in (calibration or {}).items()}
@@ -487,7 +556,8 @@ def default_registry(
             name=name,
             threshold=threshold,
             absent_threshold=absent_threshold,
-            calibration=cal.get(kind or "", cal.get(family)),
+            calibration=cal.get(kind or "", cal.get(family, cal.get(ANY_KIND))),
+            scales=tuple(float(v) for v in scales),
             **kw,
         )
 

@@ -368,11 +368,12 @@ class MemorySpec(_Spec):
         return value
 
 
-#: the detectors' calibration by family (models.detectors.KIND_FAMILY), fitted by
-#: bench/tuning/calibrate_detectors.py on simulated frames of tuning seeds (see BENCHMARKS.md)
+#: the detectors' calibration, one for every kind ("any", models.detectors.ANY_KIND; a kind or
+#: detector family, models.detectors.KIND_FAMILY, may have its own), fitted by
+#: bench/tuning/calibrate_detectors.py on the evaluation set's tuning split (one calibration did
+#: better than one per family or kind with a tuning case left out: BENCHMARKS.md)
 DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float]] = {
-    "outline": (0.0653, 3.7564, 1.9014, 2.0618),
-    "vertical": (-2.9711, 0.4912, 6.028, 0.9215),
+    "any": (-3.8752, 0.8642, 5.1053, 1.153),
 }
 
 
@@ -418,7 +419,14 @@ class SchedulerSpec(_Spec):
     max_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
     #: pose errors, (pitch, heading) degrees, the detectors' likelihood ratio must tolerate
     align_deg: tuple[float, float] = (2.0, 5.0)
-    #: detector calibration, {landmark kind or detector family: [bias, w_statistic, w_score, w_contrast]}:
+    #: template scales the detectors' likelihood ratio searches (a position error along the route
+    #: makes a near landmark larger or smaller than its viewframe shows it): 0.7 to 1.43 in steps of
+    #: about 10%, so that a scaled template's thin edges stay within 2 px on a 40-px landmark
+    #: (steps of 20% did a little worse with a tuning case left out; BENCHMARKS.md)
+    detector_scales: tuple[float, ...] = Field(
+        default=(0.7, 0.76, 0.83, 0.91, 1.0, 1.1, 1.2, 1.31, 1.43), min_length=1, max_length=16
+    )
+    #: detector calibration, {landmark kind, detector family or "any": [bias, w_statistic, w_score, w_contrast]}:
     #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
     #: by bench/tuning/calibrate_detectors.py on tuning seeds
     calibration: dict[str, tuple[float, float, float, float]] = Field(
@@ -435,6 +443,13 @@ class SchedulerSpec(_Spec):
                 raise ValueError(f"{kind!r}: a landmark kind or detector family of 1 to 64 characters")
             if not all(abs(v) <= MAX_CALIBRATION for v in numbers):
                 raise ValueError(f"{kind}: every number must be within ±{MAX_CALIBRATION:g}")
+        return value
+
+    @field_validator("detector_scales")
+    @classmethod
+    def _scales(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if not all(0.25 <= v <= 4 for v in value):
+            raise ValueError("every scale must be within [0.25, 4]")
         return value
 
     @field_validator("align_deg")

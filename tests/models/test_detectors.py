@@ -202,8 +202,54 @@ def test_without_view_needs_a_background_of_the_same_shape():
     assert (cv.without[~view.silhouette] == view.image[~view.silhouette]).all()
 
 
+def _red(image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """``image`` with the box's red channel raised: the with/without colour statistic needs a colour."""
+    out = image.copy()
+    out[box[0] : box[2], box[1] : box[3], 0] = 150
+    return out
+
+
+def test_scale_search_finds_a_landmark_nearer_than_its_viewframe_shows_it():
+    """A camera frame taken nearer the landmark than the viewframe shows it 1.3 times larger: the
+    likelihood ratio's edge score and contrast searched over template scales find it better than
+    at the viewframe's scale alone, and the view without it scores lower than both."""
+
+    rng = np.random.default_rng(9)
+    sil = np.zeros((H, W), bool)
+    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
+    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
+    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    r0, c0, r1, c1 = BOX
+    big = (r0 - 4, c0 - 5, r1 + 5, c1 + 4)  # 39 x 39 pixels instead of 30 x 30
+    frame = _red(_scene(np.random.default_rng(10), box=big, noise=3.0), big)
+    empty = _scene(np.random.default_rng(10), box=None, noise=3.0)
+    align = align_pixels(height=H, fov_y_deg=45.0, tolerance_deg=SPEC.align_deg)
+    scaled = EdgeTemplateDetector(align_px=align, scales=SPEC.detector_scales)
+    fixed = EdgeTemplateDetector(align_px=align, scales=(1.0,))
+    s_scaled, s_fixed, s_empty = (
+        d.evidence(im, view=view) for d, im in [(scaled, frame), (fixed, frame), (scaled, empty)]
+    )
+    assert s_scaled is not None and s_fixed is not None and s_empty is not None
+    assert s_scaled[1] > s_fixed[1] + 0.05, (s_scaled, s_fixed)  # the edge score
+    assert s_scaled[2] >= s_fixed[2]  # the contrast
+    assert s_empty[1] < s_fixed[1] and s_empty[2] < s_fixed[2]
+
+
+@pytest.mark.parametrize("scales", [(1.0,), (0.5, 1.0, 2.0)])
+def test_scaled_templates_near_the_border_keep_their_shape(scales):
+    """A silhouette cut by the image border, searched over scales, still gives finite evidence."""
+    rng = np.random.default_rng(11)
+    sil = np.zeros((H, W), bool)
+    sil[40:90, 140:] = True
+    image = _red(_scene(rng, box=(40, 140, 90, W), noise=0.0), (40, 140, 90, W))
+    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    frame = _red(_scene(rng, box=(42, 136, 92, W)), (42, 136, 92, W))
+    ev = EdgeTemplateDetector(scales=scales).evidence(frame, view=view)
+    assert ev is not None and all(np.isfinite(ev))
+
+
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["house", "tower"])
+@pytest.mark.parametrize("kind", ["house", "tower", "silo", "barn"])
 def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
     """Real pyrender views: the camera frame near the viewframe, once with the landmark and once
     the same view without it (the emulator leaves the boxes out), degraded like a camera, with
@@ -214,7 +260,12 @@ def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
     from models.scenario import scenario_from_dict
     from models.sensor import degrade
 
-    size = {"house": {"width": 20, "depth": 12, "height": 8}, "tower": {"width": 4, "depth": 4, "height": 30}}[kind]
+    size = {
+        "house": {"width": 20, "depth": 12, "height": 8},
+        "tower": {"width": 4, "depth": 4, "height": 30},
+        "silo": {"width": 7, "depth": 7, "height": 16},
+        "barn": {"width": 30, "depth": 16, "height": 10},
+    }[kind]
     data = {
         "name": "lr-test",
         "seed": 1,

@@ -117,6 +117,8 @@ MALFORMED = [
     ("scheduler", {"max_llr": 0}, "scheduler.max_llr: must be > 0"),
     ("scheduler", {"align_deg": [2.0, 60.0]}, "scheduler.align_deg: must be two angles in [0, 45) degrees"),
     ("scheduler", {"calibration": {"house": [1.0, 2.0]}}, "scheduler.calibration.house"),
+    ("scheduler", {"detector_scales": [1.0, 8.0]}, "scheduler.detector_scales: every scale must be within [0.25, 4]"),
+    ("scheduler", {"detector_scales": []}, "scheduler.detector_scales"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
     ("expect", {"top1_frame_only_min": 1.5}, "expect.top1_frame_only_min: must be <= 1"),
     ("tracking", {"cell_m": 1e9}, "tracking.cell_m: must be <= 10000"),
@@ -300,6 +302,7 @@ _VALIDATED_NUMBERS = {
     ("MemorySpec", "size"): 2**40,
     ("MemorySpec", "max_shift"): (1, 10**9),
     ("SchedulerSpec", "align_deg"): (1.0, 1e300),
+    ("SchedulerSpec", "detector_scales"): (1.0, 1e300),
     ("SchedulerSpec", "calibration"): {"outline": (1e300, 0.0, 0.0, 0.0)},
 }
 
