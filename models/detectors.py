@@ -30,9 +30,24 @@ The likelihood ratio
     ``without``). Both are matched against the camera image with an alignment search that
     covers the pose errors (:func:`align_pixels`; :meth:`EdgeTemplateDetector.evidence` says
     how), and the evidence is turned into a log-likelihood ratio by a logistic
-    :class:`Calibration` fitted per detector family on labelled frames of tuning seeds
+    :class:`Calibration` fitted on labelled frames of the evaluation set's tuning split
     (bench/tuning/calibrate_detectors.py; its coefficients are the scenario schema's
-    ``scheduler.calibration`` defaults). The scheduler's ``soft`` backtracking multiplies the
+    ``scheduler.calibration`` defaults: one calibration for every kind, ``"any"``, which did
+    better with a tuning case left out than one per detector family or per kind).
+
+    The rule, in full: for the landmark's silhouette ``M`` in the candidate viewframe (at least
+    ``min_pixels`` pixels, else no ratio), and with the search ``(sr, sc) = align_px + (h / 4,
+    w / 2)`` for a silhouette box of ``h`` x ``w`` pixels (pose errors plus parallax),
+
+    - ``statistic``: the chromaticity with/without generalised likelihood ratio over ``M``,
+      each hypothesis at its best shift within the search and template scale of ``scales``
+      (about the silhouette's centre; a position error along the route makes a near landmark
+      larger or smaller: the scenario schema's ``scheduler.detector_scales``);
+    - ``score``: the best energy-aware edge correlation of the viewframe's edges inside ``M``
+      (dilated) with the camera image's, over the same shifts and scales;
+    - ``contrast``: the best silhouette-against-ring contrast of the camera image over the
+      same shifts and scales, less that of the view without the landmark;
+    - ``llr = bias + w . (statistic, score, contrast)``, the calibration's. The scheduler's ``soft`` backtracking multiplies the
     candidates' likelihoods by it (:mod:`knowledge_sources.scene_analysis`). How well it
     separates, per landmark kind on held-out frames: bench/detectors.py and BENCHMARKS.md.
 
@@ -263,12 +278,13 @@ class EdgeTemplateDetector:
         the pose error is a nuisance maximised out under each): with a Gaussian error model the
         log-likelihood ratio is proportional to ``SSD0 - SSD1``, ``SSDi = min_offset sum M
         |C - Ti|^2``, and ``statistic = (SSD0 - SSD1) / sum M |T1 - T0|^2`` is about +1 when the
-        camera shows the landmark as the viewframe does, -1 when it shows what lies behind it.
-        The search is ``align_px`` (pose errors) plus a quarter of the landmark's height and half
+        camera shows the landmark as the viewframe does, -1 when it shows what lies behind it
+        (searched over the template ``scales`` too, the SSDs per pixel of ``M``). The search is ``align_px`` (pose errors) plus a quarter of the landmark's height and half
         its width (parallax: near landmarks move more than the horizon when the camera stands
-        off the route point). ``score`` is :meth:`detect`'s edge score. ``contrast`` asks what
+        off the route point). ``score`` is :meth:`detect`'s edge score searched over the same
+        shifts and over the template ``scales`` (:meth:`_scaled_edge_score`). ``contrast`` asks what
         neither needs to trust a renderer's colours for: does the camera image, somewhere within
-        the same search, differ inside the silhouette from a ring around it, as a landmark in
+        the same search and scales, differ inside the silhouette from a ring around it, as a landmark in
         front of the terrain does (its best ``|mean_in - mean_ring| / sqrt(var_in + var_ring)``
         in gray levels), less the same contrast in the view without the landmark (a horizon
         crossing the silhouette shows contrast with no landmark there).
@@ -391,6 +407,8 @@ class EdgeTemplateDetector:
         return float(scores[idx]), (int(wr0 + idx[0]), int(wc0 + idx[1])), ""
 
     def _colour_statistic(self, image: np.ndarray, view: CandidateView, sil: np.ndarray) -> float | None:
+        """The chromaticity with/without statistic of :meth:`evidence`, each hypothesis at its best
+        shift and template scale (the SSDs per pixel of the viewframe's silhouette)."""
         rows, cols = np.nonzero(sil)
         r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
         m = sil[r0:r1, c0:c1].astype(np.float32)
@@ -400,11 +418,19 @@ class EdgeTemplateDetector:
         d2 = float((m[..., None] * (t1 - t0) ** 2).sum())
         if d2 < 1e-9:
             return None  # the landmark has the colour of what lies behind it: no colour evidence
-        h, w = sil.shape
         sr, sc = self._search(r1 - r0, c1 - c0)
-        win = _chromaticity(image)[max(0, r0 - sr) : min(h, r1 + sr), max(0, c0 - sc) : min(w, c1 + sc)]
-        ssd0, ssd1 = (_masked_ssd(win, t, m) for t in (t0, t1))
-        return (float(ssd0.min()) - float(ssd1.min())) / d2
+        cam = _chromaticity(image)
+        ssd0 = ssd1 = math.inf
+        for s in self.scales:
+            ms = _scaled_mask(m, s)
+            size = (ms.shape[1], ms.shape[0])
+            win = np.dstack(
+                [_window(cam[..., c], (r0 + r1) / 2, (c0 + c1) / 2, ms.shape, sr, sc, mode="edge") for c in range(2)]
+            )
+            per = float(m.sum()) / float(ms.sum())  # back to the viewframe silhouette's pixels
+            ssd0 = min(ssd0, per * float(_masked_ssd(win, cv2.resize(t0, size), ms).min()))
+            ssd1 = min(ssd1, per * float(_masked_ssd(win, cv2.resize(t1, size), ms).min()))
+        return (ssd0 - ssd1) / d2
 
 
 def _scaled_mask(mask: np.ndarray, scale: float) -> np.ndarray:
