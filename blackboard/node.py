@@ -124,7 +124,7 @@ class BlackboardNode:
         self.run_budget_bytes = RUN_BUDGET_BYTES
         self._trace = RunTrace(trace_path)
         self.stats = self._trace.stats
-        self._store = Store(encode=self._message)
+        self._store = Store(unpack=self._unpack_message)
         self._barrier = Barrier()
         self._members = Membership()
         self.agents: dict[str, AgentState] = self._members.agents
@@ -368,9 +368,9 @@ class BlackboardNode:
             size=len(sample.payload),
         )
 
-    def _message(self, hyp: Hypothesis, op: str, sender: str) -> bytes:
-        """The message of ``op`` by ``sender`` that carries ``hyp`` (the store's re-encoding)."""
-        return encode({"op": op, "hyp": hyp.to_record(), "sender": sender}, max_bytes=self._max)
+    def _unpack_message(self, data: bytes) -> Hypothesis:
+        """The hypothesis a stored message carries (the store keeps large messages only as bytes)."""
+        return Hypothesis.from_record(decode(data, max_bytes=self._max)["hyp"])
 
     def _on_local_post(self, hyp: Hypothesis) -> None:
         key = self.keys.hypothesis(hyp.level, hyp.id)
@@ -398,8 +398,8 @@ class BlackboardNode:
         if problem is not None:
             self._trace.reject(key, problem, agent=hyp.source, level=hyp.level, id=hyp.id)
             return
-        # a large payload is held once: the store may drop the bytes and encode the hypothesis again
-        # for a read (not for the node's own or private posts, whose bytes carry a sealed body)
+        # a large payload is held once, compressed: the store may drop the decoded hypothesis and decode the
+        # message again when asked (not for the node's own or private posts, whose bytes carry a sealed body)
         self._store.put(hyp, data, sender=None if local or hyp.level in PRIVATE_LEVELS else sender)
         self._stored_bytes += len(data)
         self.stats["post"] += 1

@@ -81,28 +81,49 @@ def test_after_takes_the_larger_count_and_ignores_junk() -> None:
     assert Barrier.after("me", 3, ["not", "a", "map"]) == {"me": 3}
 
 
-def test_a_large_message_is_held_once_and_encoded_again_for_a_read() -> None:
+def test_a_large_message_is_held_once_compressed_and_decoded_again_when_asked() -> None:
+    import dataclasses
+
     import numpy as np
 
     from blackboard.codec import decode, encode
     from blackboard.store import KEEP_BYTES_BELOW
 
-    def message(hyp: Hypothesis, op: str, sender: str) -> bytes:
-        return encode({"op": op, "hyp": hyp.to_record(), "sender": sender})
+    def unpack(data: bytes) -> Hypothesis:
+        return Hypothesis.from_record(decode(data)["hyp"])
 
-    image = np.random.default_rng(2).integers(0, 255, (120, 160, 3), dtype=np.uint8)
-    big = Hypothesis("vf-1", "viewframe", "renderer", 1.0, (), 1, 1.0, {"image": image})
+    # a rendered-looking image (smooth, flat regions) compresses; a random mask does not
+    rows = np.arange(120, dtype=np.uint8)[:, None, None]
+    image = np.broadcast_to(rows, (120, 160, 3)).copy()
+    noise = np.random.default_rng(2).integers(0, 255, (60, 80), dtype=np.uint8)
+    big = Hypothesis("vf-1", "viewframe", "renderer", 1.0, (), 1, 1.0, {"image": image, "noise": noise})
     small = _hyp("a", "x-1", 2.0)
-    big_data, small_data = message(big, "post", "renderer"), message(small, "post", "src")
+    big_data = encode({"op": "post", "hyp": big.to_record(), "sender": "renderer"})
+    small_data = encode({"op": "post", "hyp": small.to_record(), "sender": "src"})
     assert len(big_data) >= KEEP_BYTES_BELOW > len(small_data)
-    store = Store(encode=message)
+    store = Store(unpack=unpack)
     store.put(big, big_data, sender="renderer")
     store.put(small, small_data, sender="src")
-    assert store.kept_bytes() == len(small_data)  # the image is held once: in the hypothesis
+    # the image is held once, compressed; no decoded copy of it is kept
+    assert store.kept_bytes() < len(small_data) + image.nbytes / 4 + noise.nbytes + 1024
+    assert store.decoded_ids() == ["x-1"]
     ((_, again),) = store.select(KEYS, KEYS.hypothesis("viewframe", "vf-1"))
     assert again == big_data  # the read gets the very message that was posted
-    np.testing.assert_array_equal(Hypothesis.from_record(decode(again)["hyp"]).body["image"], image)
+    got = store.get("vf-1")
+    assert got is not None and got == big and type(got) is Hypothesis
+    np.testing.assert_array_equal(got.body["image"], image)
+    np.testing.assert_array_equal(got.body["noise"], noise)
+    # a listing holds no decoded body: it is decoded each time it is read
+    listed = store.hypotheses("viewframe")[0]
+    assert listed == big and listed.version == 1 and listed.level == "viewframe"
+    np.testing.assert_array_equal(listed.body["image"], image)
+    assert listed.body["image"] is not listed.body["image"]
+    assert "body" not in vars(listed) and big == listed
+    # a version made from a listed one is an ordinary hypothesis
+    newer = listed.evolve(body={"k": 1})
+    assert newer.version == 2 and newer.body["k"] == 1 and set(newer.body) == {"image", "noise", "k"}
+    assert dataclasses.replace(listed, credibility=0.5).body["noise"].shape == (60, 80)
     assert store.select(KEYS, KEYS.hypothesis("a", "x-1"))[0][1] is small_data
     keep_all = Store()
     keep_all.put(big, big_data, sender="renderer")
-    assert keep_all.kept_bytes() == len(big_data)
+    assert keep_all.kept_bytes() == len(big_data) and keep_all.get("vf-1") is big
