@@ -127,7 +127,9 @@ class AssociativeIndexer(KnowledgeSource):
             if k not in self._images:
                 self._images[k] = levels.Viewframe.read(board, k).image
         index = ViewframeIndex(mp.memory, seed=self.shard)
-        index.add((self._images[k] for k in mine), mine)
+        # each image is dropped as soon as it is made into a pattern: the images and the banks
+        # are never all resident at once
+        index.add((self._images.pop(k) for k in mine), mine)
         self._index = index
         self._windows = TrackWindows(index.settings, viewframes=mp.viewframes, tracked=self.tracked)
         for early in self._early:

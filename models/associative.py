@@ -72,8 +72,9 @@ live in other processes and their rankings merge with :func:`merge_rankings`.
 
 from __future__ import annotations
 
+import itertools
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Sequence, Sized
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -562,23 +563,32 @@ class BankedMemory:
         self.write_many([pattern], [viewframe])
 
     def write_many(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
-        """Store several patterns, filling banks in order."""
-        pats, vfs = list(patterns), [int(x) for x in viewframes]
-        if len(pats) != len(vfs):
-            raise AssociativeMemoryError(f"write: {len(pats)} patterns but {len(vfs)} viewframes")
+        """Store several patterns, filling banks in order. ``patterns`` is consumed one bank at a
+        time (an iterator of patterns is never all in memory); when it yields another number of
+        patterns than ``viewframes`` has, the error comes after the banks filled so far."""
+        vfs = [int(x) for x in viewframes]
+        if isinstance(patterns, Sized) and len(patterns) != len(vfs):
+            raise AssociativeMemoryError(f"write: {len(patterns)} patterns but {len(vfs)} viewframes")
         dup = self._viewframes.intersection(vfs)
         if dup or len(set(vfs)) != len(vfs):
             raise AssociativeMemoryError(f"write: viewframe {min(dup) if dup else vfs} is already stored")
+        source = iter(patterns)
         i = 0
-        while i < len(pats):
+        while i < len(vfs):
             if not self.banks or len(self.banks[-1]) >= self.bank_size:
                 self.banks.append(self._new_bank())
             bank = self.banks[-1]
-            take = min(self.bank_size - len(bank), len(pats) - i)
-            bank.write_many(pats[i : i + take], vfs[i : i + take])
+            take = min(self.bank_size - len(bank), len(vfs) - i)
+            pats = list(itertools.islice(source, take))
+            if len(pats) < take:
+                self._packed = None
+                raise AssociativeMemoryError(f"write: {i + len(pats)} patterns but {len(vfs)} viewframes")
+            bank.write_many(pats, vfs[i : i + take])
             self._viewframes.update(vfs[i : i + take])
             i += take
         self._packed = None
+        if next(source, None) is not None:
+            raise AssociativeMemoryError(f"write: more patterns than the {len(vfs)} viewframes")
 
     @property
     def ranking_matrix(self) -> NDArray[np.float32]:
