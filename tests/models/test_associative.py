@@ -148,6 +148,34 @@ def test_banked_and_single_memory_agree_on_small_sets() -> None:
         assert a.viewframes.tolist() == b.viewframes.tolist() and np.allclose(a.variances, b.variances)
 
 
+def test_banked_memory_draws_its_patterns_one_bank_at_a_time() -> None:
+    rng = np.random.default_rng(8)
+    pats = [preprocess(scene(rng), size=32) for _ in range(7)]
+    drawn: list[int] = []
+    held: list[int] = []  # patterns drawn but not yet in a bank, as each is drawn
+
+    def lazily():
+        for i, p in enumerate(pats):
+            drawn.append(i)
+            held.append(len(drawn) - len(banked))
+            yield p
+
+    banked = BankedMemory(32, bank_size=3)
+    banked.write_many(lazily(), range(7))
+    assert drawn == list(range(7)) and max(held) <= 3  # never more than a bank's worth waiting
+    listed = BankedMemory(32, bank_size=3)
+    listed.write_many(pats, range(7))
+    q = pats[4] + 0.01 * rng.standard_normal(pats[4].shape).astype(np.float32)
+    a, b = banked.rank(q), listed.rank(q)
+    assert a.viewframes.tolist() == b.viewframes.tolist() and np.array_equal(a.variances, b.variances)
+    with pytest.raises(AssociativeMemoryError, match="2 patterns but 3 viewframes"):
+        BankedMemory(32, bank_size=2).write_many(iter(pats[:2]), [0, 1, 2])
+    with pytest.raises(AssociativeMemoryError, match="more patterns than the 2 viewframes"):
+        BankedMemory(32, bank_size=2).write_many(iter(pats[:3]), [0, 1])
+    with pytest.raises(AssociativeMemoryError, match="3 patterns but 2 viewframes"):
+        BankedMemory(32, bank_size=2).write_many(pats[:3], [0, 1])
+
+
 def test_state_round_trips_through_msgpack() -> None:
     pats = _random_patterns(16, 5, seed=7)
     mem = BankedMemory(16, bank_size=2, seed=3)
