@@ -216,58 +216,157 @@ class ViewframeCache:
             raise ValueError(f"entry lacks the fields {sorted(missing)}")
         return [Viewframe(**{name: col[i] for name, col in columns.items()}) for i in range(n)]
 
+    def read(self, key: str) -> list[Viewframe] | None:
+        """:meth:`load` without counting a hit or a miss (an entry this run has just written)."""
+        folder = self.path(key)
+        if not (folder / "meta.json").is_file():
+            return None
+        try:
+            return self._read(folder)
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            log.warning("viewframe cache %s: unreadable entry: %s", folder, err)
+            return None
+
     def store(self, key: str, viewframes: Sequence[Viewframe]) -> Path:
         """Write ``viewframes`` under ``key`` (atomically; a no-op when the entry exists)."""
         final = self.path(key)
         if key in self:
             return final
-        self.root.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=self.root))
         try:
-            self._write(tmp, viewframes)
-            try:
-                os.rename(tmp, final)
-            except OSError:
-                if key not in self:  # not a concurrent writer that won: a real failure
-                    raise
-                log.debug("viewframe cache: %s was written concurrently; keeping that one", final)
+            writer = self.writer(key, len(viewframes))
+        except OSError as err:
+            log.warning("viewframe cache %s: cannot store (%s); the run goes on without it", final, err)
+            return final
+        try:
+            for row, vf in enumerate(viewframes):
+                writer.put(row, vf)
+            writer.commit()
         except OSError as err:
             log.warning("viewframe cache %s: cannot store (%s); the run goes on without it", final, err)
         finally:
-            if tmp.exists():
-                shutil.rmtree(tmp, ignore_errors=True)
+            writer.abort()
         return final
 
-    def _write(self, folder: Path, viewframes: Sequence[Viewframe]) -> None:
-        meta: dict[str, Any] = {
-            "format": _FORMAT,
-            "count": len(viewframes),
-            "arrays": [],
-            "absent": {},
-            "ragged": {},
-            "values": {},
-        }
-        for f in dataclasses.fields(Viewframe):
-            values = [getattr(vf, f.name) for vf in viewframes]
-            arrays = [v for v in values if isinstance(v, np.ndarray)]
-            alike = len({(a.shape, a.dtype.str) for a in arrays}) == 1
-            if arrays and alike and all(isinstance(v, np.ndarray) or v is None for v in values):
-                # one stacked file; an optional field's None rows are zeros, marked absent
-                stacked = np.zeros((len(values), *arrays[0].shape), dtype=arrays[0].dtype)
-                for i, v in enumerate(values):
-                    if v is not None:
-                        stacked[i] = v
-                np.save(folder / f"{f.name}.npy", stacked, allow_pickle=False)
-                meta["arrays"].append(f.name)
-                if len(arrays) < len(values):
-                    meta["absent"][f.name] = [v is None for v in values]
-                continue
-            if arrays:  # arrays of several shapes
-                meta["ragged"][f.name] = [isinstance(v, np.ndarray) for v in values]
-                for i, v in enumerate(values):
-                    if isinstance(v, np.ndarray):
-                        np.save(folder / f"{f.name}.{i}.npy", v, allow_pickle=False)
-                continue
-            meta["values"][f.name] = [_encode(v) for v in values]
+    def writer(self, key: str, count: int) -> EntryWriter:
+        """An :class:`EntryWriter` filling the entry of ``count`` viewframes under ``key`` row by
+        row, as they are rendered (:class:`OSError` when the cache folder cannot be written)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{key[:16]}.", suffix=".tmp", dir=self.root))
+        return EntryWriter(tmp, self.path(key), count)
+
+
+class EntryWriter:
+    """Writes one cache entry (see the module docstring) a viewframe at a time, in any order of
+    rows, without holding them: each array is written at its row's place in its field's stacked
+    ``.npy`` (plain file writes, so the entry's pages are not resident in this process), the
+    other fields are kept as JSON data until :meth:`commit`. :meth:`commit` writes ``meta.json``
+    and renames the folder into place; :meth:`abort` (or a failed commit) removes it.
+
+    Example::
+
+        writer = cache.writer(key, len(poses))
+        for row, pose in enumerate(poses):
+            writer.put(row, render_one(pose))
+        writer.commit()
+    """
+
+    def __init__(self, folder: Path, final: Path, count: int) -> None:
+        if count < 0:
+            raise ValueError(f"count must be >= 0, got {count}")
+        self.folder, self.final, self.count = folder, final, int(count)
+        self._names = [f.name for f in dataclasses.fields(Viewframe)]
+        self._stacked: dict[str, tuple[int, int, tuple[int, ...], np.dtype]] = {}  # fd, data offset, shape, dtype
+        self._ragged: set[str] = set()
+        self._has: dict[str, list[bool]] = {}  # array fields: which rows hold an array
+        self._values: dict[str, list[Any]] = {name: [None] * self.count for name in self._names}
+        self._put = [False] * self.count
+
+    def put(self, row: int, viewframe: Viewframe) -> None:
+        """Write ``viewframe`` as the entry's row ``row`` (0 <= row < count)."""
+        if not 0 <= row < self.count:
+            raise ValueError(f"row must be in [0, {self.count}), got {row}")
+        for name in self._names:
+            value = getattr(viewframe, name)
+            if isinstance(value, np.ndarray):
+                if any(v is not None for v in self._values[name]):
+                    raise TypeError(f"field {name} holds an array in row {row} and other values elsewhere")
+                self._array(name, row, value)
+            elif value is not None:
+                if name in self._has:
+                    raise TypeError(f"field {name} holds a {type(value).__name__} in row {row} and arrays elsewhere")
+                self._values[name][row] = _encode(value)
+        self._put[row] = True
+
+    def _array(self, name: str, row: int, value: np.ndarray) -> None:
+        has = self._has.setdefault(name, [False] * self.count)
+        a = np.ascontiguousarray(value)
+        if name not in self._stacked and name not in self._ragged:
+            path = self.folder / f"{name}.npy"
+            head = np.lib.format.open_memmap(path, mode="w+", dtype=a.dtype, shape=(self.count, *a.shape))
+            offset = int(head.offset)
+            del head  # the header and the (sparse, zero) file are written; rows go in by plain writes
+            self._stacked[name] = (os.open(path, os.O_WRONLY), offset, a.shape, a.dtype)
+        if name in self._stacked:
+            fd, offset, shape, dtype = self._stacked[name]
+            if a.shape == shape and a.dtype == dtype:
+                os.pwrite(fd, a.tobytes(), offset + row * a.nbytes)
+                has[row] = True
+                return
+            self._unstack(name)  # arrays of several shapes: one file per row
+        np.save(self.folder / f"{name}.{row}.npy", a, allow_pickle=False)
+        has[row] = True
+
+    def _unstack(self, name: str) -> None:
+        fd, _, _, _ = self._stacked.pop(name)
+        os.close(fd)
+        path = self.folder / f"{name}.npy"
+        stacked = np.load(path, mmap_mode="r", allow_pickle=False)
+        for r, ok in enumerate(self._has[name]):
+            if ok:
+                np.save(self.folder / f"{name}.{r}.npy", np.array(stacked[r]), allow_pickle=False)
+        del stacked
+        path.unlink()
+        self._ragged.add(name)
+
+    def _close_files(self) -> None:
+        for fd, _, _, _ in self._stacked.values():
+            os.close(fd)
+        self._stacked.clear()
+
+    def commit(self) -> Path:
+        """Write ``meta.json`` and move the entry into place (when another run wrote the same
+        entry first, its copy stays and this one is dropped); ValueError when a row is missing."""
+        missing = [r for r, ok in enumerate(self._put) if not ok]
+        if missing:
+            self.abort()
+            raise ValueError(f"viewframe cache entry: rows {missing[:5]} of {self.count} were never written")
+        stacked = list(self._stacked)
+        self._close_files()
+        meta: dict[str, Any] = {"format": _FORMAT, "count": self.count, "arrays": [], "absent": {}, "ragged": {}}
+        meta["values"] = {}
+        for name in self._names:
+            if name in stacked:
+                meta["arrays"].append(name)
+                if not all(self._has[name]):
+                    meta["absent"][name] = [not ok for ok in self._has[name]]
+            elif name in self._ragged:
+                meta["ragged"][name] = list(self._has[name])
+            else:
+                meta["values"][name] = self._values[name]
         # meta.json last: an entry without it is never read
-        (folder / "meta.json").write_text(json.dumps(meta))
+        (self.folder / "meta.json").write_text(json.dumps(meta))
+        try:
+            os.rename(self.folder, self.final)
+        except OSError:
+            if not (self.final / "meta.json").is_file():  # not a concurrent writer that won: a real failure
+                self.abort()
+                raise
+            log.debug("viewframe cache: %s was written concurrently; keeping that one", self.final)
+        self.abort()
+        return self.final
+
+    def abort(self) -> None:
+        """Remove the unfinished entry (nothing once committed)."""
+        self._close_files()
+        if self.folder.exists():
+            shutil.rmtree(self.folder, ignore_errors=True)

@@ -44,6 +44,8 @@ __all__ = [
 ]
 
 _SKYLINE = SkylineSpec()
+#: the most poses of one share a rendering worker renders and sends back at once
+MAX_SHARE = 64
 
 
 @dataclass
@@ -117,12 +119,16 @@ def render_viewframes(
     *,
     skyline_step_deg: float = _SKYLINE.step_deg,
     progress: Callable[[int, int], None] | None = None,
+    sink: Callable[[int, Viewframe], None] | None = None,
 ) -> list[Viewframe]:
     """Render and describe the viewframe at every pose (the route poses), numbered in order; each
     carries its skyline at ``skyline_step_deg`` degrees per bin (the scenario's ``skyline.step_deg``)
     and, where a landmark is in view, also the same view without landmarks
-    (:attr:`Viewframe.background`). ``progress(done, total)`` is called after each."""
-    return _render(emulator, poses, 0, skyline_step_deg=skyline_step_deg, progress=progress)
+    (:attr:`Viewframe.background`). ``progress(done, total)`` is called after each.
+
+    ``sink(position, viewframe)``, when given, takes each viewframe as it is rendered (``position``
+    its place in ``poses``) and none is kept: the result is then empty."""
+    return _render(emulator, poses, 0, skyline_step_deg=skyline_step_deg, progress=progress, sink=sink)
 
 
 def _render(
@@ -132,8 +138,10 @@ def _render(
     *,
     skyline_step_deg: float,
     progress: Callable[[int, int], None] | None = None,
+    sink: Callable[[int, Viewframe], None] | None = None,
 ) -> list[Viewframe]:
-    """The viewframes of ``poses``, numbered from ``first``."""
+    """The viewframes of ``poses``, numbered from ``first`` (each given to ``sink`` instead of
+    kept, when given)."""
     env = emulator.environment
     fov = float(emulator.camera.fov_y_deg)
     frames = []
@@ -142,7 +150,11 @@ def _render(
         desc = describe(view.mask, view.depth, env.landmarks, pose=pose, emulator=emulator)
         sky = skyline_from_depth(view.depth, fov_y_deg=fov, step_deg=skyline_step_deg)
         background = emulator.render_background(pose) if (view.mask >= 0).any() else None
-        frames.append(Viewframe(first + i, pose, view.image, view.depth, view.mask, desc, sky, background))
+        vf = Viewframe(first + i, pose, view.image, view.depth, view.mask, desc, sky, background)
+        if sink is not None:
+            sink(i, vf)
+        else:
+            frames.append(vf)
         if progress is not None:
             progress(i + 1, len(poses))
     return frames
@@ -157,22 +169,26 @@ def render_viewframes_parallel(
     skyline_step_deg: float = _SKYLINE.step_deg,
     chunk: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    sink: Callable[[int, Viewframe], None] | None = None,
 ) -> list[Viewframe]:
     """:func:`render_viewframes` of ``environment`` seen by ``camera`` at ``poses``, rendered by
     ``workers`` processes (see the module docstring); equal to the serial result.
 
     The route is cut into contiguous shares of ``chunk`` poses (default: enough for eight shares
-    per worker, so that a slow worker does not hold the others up); each worker
+    per worker, so that a slow worker does not hold the others up, and at most :data:`MAX_SHARE`,
+    so that the shares in flight are a bounded amount of memory); each worker
     (:mod:`models.render_worker`, its own process and EGL context) takes the next share when it
     is done with one. ``progress(done, total)`` is called in this thread as shares come back. A
     worker that fails or dies raises :class:`~models.errors.RenderError` with its message.
+    ``sink(position, viewframe)``, when given, takes each viewframe as its share comes back (in
+    the order shares finish) and none is kept: the result is then empty.
     """
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     n = len(poses)
     if n == 0:
         return []
-    size = max(1, chunk if chunk is not None else math.ceil(n / (8 * workers)))
+    size = max(1, chunk if chunk is not None else min(MAX_SHARE, math.ceil(n / (8 * workers))))
     shares = collections.deque((s, list(poses[s : s + size])) for s in range(0, n, size))
     setup = pickle.dumps((environment, camera, float(skyline_step_deg)), protocol=pickle.HIGHEST_PROTOCOL)
     env = dict(os.environ)
@@ -226,8 +242,14 @@ def render_viewframes_parallel(
             if item is None:
                 finished += 1
                 continue
-            parts[item[0]] = item[1]
+            if sink is not None:
+                for i, vf in enumerate(item[1]):
+                    sink(item[0] + i, vf)
+                parts[item[0]] = []
+            else:
+                parts[item[0]] = item[1]
             rendered += len(item[1])
+            item = None  # the share is not held while waiting for the next
             if progress is not None:
                 progress(rendered, n)
     finally:
@@ -243,6 +265,10 @@ def render_viewframes_parallel(
                 p.stdout.close()
     if errors:
         raise RenderError(f"rendering viewframes in worker processes failed: {errors[0]}")
+    if sink is not None:
+        if rendered != n:
+            raise RenderError(f"rendering viewframes in worker processes: {rendered} of {n} came back")
+        return []
     frames = [vf for first in sorted(parts) for vf in parts[first]]
     if len(frames) != n:
         raise RenderError(f"rendering viewframes in worker processes: {len(frames)} of {n} came back")

@@ -101,7 +101,9 @@ class World:
     def viewframes(self) -> list[Viewframe]:
         """The viewframe at every route point, rendered and symbolically described (or read from
         the viewframe cache); rendered by worker processes as the scenario's ``render`` block says
-        (:class:`models.scenario.RenderSpec`)."""
+        (:class:`models.scenario.RenderSpec`). With a cache, each viewframe is written into the
+        cache's entry as it is rendered and the result is that entry, memory-mapped: the
+        rendered arrays are never all in memory (without a cache they are)."""
         key = None
         if self.cache is not None:
             key = cache_key(self.scenario, self.environment.terrain, lod=self._lod)
@@ -110,6 +112,29 @@ class World:
                 if self._progress is not None:
                     self._progress(len(cached), len(cached))
                 return cached
+        if self.cache is None or key is None:
+            return self._render(sink=None)
+        cache = self.cache
+        try:
+            writer = cache.writer(key, len(self.poses))
+        except OSError as err:
+            log.warning("viewframe cache %s: cannot store (%s); the run goes on without it", cache.root, err)
+            return self._render(sink=None)
+        try:
+            self._render(sink=writer.put)
+            writer.commit()
+        except OSError as err:
+            log.warning("viewframe cache %s: cannot store (%s); rendering again, kept in memory", cache.root, err)
+            writer.abort()
+            return self._render(sink=None)
+        finally:
+            writer.abort()
+        back = cache.read(key)  # the entry just written, memory-mapped
+        return back if back is not None else self._render(sink=None)
+
+    def _render(self, *, sink: Callable[[int, Viewframe], None] | None) -> list[Viewframe]:
+        """Every route point's viewframe, rendered (see :attr:`viewframes`); with ``sink``, each is
+        given to it as it is rendered (written into the cache) and none is kept."""
         step = self.scenario.skyline.step_deg
         workers = self.scenario.render.worker_count(len(self.poses))
         if workers > 1:
@@ -120,12 +145,13 @@ class World:
                 workers=workers,
                 skyline_step_deg=step,
                 progress=self._progress,
+                sink=sink,
             )
         else:
-            frames = render_viewframes(self.emulator, self.poses, skyline_step_deg=step, progress=self._progress)
-        log.info("rendered %d viewframes of %s in %d process(es)", len(frames), self.scenario.name, workers)
-        if self.cache is not None and key is not None:
-            self.cache.store(key, frames)
+            frames = render_viewframes(
+                self.emulator, self.poses, skyline_step_deg=step, progress=self._progress, sink=sink
+            )
+        log.info("rendered %d viewframes of %s in %d process(es)", len(self.poses), self.scenario.name, workers)
         return frames
 
     @cached_property

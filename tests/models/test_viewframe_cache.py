@@ -104,6 +104,45 @@ def test_optional_array_fields_round_trip(tmp_path):
     _same(mixed, back)
 
 
+def test_the_writer_takes_rows_in_any_order_and_arrays_of_several_shapes(tmp_path):
+    import dataclasses
+
+    heap = World(scenario_from_dict(_data()), cache=None).viewframes
+    # the last viewframe's image half as tall: that field goes one file per row
+    varied = heap[:-1] + [dataclasses.replace(heap[-1], image=np.ascontiguousarray(heap[-1].image[::2]))]
+    cache = ViewframeCache(tmp_path)
+    writer = cache.writer("w" * 64, len(varied))
+    for row in reversed(range(len(varied))):
+        writer.put(row, varied[row])
+    assert "w" * 64 not in cache  # nothing readable before the commit
+    writer.commit()
+    back = cache.read("w" * 64)
+    assert back is not None and cache.hits == cache.misses == 0  # read() counts neither
+    _same(varied, back)
+    assert [vf.image.shape[0] for vf in back] == [48, 48, 48, 24]
+    short = cache.writer("s" * 64, 3)
+    short.put(0, heap[0])
+    with pytest.raises(ValueError, match=r"rows \[1, 2\] of 3 were never written"):
+        short.commit()
+    assert "s" * 64 not in cache and sorted(p.name for p in tmp_path.iterdir()) == ["w" * 64]
+
+
+def test_a_rendering_world_writes_the_cache_as_it_renders_and_maps_it(tmp_path):
+    scenario = scenario_from_dict(_data())
+    heap = World(scenario, cache=None).viewframes
+    cache = ViewframeCache(tmp_path)
+    with World(scenario, cache=cache) as world:
+        mapped = world.viewframes
+        assert cache.misses == 1 and cache.hits == 0
+    _same(heap, mapped)  # the same viewframes as rendered into memory
+    for vf in mapped:  # but held by the cache's files, not in this process's heap
+        for a in (vf.image, vf.depth, vf.mask):
+            base = a
+            while base.base is not None and not isinstance(base, np.memmap):
+                base = base.base
+            assert isinstance(base, np.memmap)
+
+
 def test_a_new_renderer_version_is_a_miss(tmp_path, monkeypatch):
     cache = ViewframeCache(tmp_path)
     scenario = scenario_from_dict(_data())
@@ -121,7 +160,9 @@ def test_an_unreadable_entry_is_a_miss_and_rendered_again(tmp_path):
     scenario = scenario_from_dict(_data())
     rendered = World(scenario, cache=cache).viewframes
     (entry,) = tmp_path.iterdir()
-    (entry / "image.npy").write_bytes(b"garbage")
+    # replaced, not overwritten in place: the first world's viewframes map the entry's files
+    (entry / "garbage").write_bytes(b"garbage")
+    (entry / "garbage").replace(entry / "image.npy")
     with World(scenario, cache=cache) as world:
         _same(rendered, world.viewframes)
         assert world._emulator is not None
