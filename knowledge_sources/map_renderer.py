@@ -13,6 +13,9 @@ __all__ = ["MapRenderer"]
 
 log = logging.getLogger(__name__)
 
+#: viewframes posted between two returns of their memory-mapped pages (models.viewframe_cache.release_pages)
+RELEASE_EVERY = 64
+
 
 class MapRenderer(KnowledgeSource):
     """Builds the environment model F*, renders a viewframe at every route point and posts each
@@ -31,6 +34,7 @@ class MapRenderer(KnowledgeSource):
         return input_error_message(err)  # the scenario's files: the run stops with their error
 
     def act(self, event: Event, board: Board) -> None:
+        from models.viewframe_cache import release_pages
         from models.world import World
 
         source = event.hypothesis
@@ -40,7 +44,7 @@ class MapRenderer(KnowledgeSource):
             viewframes = world.viewframes
             priors = world.priors
         poses = []
-        for vf in viewframes:
+        for k, vf in enumerate(viewframes):
             message = levels.Viewframe.of(vf)
             poses.append(message.pose)
             levels.post(
@@ -48,6 +52,13 @@ class MapRenderer(KnowledgeSource):
                 message,
                 links=(source.id,),
             )
+            del message
+            if (k + 1) % RELEASE_EVERY == 0 or k + 1 == len(viewframes):
+                # viewframes from the cache are memory-mapped: the pages read to post them are given
+                # back batch by batch (this one and the one before, to cover the pages that straddle
+                # the two), else the route's whole entry would become resident as it is posted
+                batch = viewframes[max(0, k + 1 - 2 * RELEASE_EVERY) : k + 1]
+                release_pages(a for v in batch for a in (v.image, v.mask, v.background, v.depth, v.skyline))
         levels.post(
             board,
             levels.Map(

@@ -29,11 +29,12 @@ import dataclasses
 import hashlib
 import json
 import logging
+import mmap
 import os
 import shutil
 import tempfile
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,16 @@ import numpy as np
 
 from models.viewframes import Viewframe
 
-__all__ = ["RENDERER_VERSION", "RENDERER_MODULES", "CACHE_ENV", "ViewframeCache", "cache_key", "default_cache_root"]
+__all__ = [
+    "RENDERER_VERSION",
+    "RENDERER_MODULES",
+    "CACHE_ENV",
+    "EntryWriter",
+    "ViewframeCache",
+    "cache_key",
+    "default_cache_root",
+    "release_pages",
+]
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +74,42 @@ def default_cache_root() -> Path | None:
         return Path(value).expanduser()
     xdg = os.environ.get("XDG_CACHE_HOME")
     return (Path(xdg) if xdg else Path.home() / ".cache") / "mapinterp"
+
+
+#: Linux madvise(2) MADV_PAGEOUT (5.4 and later; Python's mmap module may not name it)
+_MADV_PAGEOUT = getattr(mmap, "MADV_PAGEOUT", 21)
+
+
+def release_pages(arrays: Iterable[np.ndarray | None]) -> int:
+    """Give back the resident pages of arrays read from a cache entry (memory-mapped), e.g. once a
+    batch of viewframes is posted: the kernel drops them from this process (``MADV_PAGEOUT``)
+    and reads them from the file again if they are used again; nothing is lost, written
+    copy-on-write pages included. One call per memory map, over the span of the arrays in it:
+    give a batch of neighbouring rows at once (the kernel keeps a page-cache folio only partly
+    in the span). Arrays not backed by a memory map are left alone; where the system does not
+    support it, nothing happens. Returns the bytes advised."""
+    spans: dict[int, tuple[mmap.mmap, int, int]] = {}
+    for a in arrays:
+        base = a
+        while isinstance(base, np.ndarray) and not isinstance(base, np.memmap):
+            base = base.base
+        mm = getattr(base, "_mmap", None) if isinstance(base, np.memmap) else None
+        if a is None or not isinstance(mm, mmap.mmap) or a.nbytes == 0:
+            continue
+        address = int(a.ctypes.data)
+        m, lo, hi = spans.get(id(mm), (mm, address, address + a.nbytes))
+        spans[id(mm)] = (m, min(lo, address), max(hi, address + a.nbytes))
+    done = 0
+    for mm, lo, hi in spans.values():
+        try:
+            start = np.frombuffer(mm, dtype=np.uint8, count=1).ctypes.data
+            rel = lo - start
+            rel -= rel % mmap.PAGESIZE
+            mm.madvise(_MADV_PAGEOUT, rel, hi - start - rel)
+            done += hi - start - rel
+        except (OSError, ValueError, TypeError, AttributeError):
+            continue
+    return done
 
 
 def _source_digest() -> str:

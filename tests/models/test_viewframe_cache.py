@@ -221,3 +221,26 @@ def test_two_processes_share_a_cache_at_once(tmp_path):
     assert third.returncode == 0, third.stderr
     result = json.loads(third.stdout.strip().splitlines()[-1])
     assert result["digest"] == outs[0]["digest"] and result["rendered"] is False
+
+
+def _rss_file_kb() -> int:
+    with open("/proc/self/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("RssFile:"))
+
+
+def test_released_pages_of_a_cache_entry_leave_this_process(tmp_path):
+    from models.viewframe_cache import release_pages
+
+    rows = np.broadcast_to(np.arange(64, dtype=np.uint8)[:, None], (64, 512 * 1024))  # 64 rows, 32 MB
+    np.save(tmp_path / "a.npy", np.ascontiguousarray(rows))
+    mapped = np.load(tmp_path / "a.npy", mmap_mode="c")
+    views = [np.asarray(mapped[i]) for i in range(64)]
+    views[5][0] = 99  # a written (copy-on-write) page is kept, not lost
+    before = _rss_file_kb()
+    total = sum(int(v[::4096].sum()) for v in views)  # touch every page
+    touched = _rss_file_kb() - before
+    assert touched > 24 * 1024  # the 32 MB read are resident
+    assert release_pages(views) >= 32 * 1024 * 1024 - 4096
+    assert _rss_file_kb() - before < touched / 4  # and given back
+    assert sum(int(v[::4096].sum()) for v in views) == total and views[5][0] == 99  # still readable, unchanged
+    assert release_pages([np.zeros(10), None]) == 0  # arrays not from a memory map are left alone
