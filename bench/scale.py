@@ -29,11 +29,20 @@ a filled cache (warm).
 
 Prints JSON, then a table.
 
+With ``--holders``, who holds what in a whole mission (one child process, every agent in it, the
+cache filled first): at the map, once indexed, and after the first and last position, the
+numpy and bytes payload reachable from the node store and from each agent (its knowledge
+source, its agenda), RSS split into anonymous / file-backed / shared memory, and the peak RSS;
+``--baseline DIR`` runs the same child in another checkout too (e.g. main's), for a before and
+after in one run. With ``--holders``, ``--cache-dir DIR`` keeps the viewframe cache there between runs (default: a
+temporary folder), so a rerun skips rendering.
+
 Or, with ``--banks-only``, the memory banks alone (random patterns, N=128, bank_size 2, spectrum
 in complex128 and complex64), in fresh child processes.
 
     python bench/scale.py [--sizes 1000 2000] [--frames 20] [--no-mission] [--banks-only] [--json-only]
         [--mission drive|burst] [--no-components] [--cache-dir DIR] [--variant a.b=v ...] [--profile DIR]
+        [--holders [--baseline /work/main]]
 """
 
 from __future__ import annotations
@@ -336,6 +345,110 @@ def _print_drives(n: str, r: dict) -> None:
         )
 
 
+_HOLDERS = """
+import json, os, resource, sys, time
+from collections import Counter
+import numpy as np
+import blackboard.runtime as rtm
+from knowledge_sources.mission import run_mission
+
+def status():
+    out = {}
+    for line in open("/proc/self/status"):
+        if line.startswith(("VmRSS", "RssAnon", "RssFile", "RssShmem")):
+            k, v = line.split(":")
+            out[k] = round(int(v.split()[0]) / 1024, 1)
+    return out
+
+cap = {}
+enter = rtm.Runtime.__enter__
+def capture(self):
+    cap["rt"] = self
+    return enter(self)
+rtm.Runtime.__enter__ = capture
+
+def payload(obj, seen, depth=0):
+    # bytes of numpy arrays (owning their data) and bytes objects reachable from obj, each once
+    if depth > 12 or id(obj) in seen or isinstance(obj, (int, float, str, bool, type(None))):
+        return 0
+    seen.add(id(obj))
+    if isinstance(obj, np.ndarray):
+        return obj.nbytes if obj.flags.owndata else payload(obj.base, seen, depth + 1)
+    if isinstance(obj, (bytes, bytearray)):
+        return len(obj)
+    if isinstance(obj, dict):
+        return sum(payload(v, seen, depth + 1) for v in list(obj.values()))
+    if isinstance(obj, (list, tuple, set, frozenset)):
+        return sum(payload(v, seen, depth + 1) for v in list(obj))
+    if type(obj).__module__.startswith(("zenoh", "threading", "queue", "logging", "_thread", "mmap")):
+        return 0
+    total = payload(getattr(obj, "__dict__", None), seen, depth + 1)
+    for name in getattr(type(obj), "__slots__", ()):
+        total += payload(getattr(obj, name, None), seen, depth + 1)
+    return total
+
+rows = []
+def census(tag):
+    rt, seen = cap["rt"], set()
+    row = {"at": tag, **status(), "node store": payload(rt.node._store._entries, seen) / 2**20}
+    for name, runner in sorted(rt._runners.items()):
+        row[name] = (payload(runner.source, seen) + payload(runner._agenda, seen)) / 2**20
+    rows.append(row)
+
+counts = Counter()
+frames = int(sys.argv[2])
+def on_hypothesis(level, body, ts):
+    counts[level] += 1
+    c = counts[level]
+    if level == "map" or (level == "index" and c == int(sys.argv[3])) or (level == "position" and c in (1, frames)):
+        census(f"{level} {c}")
+
+t0 = time.perf_counter()
+res = run_mission(sys.argv[1], on_hypothesis=on_hypothesis)
+print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                  "wall_s": time.perf_counter() - t0, "top1": res["summary"]["top1"], "census": rows,
+                  "frames": [[r.get("frame"), r.get("viewframe"), r.get("correct")] for r in res["frames"]]}))
+"""
+
+
+def holders(path: Path, cache: str, *, cwd: Path, frames: int) -> dict:
+    """Who holds what in a whole mission of ``path`` (see the module docstring), run by the code
+    of checkout ``cwd`` (its viewframe cache entry is filled by a first run if missing)."""
+    import math
+
+    from models.scenario import load_scenario
+
+    scenario = load_scenario(path)
+    shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
+    env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl", "PYTHONPATH": str(cwd)}
+    out: dict = {}
+    for run in ("fill", "measured"):  # the first run fills the cache for this checkout's renderer
+        done = subprocess.run(
+            [sys.executable, "-c", _HOLDERS, str(path), str(frames), str(shards)],
+            cwd=cwd,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=7200,
+        )
+        if done.returncode != 0:
+            raise RuntimeError(f"holders run ({cwd}) failed: {done.stderr[-2000:]}")
+        out[run] = json.loads(done.stdout.strip().splitlines()[-1])
+    return out
+
+
+def _print_holders(n: str, label: str, h: dict) -> None:
+    m = h["measured"]
+    print(
+        f"route of {n} viewframes, {label}: peak RSS {m['peak_rss_mb']:.0f} MB (first run, filling the cache: "
+        f"{h['fill']['peak_rss_mb']:.0f} MB), wall {m['wall_s']:.0f} s, top-1 {m['top1']}"
+    )
+    names = [k for k in m["census"][0] if k not in ("at",)]
+    print("  " + " ".join(f"{k[:13]:>13}" for k in ["at", *names]))
+    for row in m["census"]:
+        print("  " + " ".join(f"{row['at']:>13}" if k == "at" else f"{row.get(k, 0):>13.1f}" for k in ["at", *names]))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=int, nargs="*", default=[1000], help="route lengths (default 1000)")
@@ -360,7 +473,7 @@ def main(argv: list[str] | None = None) -> int:
         "--cache-dir",
         type=Path,
         default=None,
-        help="the viewframe cache of the drive missions (default: a temp folder)",
+        help="the viewframe cache of the drive missions and of --holders (default: a temp folder)",
     )
     parser.add_argument(
         "--variant",
@@ -376,6 +489,12 @@ def main(argv: list[str] | None = None) -> int:
         help="only the memory banks' bytes per viewframe (random patterns, no rendering)",
     )
     parser.add_argument("--json-only", action="store_true")
+    parser.add_argument(
+        "--holders", action="store_true", help="only who holds what in a whole mission (a child process, cache filled)"
+    )
+    parser.add_argument(
+        "--baseline", type=Path, help="with --holders: also run it with this checkout's code (e.g. main)"
+    )
     args = parser.parse_args(argv)
     results: dict = {
         "machine": {
@@ -398,6 +517,27 @@ def main(argv: list[str] | None = None) -> int:
                         f"{n:>10} {dtype:>10} {x['traced_kb_per_vf_written']:>13.0f} "
                         f"{x['traced_kb_per_vf_ranked']:>10.0f} {x['rss_kb_per_vf']:>10.0f}"
                     )
+        return 0
+    if args.holders:
+        with tempfile.TemporaryDirectory() as tmp:
+            cache_root = args.cache_dir or Path(tmp) / "cache"
+            for n in args.sizes:
+                path = _make_scenario(n, Path(tmp), args.frames)
+                r = {"after": holders(path, str(cache_root), cwd=HERE.parent, frames=args.frames)}
+                if args.baseline is not None:
+                    r["before"] = holders(path, str(cache_root), cwd=args.baseline.resolve(), frames=args.frames)
+                    r["same_results"] = r["before"]["measured"]["frames"] == r["after"]["measured"]["frames"]
+                results["routes"][str(n)] = r
+        results["machine"]["load_avg_end"] = os.getloadavg()
+        print(json.dumps(results, indent=1))
+        if not args.json_only:
+            for n, r in results["routes"].items():
+                for label in ("before", "after"):
+                    if label in r:
+                        _print_holders(n, f"{label} ({'baseline' if label == 'before' else 'this checkout'})", r[label])
+                if "same_results" in r:
+                    print(f"  same results (frame, viewframe, correct) before and after: {r['same_results']}")
+            print(f"load average {results['machine']['load_avg_start']} -> {results['machine']['load_avg_end']}")
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
