@@ -22,14 +22,24 @@ import struct
 from pathlib import Path
 
 import numpy as np
+from scipy import sparse
 from scipy.interpolate import griddata
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import gaussian_filter, map_coordinates
+from scipy.sparse.linalg import cg, spsolve
 
 from models.errors import InputError
 from models.georef import MapFrame, parse_crs, working_crs
 from models.terrain import Terrain
 
-__all__ = ["ContourLine", "read_contours", "load_contours", "contours_to_dem", "dem_to_contours", "save_contours"]
+__all__ = [
+    "ContourLine",
+    "read_contours",
+    "load_contours",
+    "contours_to_dem",
+    "contours_to_tin",
+    "dem_to_contours",
+    "save_contours",
+]
 
 log = logging.getLogger(__name__)
 
@@ -184,16 +194,8 @@ def _densify(points: np.ndarray, step: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def contours_to_dem(
-    lines: list[ContourLine], *, cell_size: float, shape: tuple[int, int] | None = None, smooth: float = 0.5
-) -> Terrain:
-    """Interpolate contour lines into a DEM.
-
-    Contour points (densified to half a cell) are triangulated and interpolated linearly
-    (``scipy.interpolate.griddata``); cells outside their convex hull take the nearest
-    contour's height. A light Gaussian (``smooth`` cells) removes the facets of the
-    triangulation. ``shape`` (rows, cols) defaults to the grid covering all lines from (0, 0).
-    """
+def _points(lines: list[ContourLine], cell_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Contour points densified to half a cell, (x, y) metres of shape (n, 2), and their heights (n,)."""
     if not lines:
         raise ValueError("no contour lines")
     if not cell_size > 0:
@@ -205,9 +207,27 @@ def contours_to_dem(
         raise ValueError("contour coordinates must be >= 0 (the DEM grid starts at x = y = 0)")
     if len(np.unique(z)) < 2:
         raise ValueError("need contours at two or more elevations")
-    if shape is None:
-        shape = (int(math.floor(xy[:, 1].max() / cell_size)) + 1, int(math.floor(xy[:, 0].max() / cell_size)) + 1)
-    rows, cols = shape
+    return xy, z
+
+
+def _grid_shape(xy: np.ndarray, cell_size: float, shape: tuple[int, int] | None) -> tuple[int, int]:
+    if shape is not None:
+        return int(shape[0]), int(shape[1])
+    return int(math.floor(xy[:, 1].max() / cell_size)) + 1, int(math.floor(xy[:, 0].max() / cell_size)) + 1
+
+
+def contours_to_tin(
+    lines: list[ContourLine], *, cell_size: float, shape: tuple[int, int] | None = None, smooth: float = 0.5
+) -> Terrain:
+    """The former interpolation, kept for comparison (``bench/contours.py``): a linear TIN.
+
+    Contour points (densified to half a cell) are triangulated and interpolated linearly
+    (``scipy.interpolate.griddata``); cells outside their convex hull take the nearest
+    contour's height; a Gaussian of ``smooth`` cells. Triangles with all three corners on one
+    contour are flat: crests, hilltops and valley floors become terraces.
+    """
+    xy, z = _points(lines, cell_size)
+    rows, cols = _grid_shape(xy, cell_size, shape)
     gy, gx = np.mgrid[0:rows, 0:cols].astype(np.float64) * cell_size
     dem = griddata(xy, z, (gx, gy), method="linear")
     holes = np.isnan(dem)
@@ -215,7 +235,178 @@ def contours_to_dem(
         dem[holes] = griddata(xy, z, (gx[holes], gy[holes]), method="nearest")
     if smooth > 0:
         dem = gaussian_filter(dem, smooth, mode="nearest")
-    log.debug("contours -> DEM %s x %s from %d points", rows, cols, len(xy))
+    return Terrain(heights=dem, cell_size=float(cell_size))
+
+
+def _diff(n: int, order: int) -> sparse.spmatrix:
+    """Forward differences of ``order`` 1 or 2 along a line of ``n`` nodes, ((n - order), n)."""
+    if order == 1:
+        return sparse.diags([-np.ones(n - 1), np.ones(n - 1)], [0, 1], shape=(n - 1, n))
+    return sparse.diags([np.ones(n - 2), -2 * np.ones(n - 2), np.ones(n - 2)], [0, 1, 2], shape=(n - 2, n))
+
+
+def _bounds(
+    xy: np.ndarray, z: np.ndarray, rows: int, cols: int, cell_size: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cell, the heights it must lie between, (lo, hi) each of shape (rows, cols), and the
+    cells of *bands* (bool, (rows, cols)): regions bordered by two consecutive levels only.
+
+    The straight segment from a cell to its nearest contour point crosses no other contour, so
+    the cell lies between the levels next below and above that contour's (beyond the lowest and
+    highest level, one interval further). Tighter where the lines say more: the contours,
+    rasterised (8-connected), cut the grid into regions (4-connected); a region that borders
+    two consecutive levels only, and no other, lies between them.
+    """
+    from scipy.ndimage import binary_dilation, label
+    from scipy.spatial import cKDTree
+
+    levels = np.unique(z)
+    gaps = np.diff(levels)
+    gy, gx = np.mgrid[0:rows, 0:cols].astype(np.float64) * cell_size
+    _, k = cKDTree(xy).query(np.column_stack([gx.ravel(), gy.ravel()]))
+    near = z[k]
+    i = np.searchsorted(levels, near)
+    lo = (near - np.concatenate([gaps[:1], gaps])[i]).reshape(rows, cols)
+    hi = (near + np.concatenate([gaps, gaps[-1:]])[i]).reshape(rows, cols)
+    # regions between the rasterised lines, and the levels each one borders
+    r = np.clip(np.rint(xy[:, 1] / cell_size).astype(np.intp), 0, rows - 1)
+    c = np.clip(np.rint(xy[:, 0] / cell_size).astype(np.intp), 0, cols - 1)
+    on_line = np.zeros((rows, cols), bool)
+    on_line[r, c] = True
+    regions, count = label(~on_line)
+    if count == 0:
+        return lo, hi, np.zeros((rows, cols), bool)
+    level_of = np.full((rows, cols), -1, np.intp)
+    level_of[r, c] = np.searchsorted(levels, z)
+    low = np.full(count + 1, len(levels), np.intp)
+    high = np.full(count + 1, -1, np.intp)
+    cross = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]], bool)
+    for j in range(len(levels)):
+        touched = regions[binary_dilation(level_of == j, cross) & ~on_line]
+        low[touched] = np.minimum(low[touched], j)
+        high[touched] = np.maximum(high[touched], j)
+    band = (high == low + 1)[regions] & ~on_line
+    lo = np.where(band, levels[np.clip(low, 0, len(levels) - 1)][regions], lo)
+    hi = np.where(band, levels[np.clip(high, 0, len(levels) - 1)][regions], hi)
+    return lo, hi, band
+
+
+def _distance_ratio(
+    xy: np.ndarray, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, band: np.ndarray, cell_size: float
+) -> np.ndarray:
+    """In band cells, ``lo + (hi - lo) * d_lo / (d_lo + d_hi)`` by the distances to the nearest
+    point of each bounding level; NaN elsewhere."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(lo.shape, np.nan)
+    rr, cc = np.nonzero(band)
+    cells = np.column_stack([cc, rr]).astype(np.float64) * cell_size
+    dist = {}
+    for level in np.unique(np.concatenate([lo[band], hi[band]])):
+        want = (lo[rr, cc] == level) | (hi[rr, cc] == level)
+        d = np.full(len(rr), np.inf)
+        d[want] = cKDTree(xy[z == level]).query(cells[want])[0]
+        dist[level] = d
+    d_lo, d_hi = np.full(len(rr), np.inf), np.full(len(rr), np.inf)
+    for level, d in dist.items():
+        d_lo = np.where(lo[rr, cc] == level, d, d_lo)
+        d_hi = np.where(hi[rr, cc] == level, d, d_hi)
+    out[rr, cc] = lo[rr, cc] + (hi[rr, cc] - lo[rr, cc]) * d_lo / np.maximum(d_lo + d_hi, 1e-9)
+    return out
+
+
+#: weight of the thin-plate (bending) energy against the contour points, per cell
+STIFFNESS = 0.01
+#: in bands (regions between two consecutive levels), the share of the distance-ratio height
+#: in the DEM (the rest is the thin plate's): 0 thin plate only, 1 distance ratio only
+BAND_WEIGHT = 0.5
+#: grids of at most this many cells are solved directly; larger ones by conjugate gradients
+#: started from the solution on a grid of twice the cell size (recursively)
+DIRECT_CELLS = 160 * 160
+CG_RTOL = 1e-6
+CG_ITERATIONS = 400
+
+
+def _thin_plate(
+    xy: np.ndarray, z: np.ndarray, rows: int, cols: int, cell_size: float, *, stiffness: float
+) -> np.ndarray:
+    """The thin-plate heights (rows, cols) through points ``xy`` (n, 2) (x, y) metres of heights ``z``."""
+    u = np.clip(xy[:, 0] / cell_size, 0.0, cols - 1.0)
+    v = np.clip(xy[:, 1] / cell_size, 0.0, rows - 1.0)
+    c0 = np.minimum(u.astype(np.intp), max(cols - 2, 0))
+    r0 = np.minimum(v.astype(np.intp), max(rows - 2, 0))
+    fu, fv = u - c0, v - r0
+    c1, r1 = np.minimum(c0 + 1, cols - 1), np.minimum(r0 + 1, rows - 1)
+    n = len(z)
+    data = np.concatenate([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
+    index = np.concatenate([r0 * cols + c0, r0 * cols + c1, r1 * cols + c0, r1 * cols + c1])
+    a = sparse.csr_matrix((data, (np.tile(np.arange(n), 4), index)), shape=(n, rows * cols))
+    eye_r, eye_c = sparse.identity(rows), sparse.identity(cols)
+    m = (a.T @ a + 1e-9 * sparse.identity(rows * cols)).tocsr()  # (definite where nothing else binds)
+    if cols >= 3:
+        d = sparse.kron(eye_r, _diff(cols, 2))
+        m = m + stiffness * (d.T @ d)
+    if rows >= 3:
+        d = sparse.kron(_diff(rows, 2), eye_c)
+        m = m + stiffness * (d.T @ d)
+    if rows >= 2 and cols >= 2:
+        d = sparse.kron(_diff(rows, 1), _diff(cols, 1))
+        m = m + 2 * stiffness * (d.T @ d)
+    b = a.T @ z
+    if rows * cols <= DIRECT_CELLS:
+        return np.asarray(spsolve(m.tocsc(), b)).reshape(rows, cols)
+    coarse_rows, coarse_cols = (rows + 1) // 2 + 1, (cols + 1) // 2 + 1
+    coarse = _thin_plate(xy, z, coarse_rows, coarse_cols, 2 * cell_size, stiffness=stiffness)
+    gy, gx = np.mgrid[0:rows, 0:cols] / 2.0
+    start = map_coordinates(coarse, [gy.ravel(), gx.ravel()], order=1, mode="nearest")
+    diag = m.diagonal()
+    pre = sparse.diags(1.0 / np.where(diag > 0, diag, 1.0))
+    x, _ = cg(m, b, x0=start, rtol=CG_RTOL, maxiter=CG_ITERATIONS, M=pre)
+    return np.asarray(x).reshape(rows, cols)
+
+
+def contours_to_dem(
+    lines: list[ContourLine],
+    *,
+    cell_size: float,
+    shape: tuple[int, int] | None = None,
+    stiffness: float = STIFFNESS,
+    band_weight: float = BAND_WEIGHT,
+) -> Terrain:
+    """Interpolate contour lines into a DEM: a thin-plate surface through them, blended in bands
+    with the distance ratio between the two bounding levels.
+
+    The heights h (rows, cols) minimise
+
+        sum_p (B_p h - z_p)^2 + stiffness * sum (h_xx^2 + 2 h_xy^2 + h_yy^2)
+
+    over the contour points p (densified to half a cell, B_p the bilinear interpolation at p,
+    z_p its contour's height), with second differences in cells (natural boundaries: the
+    surface continues its slope past the map border and past the outermost contours). Unlike a
+    TIN, a crest between two stretches of one contour rises above it, a hilltop above its
+    highest contour and a valley floor below its lowest, as the neighbouring slopes continue.
+    Every cell is then kept between the levels adjacent to its nearest contour's (see
+    :func:`_bounds`), so the surface never crosses a level the lines do not show. In a band
+    (a region bordered by two consecutive levels L < U only) the height is ``band_weight``
+    times the distance ratio ``L + (U - L) * d_L / (d_L + d_U)`` (d the distance to the nearest
+    point of each level) plus the rest times the thin plate's: the thin plate alone overshoots
+    where contours are spaced very unevenly (a scarp below a plateau) and is then clipped flat,
+    the distance ratio alone puts kinks on the band's medial axis. A larger ``stiffness``
+    smooths more (noisy, digitised lines). :data:`STIFFNESS` and :data:`BAND_WEIGHT` were chosen
+    with ``bench/contours.py`` on tuning terrains. Solved directly up to :data:`DIRECT_CELLS`
+    cells, else by conjugate gradients from the solution at twice the cell size.
+    ``shape`` (rows, cols) defaults to the grid covering all lines from (0, 0).
+    """
+    xy, z = _points(lines, cell_size)
+    rows, cols = _grid_shape(xy, cell_size, shape)
+    z0 = float(z.mean())
+    dem = _thin_plate(xy, z - z0, rows, cols, cell_size, stiffness=stiffness) + z0
+    lo, hi, band = _bounds(xy, z, rows, cols, cell_size)
+    dem = np.clip(dem, lo, hi)
+    if band_weight > 0 and band.any():
+        ratio = _distance_ratio(xy, z, lo, hi, band, cell_size)
+        dem = np.where(band, band_weight * ratio + (1 - band_weight) * dem, dem)
+    log.debug("contours -> DEM %s x %s from %d points (thin plate)", rows, cols, len(z))
     return Terrain(heights=dem, cell_size=float(cell_size))
 
 

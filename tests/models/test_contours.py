@@ -1,4 +1,5 @@
-"""Contour lines to DEM: accuracy on a known surface, GeoJSON reading and its errors."""
+"""Contour lines to DEM: accuracy on known surfaces (hills above their top contour, ridges that
+are not terraces), the large-grid solver, GeoJSON and OGR reading and their errors."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from models.contours import contours_to_dem, dem_to_contours, load_contours, save_contours
+from models.contours import contours_to_dem, contours_to_tin, dem_to_contours, load_contours, save_contours
 from models.errors import InputError
 from models.terrain import Terrain
 
@@ -44,9 +45,86 @@ def test_contours_round_trip_to_a_known_surface(tmp_path, interval):
 
 def test_default_shape_covers_the_lines():
     lines = [(np.array([[0.0, 0.0], [95.0, 0.0]]), 10.0), (np.array([[0.0, 42.0], [95.0, 42.0]]), 20.0)]
-    dem = contours_to_dem(lines, cell_size=10.0, smooth=0)
+    dem = contours_to_dem(lines, cell_size=10.0)
     assert dem.shape == (5, 10)
     assert dem.height_at(50.0, 21.0) == pytest.approx(15.0, abs=0.3)
+
+
+def _grid(n: int = 81, cell: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    return tuple(np.mgrid[0:n, 0:n].astype(np.float64) * cell)  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0], ids=["hill", "bowl"])
+def test_a_hilltop_rises_above_its_top_contour_and_a_bowl_sinks_below_its_lowest(sign):
+    """A paraboloid hill peaking 6 m above its highest contour (every 10 m), and the same upside
+    down: the interpolation continues the slopes past the innermost contour, as a TIN cannot."""
+    y, x = _grid()
+    r2 = (x - 400.0) ** 2 + (y - 400.0) ** 2
+    truth = Terrain(heights=100.0 + sign * (96.0 - 96.0 * r2 / 400.0**2), cell_size=10.0)
+    lines = dem_to_contours(truth, interval=10.0)
+    inner = 190.0 if sign > 0 else 10.0  # the innermost contour's height
+    assert inner in {e for _, e in lines} and (inner + sign * 10.0) not in {e for _, e in lines}
+    dem = contours_to_dem(lines, cell_size=10.0, shape=truth.shape)
+    tin = contours_to_tin(lines, cell_size=10.0, shape=truth.shape, smooth=0)
+    peak = (truth.heights.max() if sign > 0 else truth.heights.min()) - 100.0
+    got = (dem.heights.max() if sign > 0 else dem.heights.min()) - 100.0
+    assert abs(got - peak) < 1.5  # 96 m, 6 m beyond the innermost contour
+    assert abs((tin.heights.max() if sign > 0 else tin.heights.min()) - 100.0 - peak) > 5.0  # flat at 90
+    # the whole surface: well within one contour interval
+    rms = float(np.sqrt(np.mean((dem.heights - truth.heights)[3:-3, 3:-3] ** 2)))
+    assert rms < 0.5
+
+
+def test_a_ridge_crest_is_not_a_terrace():
+    """A crest rising gently along x between flanks falling in y: every contour is a U around
+    the crest, whose tip a TIN fills with flat triangles. The crest must rise smoothly and stay
+    close to the truth."""
+    y, x = _grid()
+    truth = Terrain(heights=60.0 + 0.05 * x - 0.0015 * (y - 400.0) ** 2, cell_size=10.0)
+    lines = dem_to_contours(truth, interval=10.0)
+    dem = contours_to_dem(lines, cell_size=10.0, shape=truth.shape)
+    tin = contours_to_tin(lines, cell_size=10.0, shape=truth.shape, smooth=0)
+    crest = np.s_[40, 5:-5]  # row 40: y = 400 m
+    err, tin_err = dem.heights[crest] - truth.heights[crest], tin.heights[crest] - truth.heights[crest]
+    assert np.abs(err).max() < 1.0
+    assert np.abs(err).mean() < 0.5 * np.abs(tin_err).mean()
+    # rising all along: no flat stretch (a terrace) on the crest
+    assert np.all(np.diff(dem.heights[crest]) > 0.1)
+    # and the crest is the highest row of its cross-sections
+    assert np.all(np.argmax(dem.heights[:, 5:-5], axis=0) == 40)
+
+
+def test_large_grids_solved_iteratively_match_the_direct_solution(monkeypatch):
+    """Above DIRECT_CELLS the solve starts from a coarser grid and iterates; it must agree
+    with the direct solution."""
+    import models.contours as mc
+
+    truth = _analytic(cell=10.0, n=81)
+    lines = dem_to_contours(truth, interval=5.0)
+    direct = contours_to_dem(lines, cell_size=10.0, shape=truth.shape).heights
+    monkeypatch.setattr(mc, "DIRECT_CELLS", 30 * 30)  # 81 x 81 -> 42 x 42 -> 22 x 22 (direct)
+    iterative = contours_to_dem(lines, cell_size=10.0, shape=truth.shape).heights
+    assert float(np.sqrt(np.mean((iterative - direct) ** 2))) < 0.05
+    assert np.abs(iterative - direct).max() < 0.5
+
+
+def test_unevenly_spaced_contours_give_neither_overshoot_nor_a_terrace():
+    """A scarp (0 m and 10 m lines 20 m apart) below a gentle slope (the 20 m line 280 m
+    further): the thin plate alone would carry the scarp's slope on and be clipped flat at
+    20 m; between the 10 m and 20 m lines the DEM must stay between them and keep rising."""
+    lines = [
+        (np.array([[0.0, 0.0], [300.0, 0.0]]), 0.0),
+        (np.array([[0.0, 20.0], [300.0, 20.0]]), 10.0),
+        (np.array([[0.0, 300.0], [300.0, 300.0]]), 20.0),
+    ]
+    dem = contours_to_dem(lines, cell_size=10.0).heights
+    assert dem.shape == (31, 31)
+    between = dem[3:30]
+    assert between.min() >= 10.0 and between.max() <= 20.0
+    assert np.all(np.diff(dem[2:, 15]) > 0.05)  # rising from the 10 m line to the 20 m line
+    assert abs(dem[16, 15] - 15.0) < 3.0  # half way up: the truth is a ramp
+    only_plate = contours_to_dem(lines, cell_size=10.0, band_weight=0.0).heights
+    assert abs(only_plate[16, 15] - 15.0) > 4.0  # what the blend is for
 
 
 def _write(tmp_path, doc) -> object:
