@@ -23,10 +23,11 @@ top-1 and the rest of :data:`bench.single_frame.COLUMNS`, side by side.
 
 Prints JSON, then a table.
 
-``--jitter`` moves every contour vertex by Gaussian noise (a digitised map's error).
+``--report-heldout`` adds the held-out contour terrain, to report on after the choice (never
+to choose by). ``--jitter`` moves every contour vertex by Gaussian noise (a digitised map's error).
 
     python bench/contours.py [--interval 10] [--terrains t-contours-fbm own-ridged-1 ...]
-        [--methods tin thin-plate:stiffness=0.01 ...] [--jitter 3] [--json-only]
+        [--methods tin thin-plate:stiffness=0.01 ...] [--jitter 3] [--report-heldout] [--json-only]
     python bench/contours.py --localize h-contours-ridged [--split heldout]
 """
 
@@ -62,8 +63,9 @@ HALF_FOV_X = 29.0
 EYE = 2.0
 
 
-def _terrains() -> dict[str, tuple[np.ndarray, float, list[tuple[float, float]]]]:
-    """name -> (true heights, cell metres, route); tuning entries and this script's own seeds."""
+def _terrains(heldout: bool = False) -> dict[str, tuple[np.ndarray, float, list[tuple[float, float]]]]:
+    """name -> (true heights, cell metres, route); tuning entries and this script's own seeds;
+    ``heldout`` adds the held-out contour terrain (to report on, never to choose by)."""
     base = {t.name: t for t in TERRAINS if t.split == "tuning"}
     own = {
         "own-ridged-1": replace(
@@ -100,7 +102,8 @@ def _terrains() -> dict[str, tuple[np.ndarray, float, list[tuple[float, float]]]
         ),
     }
     out = {}
-    for t in [base["t-contours-fbm"], base["t-ridged"], *own.values()]:
+    extra = [t for t in TERRAINS if heldout and t.split == "heldout" and t.contours > 0]
+    for t in [base["t-contours-fbm"], base["t-ridged"], *own.values(), *extra]:
         h = _heights(t)
         out[t.name] = (h, t.cell, _route(t, h))
     return out
@@ -162,10 +165,12 @@ def _value(text: str) -> Any:
 METHODS: dict[str, Callable[..., Terrain]] = {"tin": contours_to_tin, "thin-plate": contours_to_dem}
 
 
-def run(names: list[str] | None, interval: float, methods: list[str], jitter: float = 0.0) -> list[dict[str, Any]]:
+def run(
+    names: list[str] | None, interval: float, methods: list[str], jitter: float = 0.0, heldout: bool = False
+) -> list[dict[str, Any]]:
     rows = []
     rng = np.random.default_rng(9100)
-    for name, (truth, cell, route) in _terrains().items():
+    for name, (truth, cell, route) in _terrains(heldout).items():
         if names and name not in names:
             continue
         lines: list[ContourLine] = dem_to_contours(Terrain(heights=truth, cell_size=cell), interval=interval)
@@ -223,6 +228,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--jitter", type=float, default=0.0, help="metres of Gaussian noise on every contour vertex")
     ap.add_argument("--localize", nargs="*", help="evaluation cases to localize with each method")
     ap.add_argument("--split", default="heldout")
+    ap.add_argument("--report-heldout", action="store_true", help="also the held-out contour terrain (report only)")
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args(argv)
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
@@ -255,7 +261,7 @@ def main(argv: list[str] | None = None) -> None:
                     + " |"
                 )
         return
-    rows = run(args.terrains, args.interval, args.methods, args.jitter)
+    rows = run(args.terrains, args.interval, args.methods, args.jitter, args.report_heldout)
     print(
         json.dumps(
             {
