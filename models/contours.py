@@ -186,12 +186,11 @@ def load_contours(path: str | Path, *, attribute: str = "elevation") -> list[Con
 
 def _densify(points: np.ndarray, step: float) -> np.ndarray:
     """Resample a polyline, ndarray of shape (n, 2), so that no gap exceeds ``step``."""
-    out = [points[:1]]
-    for a, b in zip(points[:-1], points[1:]):
-        n = max(1, int(math.ceil(np.hypot(*(b - a)) / step)))
-        t = np.arange(1, n + 1)[:, None] / n
-        out.append(a + (b - a) * t)
-    return np.concatenate(out)
+    a, b = points[:-1], points[1:]
+    n = np.maximum(1, np.ceil(np.hypot(*(b - a).T) / step).astype(np.intp))
+    seg = np.repeat(np.arange(len(n)), n)
+    t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n) + 1) / np.repeat(n, n)
+    return np.concatenate([points[:1], a[seg] + (b - a)[seg] * t[:, None]])
 
 
 def _points(lines: list[ContourLine], cell_size: float) -> tuple[np.ndarray, np.ndarray]:
@@ -301,16 +300,14 @@ def _distance_ratio(
     out = np.full(lo.shape, np.nan)
     rr, cc = np.nonzero(band)
     cells = np.column_stack([cc, rr]).astype(np.float64) * cell_size
-    dist = {}
-    for level in np.unique(np.concatenate([lo[band], hi[band]])):
-        want = (lo[rr, cc] == level) | (hi[rr, cc] == level)
-        d = np.full(len(rr), np.inf)
-        d[want] = cKDTree(xy[z == level]).query(cells[want])[0]
-        dist[level] = d
+    low, high = lo[rr, cc], hi[rr, cc]
     d_lo, d_hi = np.full(len(rr), np.inf), np.full(len(rr), np.inf)
-    for level, d in dist.items():
-        d_lo = np.where(lo[rr, cc] == level, d, d_lo)
-        d_hi = np.where(hi[rr, cc] == level, d, d_hi)
+    for level in np.unique(np.concatenate([low, high])):
+        at_lo, at_hi = low == level, high == level
+        d = np.full(len(rr), np.inf)
+        want = at_lo | at_hi
+        d[want] = cKDTree(xy[z == level]).query(cells[want])[0]
+        d_lo[at_lo], d_hi[at_hi] = d[at_lo], d[at_hi]
     out[rr, cc] = lo[rr, cc] + (hi[rr, cc] - lo[rr, cc]) * d_lo / np.maximum(d_lo + d_hi, 1e-9)
     return out
 
