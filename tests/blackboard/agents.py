@@ -14,6 +14,7 @@ __all__ = [
     "Silent",
     "Failing",
     "Updater",
+    "Writer",
     "Recorder",
     "Exclusive",
     "BadSetup",
@@ -104,6 +105,18 @@ class Updater(KnowledgeSource):
         if event.kind is EventKind.POSTED:
             for i in range(int(self.options.get("n", 10))):
                 board.update(event.hypothesis.id, body={f"{self.name}-{i}": i})
+
+
+class Writer(KnowledgeSource):
+    """On a 'go' hypothesis: options['n'] updates of the hypothesis ``body['target']`` names, each
+    adding key '<name>-<i>' (triggered by its own level, so no update of the target obviates it)."""
+
+    consumes = ("go",)
+    produces = ("target",)
+
+    def act(self, event: Event, board: Board) -> None:
+        for i in range(int(self.options.get("n", 10))):
+            board.update(event.hypothesis.body["target"], body={f"{self.name}-{i}": i})
 
 
 class Recorder(KnowledgeSource):
