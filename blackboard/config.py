@@ -87,16 +87,10 @@ BLOCK_WAIT_BEFORE_CLOSE_US = 60_000_000
 #: A put with CongestionControl.BLOCK that waits longer than BLOCK_WAIT_KEY CLOSES the transport
 #: (zenoh 1.x; default 5 s), losing every hypothesis behind it: under heavy load a burst can stall
 #: that long on a loaded machine. A minute keeps delivery lossless yet bounded (never a hang).
-#: Shared memory off (SHARED_MEMORY_KEY): zenoh's default gives every session of this host a
-#: pool in /dev/shm for its large messages (16 MB each, resident once cycled through, in every
-#: process that maps it); a run of a dozen in-process sessions held some 250 MB of pools, and
-#: its messages (at most a viewframe's) copy over loopback TCP as fast.
-SHARED_MEMORY_KEY = "transport/shared_memory/enabled"
 _DEFAULTS: dict[str, str] = {
     "scouting/multicast/enabled": "false",
     "scouting/gossip/enabled": "false",
     BLOCK_WAIT_KEY: str(BLOCK_WAIT_BEFORE_CLOSE_US),
-    SHARED_MEMORY_KEY: "false",
 }
 #: zenoh's own defaults, as a config file that says nothing reads (listen: every interface)
 _ZENOH = zenoh.Config()

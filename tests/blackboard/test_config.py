@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -14,7 +12,6 @@ import zenoh
 from blackboard.config import (
     BLOCK_WAIT_BEFORE_CLOSE_US,
     BLOCK_WAIT_KEY,
-    SHARED_MEMORY_KEY,
     ZenohOptions,
     add_zenoh_arguments,
     free_port,
@@ -44,38 +41,6 @@ def test_blocked_puts_do_not_close_the_transport_after_zenohs_5_s(mode: str) -> 
     # of a 10,000-post burst on a heavily loaded machine (the agent looked dead, the run ended)
     assert zenoh.Config().get_json(BLOCK_WAIT_KEY) == "5000000"  # zenoh's own default, what we change
     assert _get(zenoh_config(ZenohOptions(), mode=mode), BLOCK_WAIT_KEY) == BLOCK_WAIT_BEFORE_CLOSE_US >= 30_000_000
-
-
-def _zenoh_shm_mappings() -> set[str]:
-    with open("/proc/self/maps") as f:
-        return {line.split()[-1] for line in f if line.rstrip().endswith(".zenoh")}
-
-
-def test_shared_memory_pools_are_off() -> None:
-    # zenoh's default gives each session a pool in /dev/shm that large messages cycle through
-    assert _get(zenoh.Config(), SHARED_MEMORY_KEY) is True  # zenoh's own default, what we change
-    assert _get(zenoh_config(ZenohOptions(), mode="peer"), SHARED_MEMORY_KEY) is False
-    before = _zenoh_shm_mappings()
-    port = free_port()
-    listener = open_session(zenoh_config(ZenohOptions(listen=[f"tcp/127.0.0.1:{port}"]), mode="peer"))
-    talker = open_session(zenoh_config(ZenohOptions(connect=[f"tcp/127.0.0.1:{port}"]), mode="peer"))
-    arrived = threading.Event()
-    got: list[bytes] = []
-    try:
-        subscriber = listener.declare_subscriber(
-            "shm/test", lambda s: (got.append(s.payload.to_bytes()), arrived.set())
-        )
-        message = bytes(range(256)) * 1024  # 256 KB: far above zenoh's 3 KB shared-memory threshold
-        deadline = time.monotonic() + 20
-        while not arrived.is_set() and time.monotonic() < deadline:  # until the peers have met
-            talker.put("shm/test", message)
-            arrived.wait(0.2)
-        subscriber.undeclare()
-    finally:
-        talker.close()
-        listener.close()
-    assert got and got[0] == message
-    assert not (_zenoh_shm_mappings() - before)  # no pool was made for the large message
 
 
 def test_client_never_listens() -> None:
