@@ -139,15 +139,19 @@ class Store:
             return self._unpack(entry.message())
         return entry[0]
 
-    def put(self, hyp: Hypothesis, data: bytes, *, op: str = "post", sender: str | None = None) -> None:
+    def put(self, hyp: Hypothesis, data: bytes, *, op: str = "post", sender: str | None = None) -> int:
         """Store a new hypothesis, or the next version of one; ``data`` is the message (``op``,
         ``sender``) that carried it (kept beside the hypothesis, or alone and compressed when
-        large and ``sender`` is given: then ``data`` must carry ``hyp`` in the clear)."""
+        large and ``sender`` is given: then ``data`` must carry ``hyp`` in the clear).
+        Returns the bytes of message kept (the compressed size for a large one)."""
         entry: tuple[Hypothesis, bytes] | _Packed = (hyp, data)
+        kept = len(data)
         if self._unpack is not None and sender is not None and len(data) >= KEEP_BYTES_BELOW:
             entry = _Packed(hyp, data)
+            kept = len(entry.data)
         with self._lock:
             self._entries[hyp.id] = entry
+        return kept
 
     def kept_bytes(self) -> int:
         """Bytes of messages held (compressed, for the large ones; see the module docstring)."""

@@ -33,7 +33,8 @@ half that concerns them):
   own posts with a key of the node alone), not with the run key every joined agent holds: only
   the node, which writes the results and the trace for the run's own user, reads them.
 * **Memory budgets.** A message larger than ``max_message_bytes`` is dropped by everyone
-  before decoding; the node also keeps a per-run budget of stored bytes (:data:`RUN_BUDGET_BYTES`),
+  before decoding; the node also keeps a per-run budget of the bytes its store keeps (compressed, for large
+  messages; :data:`RUN_BUDGET_BYTES`),
   beyond which posts are refused and traced.
 
 Across machines the router itself also asks for a user name and password (zenoh ``usrpwd``):

@@ -102,8 +102,9 @@ def test_a_large_message_is_held_once_compressed_and_decoded_again_when_asked() 
     small_data = encode({"op": "post", "hyp": small.to_record(), "sender": "src"})
     assert len(big_data) >= KEEP_BYTES_BELOW > len(small_data)
     store = Store(unpack=unpack)
-    store.put(big, big_data, sender="renderer")
-    store.put(small, small_data, sender="src")
+    kept_big = store.put(big, big_data, sender="renderer")
+    assert store.put(small, small_data, sender="src") == len(small_data)
+    assert kept_big < len(big_data) and store.kept_bytes() == kept_big + len(small_data)  # what the run budget counts
     # the image is held once, compressed; no decoded copy of it is kept
     assert store.kept_bytes() < len(small_data) + image.nbytes / 4 + noise.nbytes + 1024
     assert store.decoded_ids() == ["x-1"]
