@@ -400,8 +400,8 @@ class BlackboardNode:
             return
         # a large payload is held once, compressed: the store may drop the decoded hypothesis and decode the
         # message again when asked (not for the node's own or private posts, whose bytes carry a sealed body)
-        # the budget counts what the store keeps (a route of 10,000 rendered viewframes is over 3 GB
-        # of messages, about 0.15 GB compressed); a post is refused when its uncompressed size would overspend it
+        # the budget counts what the store keeps (a long route's rendered viewframes are gigabytes of
+        # messages, about a tenth of that compressed); a post is refused when its own size would overspend it
         self._stored_bytes += self._store.put(
             hyp, data, sender=None if local or hyp.level in PRIVATE_LEVELS else sender
         )
