@@ -296,8 +296,9 @@ def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile
         text=True,
         timeout=3600,
     )
+    trace.with_suffix(".log").write_text(done.stderr)
     if done.returncode != 0:
-        raise RuntimeError(f"mission run failed: {done.stderr[-2000:]}")
+        raise RuntimeError(f"mission run failed ({trace.with_suffix('.log')}): {done.stderr[-2000:]}")
     out = json.loads(done.stdout.strip().splitlines()[-1])
     out["trace_mb"] = trace.stat().st_size / MB
     out["load_avg"] = os.getloadavg()
@@ -490,6 +491,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json-only", action="store_true")
     parser.add_argument(
+        "--keep",
+        type=Path,
+        default=None,
+        help="write the generated scenarios, the missions' traces and their logs (stderr) in this folder "
+        "and keep them (default: a temp folder, deleted)",
+    )
+    parser.add_argument(
         "--holders", action="store_true", help="only who holds what in a whole mission (a child process, cache filled)"
     )
     parser.add_argument(
@@ -541,6 +549,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
+        if args.keep is not None:
+            args.keep.mkdir(parents=True, exist_ok=True)
+            tmp = args.keep
         for n in args.sizes:
             path = _make_scenario(n, tmp, args.frames)
             cache_dir = tmp / f"cache{n}"

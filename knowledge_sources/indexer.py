@@ -8,18 +8,20 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from blackboard.hypothesis import Hypothesis
-from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from blackboard.knowledge_source import Board
 from knowledge_sources import levels
+from knowledge_sources.ranker import RouteRanker
 
 if TYPE_CHECKING:
-    from models.index import TrackWindows, ViewframeIndex
+    from models.index import ViewframeIndex
+    from models.scenario import MemorySpec
 
 __all__ = ["AssociativeIndexer"]
 
 log = logging.getLogger(__name__)
 
 
-class AssociativeIndexer(KnowledgeSource):
+class AssociativeIndexer(RouteRanker):
     """Stores the viewframes of its shard (``index // block == shard``, consecutive route points,
     or without ``block`` ``index % shards == shard``) in a
     :class:`~models.index.ViewframeIndex` (a banked holographic memory, ``memory.bank_size``
@@ -37,7 +39,7 @@ class AssociativeIndexer(KnowledgeSource):
     size, shift search, the track window) come from the scenario through the ``map`` hypothesis.
     Camera frames that arrive before the shard is stored wait; viewframes missed as events are
     read back from the blackboard, so an indexer that joins late or restarts still indexes
-    everything.
+    everything (the lifecycle of :class:`~knowledge_sources.ranker.RouteRanker`).
 
     The track's neighbourhood: when ``tracked`` and the route has at least
     ``memory.window_route_points`` points, the ranking of frame t holds only the viewframes of
@@ -50,7 +52,6 @@ class AssociativeIndexer(KnowledgeSource):
     ranked after the previous frame's track, frames posted in a burst mostly before it.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
 
     def __init__(
@@ -63,7 +64,7 @@ class AssociativeIndexer(KnowledgeSource):
         tracked: bool = False,
         **options: Any,
     ) -> None:
-        super().__init__(name, **options)
+        super().__init__(name, tracked=tracked, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
         if block is not None and int(block) < 1:
@@ -71,58 +72,22 @@ class AssociativeIndexer(KnowledgeSource):
         self.shard = shard
         self.shards = shards
         self.block = None if block is None else int(block)
-        self.tracked = bool(tracked)
         self._images: dict[int, np.ndarray] = {}
         self._index: ViewframeIndex | None = None
-        self._waiting: list[Hypothesis] = []
-        self._windows: TrackWindows | None = None  # the track window rule (set with the map)
-        self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
-        #: per ranking posted: the frame and the (first, last) route points ranked, None: all
-        self.windows: dict[int, tuple[int, int] | None] = {}
 
-    def precondition(self, event: Event) -> float | None:
-        if event.kind is not EventKind.POSTED:
-            return None
-        h = event.hypothesis
-        if h.level == levels.VIEWFRAME and not self._mine(levels.Viewframe.from_hypothesis(h).index):
-            return None
-        if h.level == levels.TRACK and not self.tracked:
-            return None
-        return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
-
-    def act(self, event: Event, board: Board) -> None:
-        h = event.hypothesis
-        if h.level == levels.VIEWFRAME:
-            if self._index is None:
-                vf = levels.Viewframe.from_hypothesis(h)
-                self._images[vf.index] = vf.image
-        elif h.level == levels.MAP:
-            self._build(levels.Map.from_hypothesis(h), board)
-            waiting, self._waiting = self._waiting, []
-            for frame in waiting:
-                self._rank(frame, board)
-        elif h.level == levels.SENSOR_FRAME:
-            if self._index is None:
-                self._waiting.append(h)
-            else:
-                self._rank(h, board)
-        elif h.level == levels.TRACK:
-            track = levels.Track.from_hypothesis(h)
-            if self._windows is None:
-                self._early.append((track.frame, track.state, track.window_next))
-            else:
-                self._windows.add(track.frame, track.state, track.window_next)
-
-    def _mine(self, k: int) -> bool:
-        """Viewframe ``k`` is of this shard."""
+    def mine(self, index: int) -> bool:
+        """Viewframe ``index`` is of this shard."""
         if self.block is not None:
-            return min(k // self.block, self.shards - 1) == self.shard
-        return k % self.shards == self.shard
+            return min(index // self.block, self.shards - 1) == self.shard
+        return index % self.shards == self.shard
 
-    def _build(self, mp: levels.Map, board: Board) -> None:
-        from models.index import TrackWindows, ViewframeIndex
+    def keep(self, viewframe: levels.Viewframe) -> None:
+        self._images[viewframe.index] = viewframe.image
 
-        mine = [k for k in range(mp.viewframes) if self._mine(k)]
+    def build(self, mp: levels.Map, board: Board) -> MemorySpec:
+        from models.index import ViewframeIndex
+
+        mine = [k for k in range(mp.viewframes) if self.mine(k)]
         for k in mine:
             if k not in self._images:
                 self._images[k] = levels.Viewframe.read(board, k).image
@@ -131,23 +96,19 @@ class AssociativeIndexer(KnowledgeSource):
         # are never all resident at once
         index.add((self._images.pop(k) for k in mine), mine)
         self._index = index
-        self._windows = TrackWindows(index.settings, viewframes=mp.viewframes, tracked=self.tracked)
-        for early in self._early:
-            self._windows.add(*early)
-        self._early.clear()
         self._images.clear()
         levels.post(
             board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)), links=(levels.map_id(),)
         )
         log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
+        return index.settings
 
-    def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
-        assert self._index is not None and self._windows is not None  # frames wait until the index is built
+    def rank(self, hypothesis: Hypothesis, board: Board) -> None:
+        assert self._index is not None  # frames wait until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
-        window = self._windows.window(frame.frame)
+        window = self.window(frame.frame)
         among = None if window is None else np.arange(window[0], window[1] + 1)
         ranking = self._index.rank(frame.image, among=among)
-        self.windows[frame.frame] = window
         levels.post(
             board,
             levels.Ranking.of(

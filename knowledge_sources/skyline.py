@@ -8,12 +8,13 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from blackboard.hypothesis import Hypothesis
-from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from blackboard.knowledge_source import Board
 from knowledge_sources import levels
+from knowledge_sources.ranker import RouteRanker
 from models.skyline import DEFAULT_MAX_ROLL_DEG, DEFAULT_ROLL_CANDIDATES
 
 if TYPE_CHECKING:
-    from models.index import TrackWindows
+    from models.scenario import MemorySpec
 
 __all__ = ["SkylineRanker", "SKYLINE_SOURCE"]
 
@@ -23,7 +24,7 @@ log = logging.getLogger(__name__)
 SKYLINE_SOURCE = "skyline"
 
 
-class SkylineRanker(KnowledgeSource):
+class SkylineRanker(RouteRanker):
     """Keeps each viewframe's skyline (from the map renderer's depth buffer, carried by the
     ``viewframe`` hypothesis), extracts the skyline of every camera frame
     (:func:`models.skyline.skyline_from_image`), matches it with all of them over heading and
@@ -42,7 +43,6 @@ class SkylineRanker(KnowledgeSource):
     with the map's ``memory`` settings), so the two sources rank the same route points.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
 
     def __init__(
@@ -59,7 +59,7 @@ class SkylineRanker(KnowledgeSource):
         tracked: bool = False,
         **options: Any,
     ) -> None:
-        super().__init__(name, **options)
+        super().__init__(name, tracked=tracked, **options)
         if not 0 < float(fov_y_deg) < 180:
             raise ValueError(f"fov_y_deg must be in (0, 180), got {fov_y_deg}")
         if not float(step_deg) > 0 or not float(truncate_deg) > 0:
@@ -75,48 +75,15 @@ class SkylineRanker(KnowledgeSource):
         if roll_candidates is not None and int(roll_candidates) < 1:
             raise ValueError(f"roll_candidates must be >= 1 or None, got {roll_candidates}")
         self.roll_candidates = None if roll_candidates is None else int(roll_candidates)
-        self.tracked = bool(tracked)
-        self._windows: TrackWindows | None = None
-        self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
-        #: per ranking posted: the frame and the (first, last) route points ranked, None: all
-        self.windows: dict[int, tuple[int, int] | None] = {}
         self._profiles: dict[int, np.ndarray] = {}
         self._refs: np.ndarray | None = None
         self._labels: np.ndarray | None = None
-        self._waiting: list[Hypothesis] = []
 
-    def precondition(self, event: Event) -> float | None:
-        if event.kind is not EventKind.POSTED:
-            return None
-        if event.hypothesis.level == levels.TRACK and not self.tracked:
-            return None
-        return 2.0 if event.hypothesis.level != levels.SENSOR_FRAME else 1.0
+    def keep(self, viewframe: levels.Viewframe) -> None:
+        self._profiles[viewframe.index] = np.asarray(viewframe.skyline, dtype=np.float32)
 
-    def act(self, event: Event, board: Board) -> None:
-        h = event.hypothesis
-        if h.level == levels.VIEWFRAME:
-            if self._refs is None:
-                vf = levels.Viewframe.from_hypothesis(h)
-                self._profiles[vf.index] = np.asarray(vf.skyline, dtype=np.float32)
-        elif h.level == levels.MAP:
-            self._build(levels.Map.from_hypothesis(h), board)
-            waiting, self._waiting = self._waiting, []
-            for frame in waiting:
-                self._rank(frame, board)
-        elif h.level == levels.SENSOR_FRAME:
-            if self._refs is None:
-                self._waiting.append(h)
-            else:
-                self._rank(h, board)
-        elif h.level == levels.TRACK:
-            track = levels.Track.from_hypothesis(h)
-            if self._windows is None:
-                self._early.append((track.frame, track.state, track.window_next))
-            else:
-                self._windows.add(track.frame, track.state, track.window_next)
-
-    def _build(self, mp: levels.Map, board: Board) -> None:
-        from models.index import TrackWindows, memory_settings
+    def build(self, mp: levels.Map, board: Board) -> MemorySpec:
+        from models.index import memory_settings
 
         for k in range(mp.viewframes):
             if k not in self._profiles:
@@ -128,17 +95,14 @@ class SkylineRanker(KnowledgeSource):
         self._labels = np.asarray(labels, dtype=np.int64)
         self._refs = np.stack([self._profiles[k] for k in labels])
         self._profiles.clear()
-        self._windows = TrackWindows(memory_settings(mp.memory), viewframes=mp.viewframes, tracked=self.tracked)
-        for early in self._early:
-            self._windows.add(*early)
-        self._early.clear()
         log.info("%s: %d viewframe skylines of %d bins", self.name, len(labels), self._refs.shape[1])
+        return memory_settings(mp.memory)
 
-    def _rank(self, hypothesis: Hypothesis, board: Board) -> None:
+    def rank(self, hypothesis: Hypothesis, board: Board) -> None:
         from models.associative import reliability
         from models.skyline import match_skylines, skyline_from_image
 
-        assert self._refs is not None and self._labels is not None and self._windows is not None
+        assert self._refs is not None and self._labels is not None
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         query = skyline_from_image(frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"])
         if query.size != self._refs.shape[1]:
@@ -146,12 +110,11 @@ class SkylineRanker(KnowledgeSource):
                 f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "
                 f"viewframes {self._refs.shape[1]} (another field of view?)"
             )
-        window = self._windows.window(frame.frame)
+        window = self.window(frame.frame)
         refs, labels = self._refs, self._labels
         if window is not None:
             lo, hi = np.searchsorted(labels, window[0], side="left"), np.searchsorted(labels, window[1], side="right")
             refs, labels = refs[lo:hi], labels[lo:hi]
-        self.windows[frame.frame] = window
         m = match_skylines(query, refs, roll_candidates=self.roll_candidates, **self.match)
         order = np.lexsort((labels, m.error))
         rel = reliability(m.error)

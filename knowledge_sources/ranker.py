@@ -1,0 +1,119 @@
+"""The route ranker: the lifecycle shared by the agents that rank the route's viewframes for each camera frame."""
+
+from __future__ import annotations
+
+import logging
+from typing import TYPE_CHECKING, Any, ClassVar
+
+from blackboard.hypothesis import Hypothesis
+from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
+from knowledge_sources import levels
+
+if TYPE_CHECKING:
+    from models.index import TrackWindows
+    from models.scenario import MemorySpec
+
+__all__ = ["RouteRanker"]
+
+log = logging.getLogger(__name__)
+
+
+class RouteRanker(KnowledgeSource):
+    """Base of the knowledge sources that rank viewframes for every camera frame (the associative
+    indexer, the skyline ranker). It keeps what each subclass needs of the viewframes as they are
+    posted (:meth:`keep`), builds its model once the ``map`` is posted (:meth:`build`; viewframes
+    missed as events are read back from the blackboard there), then ranks every camera frame
+    (:meth:`rank`). Camera frames that arrive before the map wait and are ranked, in order, once it
+    is built.
+
+    The track's neighbourhood: with ``tracked`` (a tracker runs), the ``track`` hypotheses are
+    collected, those that come before the map too, into the :class:`models.index.TrackWindows` rule
+    (with the map's ``memory`` settings, the same in every ranker); :meth:`window` gives a frame's
+    window (``(first, last)`` route points, or None: rank all) and records it in ``windows``. A
+    ranker never waits for a track: a dead or late tracker costs the window, never a ranking.
+
+    Options: ``tracked`` (default False); the rest go to :class:`KnowledgeSource`.
+    """
+
+    consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
+
+    def __init__(self, name: str, *, tracked: bool = False, **options: Any) -> None:
+        super().__init__(name, **options)
+        self.tracked = bool(tracked)
+        self._windows: TrackWindows | None = None  # the track window rule, set once the map is built
+        self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
+        self._waiting: list[Hypothesis] = []  # camera frames that came before the map
+        #: per ranking posted: the frame and the (first, last) route points ranked, None: all
+        self.windows: dict[int, tuple[int, int] | None] = {}
+
+    # -- what a subclass provides ------------------------------------------------------------
+
+    def mine(self, index: int) -> bool:
+        """Viewframe ``index`` is one this ranker ranks (default: every one)."""
+        return True
+
+    def keep(self, viewframe: levels.Viewframe) -> None:
+        """Keep what :meth:`build` needs of a viewframe posted before the map."""
+        raise NotImplementedError
+
+    def build(self, mp: levels.Map, board: Board) -> MemorySpec:
+        """Build the model of the map's viewframes (those of :meth:`mine`); return the memory
+        settings of the track window rule."""
+        raise NotImplementedError
+
+    def rank(self, hypothesis: Hypothesis, board: Board) -> None:
+        """Rank the camera frame ``hypothesis`` (built: :meth:`window` gives its window) and post it."""
+        raise NotImplementedError
+
+    # -- the lifecycle -------------------------------------------------------------------------
+
+    @property
+    def built(self) -> bool:
+        """The map has been built (camera frames are ranked as they come)."""
+        return self._windows is not None
+
+    def window(self, frame: int) -> tuple[int, int] | None:
+        """The route points to rank for ``frame`` (None: all), recorded in :attr:`windows`."""
+        assert self._windows is not None, "window() before build()"
+        window = self._windows.window(frame)
+        self.windows[frame] = window
+        return window
+
+    def precondition(self, event: Event) -> float | None:
+        if event.kind is not EventKind.POSTED:
+            return None
+        h = event.hypothesis
+        if h.level == levels.VIEWFRAME and not self.mine(levels.Viewframe.from_hypothesis(h).index):
+            return None
+        if h.level == levels.TRACK and not self.tracked:
+            return None
+        return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        from models.index import TrackWindows
+
+        h = event.hypothesis
+        if h.level == levels.VIEWFRAME:
+            if not self.built:
+                self.keep(levels.Viewframe.from_hypothesis(h))
+        elif h.level == levels.MAP:
+            mp = levels.Map.from_hypothesis(h)
+            settings = self.build(mp, board)
+            self._windows = TrackWindows(settings, viewframes=mp.viewframes, tracked=self.tracked)
+            for early in self._early:
+                self._windows.add(*early)
+            self._early.clear()
+            waiting, self._waiting = self._waiting, []
+            for frame in waiting:
+                self.rank(frame, board)
+        elif h.level == levels.SENSOR_FRAME:
+            if self.built:
+                self.rank(h, board)
+            else:
+                self._waiting.append(h)
+        elif h.level == levels.TRACK:
+            track = levels.Track.from_hypothesis(h)
+            if self._windows is None:
+                self._early.append((track.frame, track.state, track.window_next))
+            else:
+                self._windows.add(track.frame, track.state, track.window_next)
