@@ -168,6 +168,8 @@ class ScenarioItem(pytest.Item):
 
         scenario = load_scenario(self.path)
         expect = scenario.expect
+        if expect is None:
+            pytest.fail(f"{self.path}: the expect block is empty (give at least one expectation)", pytrace=False)
         strategy = expect.strategy or scenario.scheduler.strategy
         self.results = run_mission(scenario, strategy=strategy, processes=expect.processes)
         _check_ran(self.results)

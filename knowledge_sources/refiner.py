@@ -11,6 +11,7 @@ from knowledge_sources import levels
 from models.scenario import RefineSpec
 
 if TYPE_CHECKING:
+    from knowledge_sources.levels import Map
     from models.camera_emulator import CameraEmulator
     from models.world import World
 
@@ -59,7 +60,7 @@ class PoseRefiner(KnowledgeSource):
             raise ValueError(
                 f"refiner options out of range: levels={levels}, grid={grid}, along_m={along_m}, across_m={across_m}"
             )
-        self.search = {
+        self.search: dict[str, Any] = {
             "along_m": float(along_m),
             "across_m": float(across_m),
             "levels": int(levels),
@@ -74,7 +75,7 @@ class PoseRefiner(KnowledgeSource):
         }
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None
-        self._map: levels.Map | None = None
+        self._map: Map | None = None  # (the option ``levels`` shadows the module here)
         self._waiting: list[Hypothesis] = []
 
     def precondition(self, event: Event) -> float | None:

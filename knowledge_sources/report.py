@@ -86,7 +86,7 @@ def plot_frame(
     (``pattern``: the index's preprocessing, :meth:`models.index.ViewframeIndex.pattern`)."""
 
     fig, axes = plt.subplots(2, 2, figsize=(8, 6.4))
-    panels = [(camera_image, f"camera frame {frame['frame']}")]
+    panels: list[tuple[np.ndarray | None, str]] = [(camera_image, f"camera frame {frame['frame']}")]
     chosen = frame["viewframe"]
     panels.append((viewframe_image, f"viewframe {chosen}" if chosen is not None else "not localized"))
     for ax, (img, title) in zip(axes[0], panels):

@@ -34,6 +34,7 @@ from __future__ import annotations
 import json
 import logging
 from collections import defaultdict
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -193,7 +194,7 @@ class RerunLogger:
         f: int,
         body: dict[str, Any],
         *,
-        answers: list[dict[str, Any]] = (),
+        answers: Sequence[dict[str, Any]] = (),
         truth: list[float] | None = None,
         run_time: float | None = None,
     ) -> None:

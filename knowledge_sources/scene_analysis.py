@@ -319,13 +319,15 @@ class SceneAnalysis:
             return self._pending
         post = self.posterior()
         if not post:
-            return self._decide(None, 0.0, "every candidate viewframe was discarded by absent landmarks")
+            self._decide(None, 0.0, "every candidate viewframe was discarded by absent landmarks")
+            return None
         best = self._best(post)
         own = self._landmarks(best)
         checked = not own or bool(own & self._present)
         if post[best] >= self.accept and checked:
             why = "ranking alone (no landmark visible)" if not own else "landmarks confirmed"
-            return self._decide(best, post[best], f"accepted: posterior {post[best]:.3f} >= {self.accept}, {why}")
+            self._decide(best, post[best], f"accepted: posterior {post[best]:.3f} >= {self.accept}, {why}")
+            return None
         probs = self.landmark_probabilities()
         open_ = {lm: p for lm, p in probs.items() if lm not in self._asked}
         if self.strategy == "prior":
@@ -341,7 +343,8 @@ class SceneAnalysis:
         # asking when it belongs to the best candidate (it confirms it) and nothing else is left.
         useful = [lm for lm in order if open_[lm] < 1.0 - 1e-12 or lm in own]
         if not useful:
-            return self._decide(best, post[best], f"no question left; best posterior {post[best]:.3f}")
+            self._decide(best, post[best], f"no question left; best posterior {post[best]:.3f}")
+            return None
         lm = useful[0]
         holders = [k for k in post if lm in self._landmarks(k)]
         self._pending = Question(lm, self._best({k: post[k] for k in holders}), float(open_[lm]))

@@ -53,3 +53,12 @@ def test_expectations_comparing_with_prior(pytester, small_data):
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider", "-v")
     result.assert_outcomes(passed=1)
     assert "cmp.yaml::expect PASSED" in result.stdout.str()
+
+
+def test_an_empty_expect_block_fails_its_item_naming_the_file(pytester, small_data):
+    _write(pytester, "empty.yaml", {**small_data, "expect": None})
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
+    result.assert_outcomes(failed=1)
+    out = result.stdout.str()
+    assert "empty.yaml: the expect block is empty" in out
+    assert "Traceback" not in out and "AttributeError" not in out
