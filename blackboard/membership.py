@@ -35,6 +35,24 @@ class AgentState:
     state: str = "ok"  # ok | stopped | dead: reason
     #: the one-line message of a user's input error the agent met (it died of it), else None
     input_error: str | None = None
+    #: activations of the agent that raised (it went on), and the last one's message
+    failures: int = 0
+    last_failure: str | None = None
+
+    def count_failures(self, activity: Any) -> None:
+        """Count the failed activations among an agent's activity records (its status message's)."""
+        for record in activity or ():
+            if isinstance(record, dict) and record.get("kind") == "activation_error":
+                self.failures += 1
+                self.last_failure = f"{record.get('message')} on {record.get('event')} {record.get('id')}"[:500]
+
+    @property
+    def failed(self) -> str | None:
+        """``"<n> failed activation(s), the last: <message>"``, or None when none failed."""
+        if not self.failures:
+            return None
+        s = "s" if self.failures > 1 else ""
+        return f"{self.failures} failed activation{s}, the last: {self.last_failure}"
 
     @property
     def live(self) -> bool:

@@ -459,6 +459,7 @@ class BlackboardNode:
             )
             return
         self._status_seq[agent.name] = message.get("seq", 0)
+        agent.count_failures(message.get("activity"))
         self._trace.activity(agent.name, message.get("activity") or ())
         self._members.set_status(agent, message)
         state = message.get("state")

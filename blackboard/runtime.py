@@ -73,6 +73,8 @@ class RunOutcome:
     duration_s: float = 0.0
     #: agent -> the one-line message of a user's input error it died of (see AgentInputError)
     input_errors: dict[str, str] = field(default_factory=dict)
+    #: agent -> its failed activations (it went on): ``"<n> failed activation(s), the last: ..."``
+    failures: dict[str, str] = field(default_factory=dict)
 
 
 def resolve_factory(factory: str | type[KnowledgeSource]) -> type[KnowledgeSource]:
@@ -321,6 +323,7 @@ class Runtime:
             timeouts=list(self.node.user_timeouts),
             duration_s=duration_s,
             input_errors={a.name: a.input_error for a in list(self.node.agents.values()) if a.input_error},
+            failures={a.name: a.failed for a in list(self.node.agents.values()) if a.failed},
         )
 
     def hypotheses(self, level: str | None = None) -> list[Hypothesis]:

@@ -97,10 +97,20 @@ class AssociativeIndexer(RouteRanker):
         index.add((self._images.pop(k) for k in mine), mine)
         self._index = index
         self._images.clear()
+        stored = len(mine) - len(index.featureless)
         levels.post(
-            board, levels.Index(shard=self.shard, shards=self.shards, viewframes=len(mine)), links=(levels.map_id(),)
+            board,
+            levels.Index(shard=self.shard, shards=self.shards, viewframes=stored, featureless=list(index.featureless)),
+            links=(levels.map_id(),),
         )
-        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, len(mine))
+        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, stored)
+        if index.featureless:
+            log.warning(
+                "%s: %d featureless viewframes not stored (never ranked by the memory): %s",
+                self.name,
+                len(index.featureless),
+                index.featureless[:20],
+            )
         return index.settings
 
     def rank(self, hypothesis: Hypothesis, board: Board) -> None:

@@ -471,6 +471,10 @@ class Index(Message):
     shard: int = field(metadata=_doc("this shard"))
     shards: int = field(metadata=_doc("number of shards"))
     viewframes: int = field(metadata=_doc("viewframes stored in this shard"))
+    featureless: list[int] = field(
+        default_factory=list,
+        metadata=_doc("viewframes of this shard not stored: featureless (constant) images, never ranked by it"),
+    )
 
     def id(self) -> str:
         return index_id(self.shard)

@@ -378,6 +378,8 @@ def run_mission(
     agents = dict(outcome.agents)
     elapsed = time.perf_counter() - started
     dead = {name: status for name, status in agents.items() if status.startswith("dead")}
+    # agents not ok: dead ones, and live ones whose activations raised (what they did not post is missing)
+    not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
     estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []
@@ -386,12 +388,12 @@ def run_mission(
             why = (
                 "interrupted before the camera posted it"
                 if interrupted
-                else "the camera never posted it" + (f" (agents not ok: {dead})" if dead else "")
+                else "the camera never posted it" + (f" (agents not ok: {not_ok})" if not_ok else "")
             )
         elif interrupted:
             why = f"interrupted by {interrupted} before it was localized"
         else:
-            why = "no position was posted" + (f" (agents not ok: {dead})" if dead else "")
+            why = "no position was posted" + (f" (agents not ok: {not_ok})" if not_ok else "")
         rec = frame_record(
             positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why, pose=poses.get(f)
         )
@@ -416,6 +418,7 @@ def run_mission(
     summary["localization_s"] = span
     summary["frames_per_s"] = (len(frames_seen) / span) if span else None
     degraded = [f"agent {name} {status}" for name, status in sorted(dead.items())]
+    degraded += [f"agent {name}: {why}" for name, why in sorted(outcome.failures.items()) if name not in dead]
     if track:
         degraded += _tracking_degraded(positions, estimates)
     if summary["missing"]:

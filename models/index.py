@@ -19,6 +19,7 @@ The pipeline's parts are :mod:`models.preprocess`, :mod:`models.memory_keys` and
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -165,6 +166,10 @@ class ViewframeIndex:
         self.settings = memory_settings(memory)
         s = self.settings
         self.memory = BankedMemory(s.size, bank_size=s.bank_size, seed=seed, key_method=s.key, max_shift=s.max_shift)
+        #: viewframes not stored because their pattern is featureless (a constant image: e.g. a
+        #: camera inside a landmark, or facing the sky): they have nothing to match, so they are
+        #: left out of every ranking rather than failing the index
+        self.featureless: list[int] = []
 
     def __len__(self) -> int:
         return len(self.memory)
@@ -185,8 +190,25 @@ class ViewframeIndex:
         self.add_patterns((self.pattern(im) for im in images), viewframes)
 
     def add_patterns(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
-        """Store patterns already made by :meth:`pattern` (e.g. shared by several indices)."""
-        self.memory.write_many(patterns, viewframes)
+        """Store patterns already made by :meth:`pattern` (e.g. shared by several indices); a
+        featureless (all-zero) pattern is not stored, its viewframe is listed in :attr:`featureless`
+        (with a warning) and never ranked."""
+
+        vfs = [int(v) for v in viewframes]
+        source = iter(patterns)
+        step = self.memory.bank_size  # a bank's worth at a time: the patterns are never all in memory
+        for i in range(0, len(vfs), step):
+            ids = vfs[i : i + step]
+            pats = list(itertools.islice(source, len(ids)))
+            if len(pats) < len(ids):
+                raise AssociativeMemoryError(f"write: {i + len(pats)} patterns but {len(vfs)} viewframes")
+            keep = [j for j, p in enumerate(pats) if np.any(p)]
+            for j in sorted(set(range(len(ids))) - set(keep)):
+                self.featureless.append(ids[j])
+                log.warning("viewframe %d: featureless (constant) image, not stored in the index", ids[j])
+            self.memory.write_many([pats[j] for j in keep], [ids[j] for j in keep])
+        if next(source, None) is not None:
+            raise AssociativeMemoryError(f"write: more patterns than the {len(vfs)} viewframes")
 
     def rank(self, image: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """Every stored viewframe (or those ``among`` the viewframe indices given:

@@ -95,6 +95,19 @@ class Failing(KnowledgeSource):
         raise RuntimeError(f"cannot handle {event.hypothesis.body['x']}")
 
 
+class FailingOn(KnowledgeSource):
+    """Doubles numbers, except ``options['x']`` (default 2): raises on it, and goes on."""
+
+    consumes = ("number",)
+    produces = ("doubled",)
+
+    def act(self, event: Event, board: Board) -> None:
+        x = event.hypothesis.body["x"]
+        if x == int(self.options.get("x", 2)):
+            raise RuntimeError(f"cannot handle {x}")
+        board.post("doubled", {"x": 2 * x})
+
+
 class Updater(KnowledgeSource):
     """On 'target' hypotheses: options['n'] updates, each adding key '<name>-<i>' to the body."""
 

@@ -115,11 +115,29 @@ def test_act_failures_are_traced_then_the_agent_dies(run_id: str, tmp_path: Path
         outcome = rt.run(timeout_s=10)
     assert outcome.agents["doubler"] == "ok"
     assert outcome.agents["failing"].startswith("dead: 3 failures") and "cannot handle" in outcome.agents["failing"]
+    assert outcome.failures["failing"].startswith("3 failed activations, the last: act raised RuntimeError")
+    assert "doubler" not in outcome.failures
     assert len([h for h in outcome.hypotheses if h.level == "doubled"]) == 5
     records = read_trace(tmp_path / "t.trace")
     errors = [r for r in records if r["kind"] == "activation_error"]
     assert len(errors) == 3 and all(r["agent"] == "failing" and "RuntimeError" in r["message"] for r in errors)
     assert [r["agent"] for r in records if r["kind"] == "agent_dead"] == ["failing"]
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_a_failed_activation_the_agent_survives_is_in_the_outcome(run_id: str, mode: str) -> None:
+    with Runtime(run_id=run_id, mode=mode) as rt:
+        rt.add(f"{AGENTS}:FailingOn", name="flaky", options={"x": 3})
+        rt.add(f"{AGENTS}:Doubler", name="doubler")
+        for x in range(5):
+            rt.post("number", {"x": x})
+        outcome = rt.run(timeout_s=20)
+    assert outcome.agents == {"flaky": "ok", "doubler": "ok"}
+    assert list(outcome.failures) == ["flaky"]
+    assert outcome.failures["flaky"].startswith(
+        "1 failed activation, the last: act raised RuntimeError: cannot handle 3"
+    )
+    assert "posted" in outcome.failures["flaky"]  # the event the activation was for
 
 
 @pytest.mark.parametrize("mode", MODES)

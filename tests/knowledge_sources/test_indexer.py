@@ -3,6 +3,7 @@ skyline ranker is tested in test_ranker.py)."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from blackboard.memory_board import MemoryBlackboard
@@ -79,3 +80,27 @@ def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small
 def test_bad_block_option() -> None:
     with pytest.raises(ValueError, match="block"):
         AssociativeIndexer("indexer", block=0)
+
+
+def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_others(small_rendered: dict) -> None:
+    """A viewframe whose image is constant (a camera inside a landmark) used to fail the shard's
+    whole index, so the camera waited for it forever; now it is left out and named."""
+    import dataclasses
+
+    bb = MemoryBlackboard()
+    bb.add(AssociativeIndexer("indexer-0"))
+    n = len(small_rendered["viewframes"])
+    for h in small_rendered["viewframes"]:
+        vf = levels.Viewframe.from_hypothesis(h)
+        if vf.index == 4:
+            vf = dataclasses.replace(vf, image=np.full_like(vf.image, 90))
+        levels.post(bb.user, vf)
+    repost(bb, small_rendered["map"])
+    bb.run()
+    (index,) = [levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX)]
+    assert index.featureless == [4] and index.viewframes == n - 1
+    frames_from_viewframes(bb, small_rendered, [2, 6])
+    bb.run()
+    for f in (2, 6):
+        r = levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(f, 0)))
+        assert sorted(r.viewframes) == [k for k in range(n) if k != 4] and r.viewframes[0] == f

@@ -270,3 +270,22 @@ def test_a_second_run_with_a_run_id_in_use_is_refused_untouched(tmp_path, via: s
     with Runtime(run_id="taken", zenoh=ZenohOptions(listen=[endpoint])):
         with Runtime(run_id="other", zenoh=ZenohOptions(connect=[endpoint])):
             pass
+
+
+def test_an_agent_whose_activation_raised_degrades_the_run_naming_it(small, monkeypatch) -> None:
+    """An agent that raised once and went on (it lost that frame's work) is named in the run's
+    ``degraded`` list with its error, so the run does not look clean (`mapinterp run` exits 1, not 0)."""
+    from knowledge_sources.refiner import PoseRefiner
+
+    plain = PoseRefiner._refine
+
+    def refine(self, hypothesis, board):
+        if levels.Position.from_hypothesis(hypothesis).frame == 2:
+            raise RuntimeError("emulator lost its context")
+        return plain(self, hypothesis, board)
+
+    monkeypatch.setattr(PoseRefiner, "_refine", refine)
+    results = run_mission(small)
+    assert results["summary"]["localized"] == results["summary"]["frames_expected"]
+    (line,) = [d for d in results["degraded"] if d.startswith("agent refiner")]
+    assert line.startswith("agent refiner: 1 failed activation, the last: act raised RuntimeError: emulator lost")

@@ -180,3 +180,28 @@ def test_track_windows_follow_the_memory_settings() -> None:
     assert w.window(7) is None and w.window(8) is None  # no window; half the route or more
     assert TrackWindows(spec, viewframes=99, tracked=True).enabled is False  # a short route
     assert TrackWindows(spec, viewframes=200, tracked=False).enabled is False
+
+
+@pytest.mark.parametrize("bank_size", [1, 3])
+@pytest.mark.parametrize("featureless", [[0], [12], [4, 5, 6]])
+def test_featureless_viewframes_are_listed_and_never_ranked(bank_size, featureless, caplog) -> None:
+    """A constant image (a camera inside a landmark, facing the sky) has no pattern to store: the
+    index leaves it out and names it, and the others are stored and ranked as without it."""
+    rng = np.random.default_rng(5)
+    images = [scene(rng) for _ in range(13)]
+    flat = [np.full_like(images[0], 0.4) if k in featureless else im for k, im in enumerate(images)]
+    spec = MemorySpec(size=64, bank_size=bank_size)
+    index = ViewframeIndex(spec, seed=1)
+    with caplog.at_level("WARNING", logger="models.index"):
+        index.add(iter(flat), range(13))
+    kept = [k for k in range(13) if k not in featureless]
+    assert index.featureless == featureless and index.viewframes.tolist() == kept
+    assert all(f"viewframe {k}: featureless" in caplog.text for k in featureless)
+    alone = ViewframeIndex(spec, seed=1)  # the same viewframes without the featureless ones
+    alone.add([images[k] for k in kept], kept)
+    query = np.roll(images[8], 2, axis=1)
+    got, want = index.rank(query), alone.rank(query)
+    assert got.best == 8 and not set(featureless) & set(got.viewframes.tolist())
+    assert got.viewframes.tolist() == want.viewframes.tolist()
+    with pytest.raises(AssociativeMemoryError, match="12 patterns but 13 viewframes"):
+        ViewframeIndex(spec).add(iter(images[:12]), range(13))
