@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
             viewframes, frames = world.viewframes, world.sensor_frames
             scenario = world.scenario
     route = np.asarray(scenario.route)
-    full, coarse = ViewframeIndex(scenario.memory), CoarseIndex()
+    full, coarse = ViewframeIndex(scenario.memory, compact=False), CoarseIndex()
     images, ids = [vf.image for vf in viewframes], [vf.index for vf in viewframes]
     full.add(images, ids)
     coarse.add(images, ids)
@@ -147,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     saved = associative.SPECTRUM_DTYPE
     associative.SPECTRUM_DTYPE = np.complex64 if saved == np.complex128 else np.complex128
     try:
-        other = ViewframeIndex(scenario.memory)
+        other = ViewframeIndex(scenario.memory, compact=False)
         other.add(images, ids)
     finally:
         associative.SPECTRUM_DTYPE = saved

@@ -342,6 +342,14 @@ class AgentRunner:
         if not self._from_node(sample):  # checked before decoding: a forged or outsized post costs no memory
             logger.warning("agent %s: ignored a message without the run's tag on %s", self.name, key)
             return
+        if split is not None:
+            try:
+                wanted = self.source.wants(*split)
+            except Exception as err:  # the agent's own code: decode it, as without the filter
+                logger.warning("agent %s: wants() raised %s: %s", self.name, type(err).__name__, err)
+                wanted = True
+            if not wanted:
+                return
         try:
             message = decode(sample.payload.to_bytes(), max_bytes=self._max, key=key)
             if not isinstance(message, dict) or message.get("op") not in _OPS:

@@ -85,6 +85,13 @@ class KnowledgeSource:
     def setup(self, board: Board) -> None:
         """Once, after connecting; may read existing state."""
 
+    def wants(self, level: str, hypothesis_id: str) -> bool:
+        """Whether a message about hypothesis ``hypothesis_id`` on ``level`` (of a consumed level)
+        is worth decoding: a filter on the message's key, before its body is decoded (default:
+        every one). A sharded agent that takes one hypothesis in N says no to the others here,
+        so it does not decode, nor queue, every large message of the level."""
+        return True
+
     def precondition(self, event: Event) -> float | None:
         """Activation rating of ``event`` (higher runs first), or None not to activate."""
         return 0.0

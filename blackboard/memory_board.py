@@ -285,7 +285,7 @@ class MemoryBlackboard:
             if agent.dead is not None or level not in agent.source.consumes:
                 continue
             try:
-                rating = agent.source.precondition(event)
+                rating = agent.source.precondition(event) if agent.source.wants(level, event.hypothesis.id) else None
             except Exception as err:  # noqa: BLE001  # the agent's own code
                 self._failed(agent, event, err)
                 continue

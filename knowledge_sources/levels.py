@@ -435,6 +435,12 @@ def viewframe_id(index: int) -> str:
     return f"vf-{index:06d}"
 
 
+def viewframe_index(hypothesis_id: str) -> int | None:
+    """The viewframe index a viewframe hypothesis id names (:func:`viewframe_id`), else None."""
+    head, _, digits = hypothesis_id.partition("-")
+    return int(digits) if head == "vf" and digits.isdigit() else None
+
+
 @dataclass(frozen=True, slots=True)
 class Map(Message):
     """The map is complete: everything the other agents need of it besides the viewframe images."""

@@ -67,6 +67,14 @@ class RouteRanker(KnowledgeSource):
 
     # -- the lifecycle -------------------------------------------------------------------------
 
+    def wants(self, level: str, hypothesis_id: str) -> bool:
+        """Viewframes of :meth:`mine` only, told by their id before they are decoded (a shard of a
+        long route decodes its share of the viewframe messages, not all of them)."""
+        if level != levels.VIEWFRAME:
+            return True
+        index = levels.viewframe_index(hypothesis_id)
+        return index is None or self.mine(index)
+
     @property
     def built(self) -> bool:
         """The map has been built (camera frames are ranked as they come)."""

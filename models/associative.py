@@ -336,6 +336,29 @@ class HolographicMemory:
         self._viewframes = np.zeros(0, dtype=np.int64)
         self._count = 0
         self._match: NDArray[np.float32] | None = None  # (H, D) ranking matrix, built on demand
+        #: finalized (:meth:`finalize`): only the ranking matrix and the recall energy are kept
+        self.final = False
+        self._energy_sq = 0.0  # sum w |FM|^2, kept when finalized
+
+    def finalize(self) -> None:
+        """Keep only what a ranking reads: the ranking matrix and the scalar ``sum w |FM|^2``,
+        which gives the recall energy of every query, since every key has the same magnitude on
+        every bin but DC (:func:`models.memory_keys.key_spectrum`). The prototype spectra and the
+        memory's spectrum (two thirds of a bank's bytes) are dropped: the bank then ranks as
+        before (the same order; variances to float32 rounding) but cannot be written, recalled
+        nor saved (those raise :class:`AssociativeMemoryError`)."""
+        if self.final:
+            return
+        self.ranking_matrix  # noqa: B018  # built from the spectra before they are dropped
+        self._energy_sq = float(np.sum(self._weights * np.abs(self._spectrum.astype(np.complex128)) ** 2))
+        n = self.size
+        self._fprotos = np.zeros((0, 2 * n * (n // 2 + 1)), dtype=np.float32)
+        self._spectrum = np.zeros((0, 0), dtype=SPECTRUM_DTYPE)
+        self.final = True
+
+    def _open(self, what: str) -> None:
+        if self.final:
+            raise AssociativeMemoryError(f"{what}: the bank is finalized (compact): it can only rank")
 
     # ---------------------------------------------------------------- storage
     def __len__(self) -> int:
@@ -349,6 +372,7 @@ class HolographicMemory:
     @property
     def prototypes(self) -> NDArray[np.float32]:
         """The stored (normalised) patterns, float32 of shape (H, N*N), in storage order."""
+        self._open("prototypes")
         n = self.size
         spec = self._fprotos[: self._count].reshape(self._count, n, n // 2 + 1, 2).astype(np.float64)
         spec = (spec[..., 0] + 1j * spec[..., 1]) / self._weights
@@ -357,6 +381,7 @@ class HolographicMemory:
     @property
     def spectrum(self) -> NDArray[np.complexfloating]:
         """The memory ``rfft2(M)``, shape (N, N // 2 + 1), :data:`SPECTRUM_DTYPE` (a view; do not modify)."""
+        self._open("spectrum")
         return self._spectrum
 
     @property
@@ -408,6 +433,7 @@ class HolographicMemory:
 
     def write_many(self, patterns: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Store several patterns at once (same result as :meth:`write` in a loop)."""
+        self._open("write")
         pats = [self._pattern(p, "write") for p in patterns]
         vfs = [int(x) for x in viewframes]
         if len(pats) != len(vfs):
@@ -442,11 +468,14 @@ class HolographicMemory:
         ``key`` may pass a precomputed :meth:`query_key` (then ``pattern`` is not used).
         """
         fk = self.query_key(pattern) if key is None else key
+        self._open("recall")
         n = self.size
         return np.fft.irfft2(np.conj(fk) * self._spectrum, s=(n, n))
 
     def recall_energy(self, key: NDArray[np.complexfloating]) -> float:
         """``||R||`` for a query key spectrum, without the inverse FFT (Parseval)."""
+        if self.final:  # |FK| is the same on every bin but DC, where FM is 0
+            return float(np.sqrt(self._energy_sq)) * float(np.max(np.abs(key), initial=0.0))
         return float(np.sqrt(np.sum(self._weights * np.abs(self._spectrum) ** 2 * np.abs(key) ** 2)))
 
     def similarities(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
@@ -475,6 +504,7 @@ class HolographicMemory:
     # ---------------------------------------------------------------- transport
     def state(self) -> dict[str, Any]:
         """Plain data (ints, str, numpy arrays) from which :meth:`from_state` rebuilds the bank."""
+        self._open("state")
         return {
             **_config_state(self),
             "viewframes": self.viewframes.copy(),
@@ -527,6 +557,13 @@ class BankedMemory:
     once. ``banks`` is the list of banks (fill order); :meth:`rank` gives the same ranking as
     :func:`merge_rankings` over the banks' own rankings, with one matrix product over the
     banks' ranking matrices packed together.
+
+    ``compact``: each bank is finalized (:meth:`HolographicMemory.finalize`) as soon as it is
+    full, its ranking rows written straight into the packed matrix (:meth:`reserve` sizes it
+    once), and a ranking finalizes the last, partial bank (a later write opens a new one). A
+    compact memory holds a third of the bytes (at N = 128: 66.5 KB per viewframe, the ranking
+    row, against about 220 KB) and ranks alike; it cannot recall, give its prototypes, nor save
+    its :meth:`state`.
     """
 
     def __init__(
@@ -537,6 +574,7 @@ class BankedMemory:
         seed: int = 0,
         key_method: str = _DEFAULTS.key,
         max_shift: int | tuple[int, int] = _DEFAULTS.max_shift,
+        compact: bool = False,
     ) -> None:
         if isinstance(bank_size, bool) or not isinstance(bank_size, (int, np.integer)) or bank_size < 1:
             raise AssociativeMemoryError(f"bank_size must be an integer >= 1, got {bank_size!r}")
@@ -551,6 +589,37 @@ class BankedMemory:
         self._packed: NDArray[np.float32] | None = None  # (H, D) all banks' ranking matrices
         self._bank_power: NDArray[np.float64] | None = None  # (B, N * (N // 2 + 1)) w |FM_b|^2
         self._row_bank: NDArray[np.int64] | None = None  # (H,) bank of each packed row
+        self.compact = bool(compact)
+        d = 2 * self.size * (self.size // 2 + 1)
+        self._rows = np.zeros((0, d), dtype=np.float32)  # compact: the packed rows (a capacity buffer)
+        self._nrows = 0
+        self._row0: list[int] = []  # compact: first packed row of each finalized bank
+        self._bank_energy: NDArray[np.float64] | None = None  # compact: (B,) sqrt(sum w |FM_b|^2)
+
+    def reserve(self, count: int) -> None:
+        """Compact: room for ``count`` viewframes in all (the packed rows are then never copied)."""
+        if self.compact and count > self._rows.shape[0]:
+            self._regrow(int(count))
+
+    def _regrow(self, cap: int) -> None:
+        rows = np.empty((cap, self._rows.shape[1]), dtype=np.float32)
+        rows[: self._nrows] = self._rows[: self._nrows]
+        self._rows = rows
+        for bank, r0 in zip(self.banks, self._row0):  # the finalized banks view the new buffer
+            bank._match = rows[r0 : r0 + len(bank)]
+
+    def _finalize(self, bank: HolographicMemory) -> None:
+        """Compact: finalize ``bank`` (the next not finalized) into the packed rows."""
+        bank.finalize()
+        assert bank._match is not None
+        if self._nrows + len(bank) > self._rows.shape[0]:
+            self._regrow(max(self._nrows + len(bank), 2 * self._rows.shape[0], 64))
+        r0 = self._nrows
+        self._rows[r0 : r0 + len(bank)] = bank._match
+        bank._match = self._rows[r0 : r0 + len(bank)]
+        self._row0.append(r0)
+        self._nrows += len(bank)
+        self._packed = None
 
     def __len__(self) -> int:
         return sum(len(b) for b in self.banks)
@@ -575,7 +644,7 @@ class BankedMemory:
         source = iter(patterns)
         i = 0
         while i < len(vfs):
-            if not self.banks or len(self.banks[-1]) >= self.bank_size:
+            if not self.banks or len(self.banks[-1]) >= self.bank_size or self.banks[-1].final:
                 self.banks.append(self._new_bank())
             bank = self.banks[-1]
             take = min(self.bank_size - len(bank), len(vfs) - i)
@@ -586,6 +655,8 @@ class BankedMemory:
             bank.write_many(pats, vfs[i : i + take])
             self._viewframes.update(vfs[i : i + take])
             i += take
+            if self.compact and len(bank) >= self.bank_size:
+                self._finalize(bank)
         self._packed = None
         if next(source, None) is not None:
             raise AssociativeMemoryError(f"write: more patterns than the {len(vfs)} viewframes")
@@ -594,6 +665,16 @@ class BankedMemory:
     def ranking_matrix(self) -> NDArray[np.float32]:
         """All banks' :attr:`HolographicMemory.ranking_matrix` as one (H, D) array (each bank
         keeps a view of its rows, so nothing is duplicated)."""
+        if self.compact:
+            for bank in self.banks[len(self._row0) :]:  # the last, partial bank
+                if len(bank):
+                    self._finalize(bank)
+            if self._packed is None:
+                self._packed = self._rows[: self._nrows]
+                done = self.banks[: len(self._row0)]
+                self._bank_energy = np.sqrt(np.array([b._energy_sq for b in done], dtype=np.float64))
+                self._row_bank = np.repeat(np.arange(len(done)), [len(b) for b in done])
+            return self._packed
         if self._packed is None:
             d = 2 * self.size * (self.size // 2 + 1)
             packed = np.empty((len(self), d), dtype=np.float32)
@@ -626,8 +707,9 @@ class BankedMemory:
             return merge_rankings([])
         key = self.banks[0].query_key(pattern)
         matrix = self.ranking_matrix
-        assert self._bank_power is not None and self._row_bank is not None  # set with the matrix
-        viewframes = np.concatenate([b.viewframes for b in self.banks])
+        assert self._row_bank is not None  # set with the matrix
+        banks_ranked = self.banks[: len(self._row0)] if self.compact else self.banks
+        viewframes = np.concatenate([b.viewframes for b in banks_ranked])
         row_bank = self._row_bank
         if among is not None:
             rows = np.flatnonzero(np.isin(viewframes, np.asarray(among, dtype=np.int64).ravel()))
@@ -635,9 +717,14 @@ class BankedMemory:
                 return _ranking(np.zeros(0, np.int64), np.zeros(0, np.float64))
             matrix, viewframes, row_bank = matrix[rows], viewframes[rows], row_bank[rows]
         power = (np.abs(key) ** 2).ravel().astype(np.float32)
-        if among is None:
+        if self.compact:  # |FK| is the same on every bin but DC: ||R_b|| = sqrt(sum w |FM_b|^2) |FK|
+            assert self._bank_energy is not None
+            energy = self._bank_energy * float(np.max(np.abs(key), initial=0.0))
+        elif among is None:
+            assert self._bank_power is not None
             energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
         else:  # only the banks holding a row searched
+            assert self._bank_power is not None
             banks = np.unique(row_bank)
             energy = np.zeros(len(self.banks))
             energy[banks] = np.sqrt(np.maximum(self._bank_power[banks] @ power, 0.0).astype(np.float64))
@@ -647,6 +734,8 @@ class BankedMemory:
 
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""
+        if self.compact:
+            raise AssociativeMemoryError("state: a compact memory cannot be saved (its banks keep only their rows)")
         return {
             **_config_state(self),
             "bank_size": self.bank_size,

@@ -154,6 +154,10 @@ class ViewframeIndex:
         The memory settings (see :func:`memory_settings`); None: the defaults.
     seed : int
         Seed of the keys' random phase (:func:`models.memory_keys.make_key`).
+    compact : bool
+        Banks keep only their ranking rows (:class:`~models.associative.BankedMemory`'s
+        ``compact``: a third of the bytes, the same rankings); False keeps the whole memory
+        (recall, prototypes, state). Default True.
 
     Example::
 
@@ -162,10 +166,14 @@ class ViewframeIndex:
         ranking = index.rank(frame.image)   # Ranking.viewframes, best first
     """
 
-    def __init__(self, memory: MemorySpec | Mapping[str, Any] | None = None, *, seed: int = 0) -> None:
+    def __init__(
+        self, memory: MemorySpec | Mapping[str, Any] | None = None, *, seed: int = 0, compact: bool = True
+    ) -> None:
         self.settings = memory_settings(memory)
         s = self.settings
-        self.memory = BankedMemory(s.size, bank_size=s.bank_size, seed=seed, key_method=s.key, max_shift=s.max_shift)
+        self.memory = BankedMemory(
+            s.size, bank_size=s.bank_size, seed=seed, key_method=s.key, max_shift=s.max_shift, compact=compact
+        )
         #: viewframes not stored because their pattern is featureless (a constant image: e.g. a
         #: camera inside a landmark, or facing the sky): they have nothing to match, so they are
         #: left out of every ranking rather than failing the index
@@ -195,6 +203,7 @@ class ViewframeIndex:
         (with a warning) and never ranked."""
 
         vfs = [int(v) for v in viewframes]
+        self.memory.reserve(len(self.memory) + len(vfs))
         source = iter(patterns)
         step = self.memory.bank_size  # a bank's worth at a time: the patterns are never all in memory
         for i in range(0, len(vfs), step):

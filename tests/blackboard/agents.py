@@ -108,6 +108,25 @@ class FailingOn(KnowledgeSource):
         board.post("doubled", {"x": 2 * x})
 
 
+class Picky(KnowledgeSource):
+    """Doubles the numbers whose id ends in an even digit, told by ``wants`` before decoding; the
+    others must never reach its ``precondition`` (it raises on them: a counted failure)."""
+
+    consumes = ("number",)
+    produces = ("doubled",)
+
+    def wants(self, level: str, hypothesis_id: str) -> bool:
+        return int(hypothesis_id[-1]) % 2 == 0
+
+    def precondition(self, event: Event) -> float | None:
+        if int(event.hypothesis.id[-1]) % 2:
+            raise RuntimeError(f"decoded {event.hypothesis.id}, which wants() declined")
+        return 1.0
+
+    def act(self, event: Event, board: Board) -> None:
+        board.post("doubled", {"x": 2 * event.hypothesis.body["x"]}, id=f"d-{event.hypothesis.id}")
+
+
 class Updater(KnowledgeSource):
     """On 'target' hypotheses: options['n'] updates, each adding key '<name>-<i>' to the body."""
 

@@ -18,6 +18,7 @@ from tests.blackboard.agents import (
     Exclusive,
     Failing,
     LateCounter,
+    Picky,
     Recorder,
     Rogue,
     Silent,
@@ -40,6 +41,15 @@ def test_a_chain_of_agents_runs_to_the_end() -> None:
     assert sorted(h.body["x"] for h in bb.hypotheses("echo")) == [2, 4, 6]
     doubled = {h.id: h for h in bb.hypotheses("doubled")}
     assert all(h.links[0] in doubled for h in bb.hypotheses("echo"))
+
+
+def test_an_agent_gets_only_the_messages_it_wants() -> None:
+    bb = MemoryBlackboard(raise_errors=True)  # a precondition on a declined message would raise
+    bb.add(Picky("picky"))
+    for x in range(6):
+        bb.post("number", {"x": x}, id=f"n-{x}")
+    bb.run()
+    assert sorted(h.body["x"] for h in bb.hypotheses("doubled")) == [0, 4, 8]
 
 
 def test_bodies_travel_through_the_codec() -> None:

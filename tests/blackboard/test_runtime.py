@@ -141,6 +141,17 @@ def test_a_failed_activation_the_agent_survives_is_in_the_outcome(run_id: str, m
 
 
 @pytest.mark.parametrize("mode", MODES)
+def test_an_agent_decodes_only_the_messages_it_wants(run_id: str, mode: str) -> None:
+    with Runtime(run_id=run_id, mode=mode) as rt:
+        rt.add(f"{AGENTS}:Picky", name="picky")
+        for x in range(6):
+            rt.post("number", {"x": x}, id=f"n-{x}")
+        outcome = rt.run(timeout_s=20)
+    assert outcome.failures == {} and outcome.agents == {"picky": "ok"}
+    assert sorted(h.body["x"] for h in outcome.hypotheses if h.level == "doubled") == [0, 4, 8]
+
+
+@pytest.mark.parametrize("mode", MODES)
 def test_setup_failure_is_reported(run_id: str, mode: str) -> None:
     with Runtime(run_id=run_id, mode=mode) as rt:
         with pytest.raises(AgentError, match="^agent 'bad': setup failed: OSError: model file missing$"):

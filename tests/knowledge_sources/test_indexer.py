@@ -64,6 +64,9 @@ def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small
     bb.run()
     stored = {i.shard: i.viewframes for i in (levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX))}
     assert stored == {0: 3, 1: 3, 2: 2}
+    # each shard decodes only its own viewframes' messages (told by their id)
+    assert [ix.wants(levels.VIEWFRAME, levels.viewframe_id(4)) for ix in indexers] == [False, True, False]
+    assert all(ix.wants(levels.SENSOR_FRAME, levels.frame_id(4)) for ix in indexers)
     frames_from_viewframes(bb, small_rendered, [0])
     bb.run()
     full = {b: levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(0, b))) for b in range(3)}

@@ -335,3 +335,52 @@ def test_low_pass_preselection_rescues_an_offset_truth(monkeypatch: pytest.Monke
     without = [mem.rank(q).best for q in queries]
     assoc._lowpass.cache_clear()
     assert sum(a != b for a, b in zip(without, targets)) >= 5
+
+
+@pytest.mark.parametrize("key_method", ["phase", "quantized"])
+@pytest.mark.parametrize("max_shift", [(0, 0), (2, 6)])
+@pytest.mark.parametrize("bank_size", [1, 2, 3])
+def test_a_compact_memory_ranks_as_the_whole_memory(bank_size: int, max_shift: tuple[int, int], key_method) -> None:
+    """Finalized banks keep only their ranking rows and a scalar recall energy; every ranking
+    (full, among a window, after later writes) is the whole memory's, to float32 rounding."""
+    rng = np.random.default_rng(17)
+    pats = [preprocess(scene(rng), size=64, blur_sigma=1.0) for _ in range(40)]
+    whole = BankedMemory(64, bank_size=bank_size, max_shift=max_shift, key_method=key_method)
+    whole.write_many(pats, range(40))
+    reserved = BankedMemory(64, bank_size=bank_size, max_shift=max_shift, key_method=key_method, compact=True)
+    reserved.reserve(40)
+    reserved.write_many(pats, range(40))
+    grown = BankedMemory(64, bank_size=bank_size, max_shift=max_shift, key_method=key_method, compact=True)
+    grown.write_many(pats[:19], range(19))
+    grown.rank(pats[2])  # finalizes the partial last bank: the next write opens another
+    grown.write_many(pats[19:], range(19, 40))
+    for q in (pats[5], np.roll(pats[7], 2, axis=1), pats[33], np.zeros((64, 64), np.float32)):
+        for among in (None, range(10, 25)):
+            want, got = whole.rank(q, among=among), reserved.rank(q, among=among)
+            assert got.viewframes.tolist() == want.viewframes.tolist()
+            np.testing.assert_allclose(got.variances, want.variances, rtol=0, atol=1e-7 * want.variances.max())
+        assert sorted(grown.rank(q).viewframes.tolist()) == list(range(40))
+    if bank_size == 1:  # banks of one: nothing else in it changes its layout
+        np.testing.assert_allclose(grown.rank(pats[9]).variances, whole.rank(pats[9]).variances, atol=1e-9)
+    assert whole.rank(pats[5]).best == reserved.rank(pats[5]).best == grown.rank(pats[5]).best == 5
+    # a third of the bytes: the ranking rows only
+    kept = reserved.ranking_matrix.nbytes + sum(b._fprotos.nbytes + b._spectrum.nbytes for b in reserved.banks)
+    full = whole.ranking_matrix.nbytes + sum(b._fprotos.nbytes + b._spectrum.nbytes for b in whole.banks)
+    assert kept == reserved.ranking_matrix.nbytes and kept < 0.5 * full
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda m: m.state(),
+        lambda m: m.banks[0].recall(np.ones((64, 64))),
+        lambda m: m.banks[0].prototypes,
+        lambda m: m.banks[0].write(np.eye(64), 99),
+        lambda m: m.banks[0].state(),
+    ],
+)
+def test_a_compact_memory_refuses_what_needs_the_dropped_spectra(call) -> None:
+    mem = BankedMemory(64, bank_size=2, compact=True)
+    mem.write_many(_random_patterns(64, 4, seed=3), range(4))
+    with pytest.raises(AssociativeMemoryError, match="compact"):
+        call(mem)
