@@ -166,10 +166,11 @@ def _ext_hook(code: int, data: bytes) -> Any:
         raise ValueError(f"ndarray dtype {dtype} is not allowed")
     if len(shape) > _MAX_NDIM or not all(isinstance(n, int) and n >= 0 for n in shape):
         raise ValueError(f"malformed ndarray shape {shape!r}")
-    raw = data[offset:]
-    if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize != len(raw):
-        raise ValueError(f"ndarray data is {len(raw)} bytes, shape {shape} of {dtype} needs another size")
-    return np.frombuffer(raw, dtype=dtype).reshape(tuple(shape)).copy()
+    count = int(np.prod(shape, dtype=np.int64))
+    if count * dtype.itemsize != len(data) - offset:
+        raise ValueError(f"ndarray data is {len(data) - offset} bytes, shape {shape} of {dtype} needs another size")
+    # one copy (the array owns its bytes, writable), straight from the extension's buffer
+    return np.frombuffer(data, dtype=dtype, count=count, offset=offset).reshape(tuple(shape)).copy()
 
 
 def decode(data: bytes, *, max_bytes: int = DEFAULT_MAX_BYTES, key: str | None = None) -> Any:

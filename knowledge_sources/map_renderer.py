@@ -13,7 +13,8 @@ __all__ = ["MapRenderer"]
 
 log = logging.getLogger(__name__)
 
-#: viewframes posted between two returns of their memory-mapped pages (models.viewframe_cache.release_pages)
+#: viewframes posted between two returns of their memory-mapped pages (models.viewframe_cache.release_pages),
+#: and between two reads that wait for the blackboard node to have received them (flow control)
 RELEASE_EVERY = 64
 
 
@@ -59,6 +60,11 @@ class MapRenderer(KnowledgeSource):
                 # the two), else the route's whole entry would become resident as it is posted
                 batch = viewframes[max(0, k + 1 - 2 * RELEASE_EVERY) : k + 1]
                 release_pages(a for v in batch for a in (v.image, v.mask, v.background, v.depth, v.skyline))
+                # flow control: a read is answered once the node has received every post this agent
+                # sent (the read barrier), so the node's queue holds at most a batch of viewframes; a
+                # renderer reading a filled cache outruns the node, whose queue of 150 KB messages
+                # otherwise grew by gigabytes on a route of 10,000 viewframes
+                board.get(levels.viewframe_id(k))
         levels.post(
             board,
             levels.Map(

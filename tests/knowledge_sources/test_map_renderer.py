@@ -37,6 +37,37 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     assert mp_h.links == (levels.scenario_id(),)
 
 
+def test_the_renderer_waits_for_the_board_after_each_batch(tmp_path, monkeypatch) -> None:
+    """Flow control: after every batch of viewframes the renderer reads the last one back (a read
+    the node answers once it has received every post the renderer sent), so a renderer reading a
+    filled cache cannot queue the whole route's messages at the node."""
+    import yaml
+
+    from blackboard.memory_board import MemoryBoard
+    from knowledge_sources import map_renderer
+
+    monkeypatch.setattr(map_renderer, "RELEASE_EVERY", 3)
+    reads: list[tuple[str, str, int]] = []
+    plain = MemoryBoard.get
+
+    def get(self, hypothesis_id):
+        got = plain(self, hypothesis_id)
+        reads.append((self.agent, hypothesis_id, len(self._bb.hypotheses(levels.VIEWFRAME))))
+        return got
+
+    monkeypatch.setattr(MemoryBoard, "get", get)
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(SMALL))
+    bb = MemoryBlackboard()
+    bb.add(MapRenderer("map-renderer"))
+    levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))
+    bb.run()
+    n = len(SMALL["route"])
+    mine = [(k, posted) for agent, k, posted in reads if agent == "map-renderer"]
+    last = sorted({*range(2, n, 3), n - 1})
+    assert mine == [(levels.viewframe_id(k), k + 1) for k in last]  # each read after its batch's posts
+
+
 def test_a_missing_scenario_file_is_named(tmp_path) -> None:
     bb = MemoryBlackboard()
     bb.add(MapRenderer("map-renderer"))
