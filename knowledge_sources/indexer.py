@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import zlib
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -72,7 +73,9 @@ class AssociativeIndexer(RouteRanker):
         self.shard = shard
         self.shards = shards
         self.block = None if block is None else int(block)
-        self._images: dict[int, np.ndarray] = {}
+        # the shard's viewframe images until the map is complete, zlib-compressed (a long route's
+        # images would otherwise be resident at once: about 57 KB each at 160 x 120)
+        self._images: dict[int, tuple[bytes, tuple[int, ...], str]] = {}
         self._index: ViewframeIndex | None = None
 
     def mine(self, index: int) -> bool:
@@ -82,7 +85,12 @@ class AssociativeIndexer(RouteRanker):
         return index % self.shards == self.shard
 
     def keep(self, viewframe: levels.Viewframe) -> None:
-        self._images[viewframe.index] = viewframe.image
+        image = np.ascontiguousarray(viewframe.image)
+        self._images[viewframe.index] = (zlib.compress(image.data, 1), image.shape, image.dtype.str)
+
+    def _image(self, k: int) -> np.ndarray:
+        data, shape, dtype = self._images.pop(k)
+        return np.frombuffer(zlib.decompress(data), dtype=dtype).reshape(shape)
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
         from models.index import ViewframeIndex
@@ -90,11 +98,11 @@ class AssociativeIndexer(RouteRanker):
         mine = [k for k in range(mp.viewframes) if self.mine(k)]
         for k in mine:
             if k not in self._images:
-                self._images[k] = levels.Viewframe.read(board, k).image
+                self.keep(levels.Viewframe.read(board, k))
         index = ViewframeIndex(mp.memory, seed=self.shard)
-        # each image is dropped as soon as it is made into a pattern: the images and the banks
-        # are never all resident at once
-        index.add((self._images.pop(k) for k in mine), mine)
+        # each image is decompressed as it is made into a pattern and dropped: the images and
+        # the banks are never all resident at once
+        index.add((self._image(k) for k in mine), mine)
         self._index = index
         self._images.clear()
         stored = len(mine) - len(index.featureless)
