@@ -361,6 +361,10 @@ def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np
     return out
 
 
+#: references matched at once (their per-shift temporaries, about 1 MB, stay in the CPU's cache)
+_BLOCK = 256
+
+
 @dataclass(frozen=True)
 class SkylineMatch:
     """Best shift of a query profile against each of V references.
@@ -429,6 +433,27 @@ def match_skylines(
         for f in fields:
             out[f][best] = getattr(rolled, f)
         return SkylineMatch(**out)
+    if len(r) > _BLOCK:  # rows are matched independently: in blocks whose temporaries stay in cache
+        parts = [
+            match_skylines(
+                q,
+                r[i : i + _BLOCK],
+                step_deg=step_deg,
+                max_heading_deg=max_heading_deg,
+                max_pitch_deg=max_pitch_deg,
+                truncate_deg=truncate_deg,
+                max_roll_deg=max_roll_deg,
+                roll_candidates=None,
+                min_overlap=min_overlap,
+            )
+            for i in range(0, len(r), _BLOCK)
+        ]
+        return SkylineMatch(
+            *(
+                np.concatenate([getattr(m, f) for m in parts])
+                for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg")
+            )
+        )
     v, n = r.shape
     smax = min(int(round(max_heading_deg / step_deg)), n - 1)
     shifts = np.arange(-smax, smax + 1)

@@ -236,3 +236,25 @@ def test_the_two_stage_match_keeps_the_full_matchs_best(seed):
     assert two.roll_deg[j] == pytest.approx(1.5, abs=0.3)
     with pytest.raises(ValueError, match="roll_candidates"):
         match_skylines(q, refs, roll_candidates=0)
+
+
+@pytest.mark.parametrize("max_roll_deg", [0.0, 3.0])
+def test_matching_in_blocks_of_references_gives_the_same_match(monkeypatch, max_roll_deg) -> None:
+    """References are matched a block at a time (temporaries that stay in cache): the result is
+    the one-block match's, bit for bit, whatever the block."""
+    import models.skyline as sky
+
+    rng = np.random.default_rng(23)
+    refs = np.cumsum(rng.standard_normal((50, 90)) * 0.3, axis=1) + 2.0
+    refs[rng.random(refs.shape) < 0.05] = np.nan
+    refs[7, 30:] = np.nan
+    query = np.roll(refs[31] + 0.5, 4)
+    query[:5] = np.nan
+    kw = {"max_roll_deg": max_roll_deg, "roll_candidates": 8}
+    monkeypatch.setattr(sky, "_BLOCK", 10**6)
+    whole = match_skylines(query, refs, **kw)
+    monkeypatch.setattr(sky, "_BLOCK", 7)
+    blocks = match_skylines(query, refs, **kw)
+    for field in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
+        assert np.array_equal(getattr(whole, field), getattr(blocks, field)), field
+    assert int(np.argmin(blocks.error)) == 31
