@@ -470,7 +470,7 @@ class SceneAnalysis:
                 for k, v in moved.items():
                     self._likelihood[k] += v
                 if moved:
-                    step["position"] = {int(k): round(v, 4) for k, v in moved.items()}
+                    step["position"] = {str(k): round(v, 4) for k, v in moved.items()}
         post = self.posterior()
         best = self._best(post)
         low = sorted(k for k, p in post.items() if p < self.floor and k != best)
