@@ -55,6 +55,10 @@ Posterior
     spacing off along the route, a camera frame at most a fraction of it, so a near landmark's
     size and bearing tell them apart where its presence cannot. An answer with ``λ <= 0`` has
     no trustworthy place and gives no position evidence.
+    ``position_spread`` is calibrated on the evaluation set's tuning split only
+    (bench/tuning/calibrate_position.py): the robust spread (1.4826 x median absolute residual,
+    about zero) of the detectors' found place, in answers with ``λ > 0`` about landmarks truly
+    there, against the frame's true viewframe's prediction carried by the skyline's turn.
 
     In both, an unanswered question (detector dead or late, or undecided) changes nothing.
 
