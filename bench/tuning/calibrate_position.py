@@ -68,12 +68,12 @@ def residuals(case) -> list[dict]:
         d = reg.for_kind(q["kind"]).detect(image, view=view)
         if d.where is None or d.llr is None or d.llr <= 0:
             continue
-        if truth not in turns:
+        if fi not in turns:  # the camera's turn and tilt against the frame's true viewframe
             m = match_skylines(
                 skyline_from_image(image, fov_y_deg=fov, step_deg=match["step_deg"]), skylines[[truth]], **match
             )
-            turns[truth * 100000 + fi] = (float(m.heading_deg[0]), float(m.pitch_deg[0]))
-        heading, pitch = turns[truth * 100000 + fi]
+            turns[fi] = (float(m.heading_deg[0]), float(m.pitch_deg[0]))
+        heading, pitch = turns[fi]
         obs = found_placement(d.where, pixels=int(view.silhouette.sum()), shape=image.shape, fov_y_deg=fov)
         rows, cols = np.nonzero(mt)
         pred = placement(rows.mean(), cols.mean(), len(rows), shape=mt.shape, fov_y_deg=fov)
