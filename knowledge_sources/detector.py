@@ -29,7 +29,9 @@ class LandmarkDetectorAgent(KnowledgeSource):
 
     Each answer carries the three-way ``present`` and, when the viewframe came with its view
     without landmarks (``background``), the calibrated log-likelihood ratio ``llr`` of the
-    landmark being there (:mod:`models.detectors`).
+    landmark being there (:mod:`models.detectors`), and, with the camera's field of view known
+    (``fov_y_deg``), ``where`` it found the landmark's best match: its placement in the camera
+    image (:mod:`models.placement`, the scene analysis's position evidence).
 
     Options: ``threshold`` (score for "present"), ``absent_threshold`` (below it, "absent"; in
     between the answer is undecided), ``calibration`` (``{kind or family: [bias, weights...]}``)
@@ -114,6 +116,12 @@ class LandmarkDetectorAgent(KnowledgeSource):
         detector = self._registry.for_kind(q.kind)
         view = CandidateView.from_mask(vf.image, vf.mask, q.landmark_index, background=vf.background)
         det = detector.detect(frame.image, view=view)
+        where = None
+        if det.where is not None and self.fov_y_deg is not None:
+            from models.placement import found_placement
+
+            px = int(view.silhouette.sum())
+            where = list(found_placement(det.where, pixels=px, shape=frame.image.shape, fov_y_deg=self.fov_y_deg))
         levels.post(
             board,
             levels.Answer(
@@ -127,6 +135,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
                 detector=detector.name,
                 reason=det.reason,
                 llr=det.llr,
+                where=where,
             ),
             links=(event.hypothesis.id, frame_h.id, vf_h.id),
             credibility=float(min(1.0, max(0.0, det.score))),

@@ -457,6 +457,13 @@ class Map(Message):
     poses: list = field(metadata=_doc("[[x, y, z, heading_deg, pitch_deg], ...] the pose of each viewframe"))
     visible: dict = field(metadata=_doc('{"k": {landmark id: pixels}}: landmarks visible in viewframe k'))
     memory: dict = field(metadata=_doc("the scenario's memory settings (MemorySpec.model_dump)"))
+    placements: dict = field(
+        default_factory=dict,
+        metadata=_doc(
+            '{"k": {landmark id: [elevation_deg, azimuth_deg, size_deg]}}: where viewframe k shows each '
+            "visible landmark, angles from the optical axis (models.placement)"
+        ),
+    )
 
     def id(self) -> str:
         return map_id()
@@ -644,6 +651,13 @@ class Answer(Message):
     reason: str = field(metadata=_doc("why the detector answered so"))
     llr: float | None = field(
         default=None, metadata=_doc("log-likelihood ratio of the landmark being there (calibrated), or null")
+    )
+    where: list | None = field(
+        default=None,
+        metadata=_doc(
+            "[elevation_deg, azimuth_deg, size_deg] of the landmark's best match in the camera image, angles from "
+            "the optical axis (models.placement), or null"
+        ),
     )
 
     def id(self) -> str:

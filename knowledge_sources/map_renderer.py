@@ -82,8 +82,23 @@ class MapRenderer(KnowledgeSource):
                     str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
                     for vf in viewframes
                 },
+                placements={
+                    str(vf.index): {
+                        n: list(_placement(vf.description.graph.nodes[n], vf.image.shape, scenario.camera.fov_y_deg))
+                        for n in vf.description.visible
+                    }
+                    for vf in viewframes
+                },
                 memory=scenario.memory.model_dump(),
             ),
             links=(source.id,),
         )
         log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)
+
+
+def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:
+    """A symbolic description node's placement (:mod:`models.placement`): centroid and pixels."""
+    from models.placement import placement
+
+    row, col = node["centroid"]
+    return placement(row, col, node["pixels"], shape=shape, fov_y_deg=fov_y_deg)

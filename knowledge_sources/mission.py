@@ -144,6 +144,10 @@ def agent_plan(
                 "questions": sched.questions,
                 "floor": sched.floor,
                 "max_llr": sched.max_llr,
+                "position_evidence": sched.position_evidence,
+                "position_spread": list(sched.position_spread),
+                "position_dof": sched.position_dof,
+                "max_position_llr": sched.max_position_llr,
             },
         )
     )

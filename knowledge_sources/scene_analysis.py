@@ -37,6 +37,29 @@ Posterior
     a candidate whose posterior falls below ``floor`` is discarded (a backtrack): one wrong
     "absent" lowers the right viewframe, consistent evidence against it removes it.
 
+    Position evidence (``soft`` only, ``position_evidence`` on, the default): an answer with
+    ``λ > 0`` (after clipping) that also says *where* the detector found L in the camera frame,
+    the placement ``o = (elevation, azimuth, size)`` of :mod:`models.placement` (angles from
+    the optical axis, degrees), enters every surviving candidate k that shows L and has a
+    placement ``p_k`` of it (from its viewframe). With the camera's turn ``(h_k, t_k)`` (heading
+    ccw, pitch up, degrees) against viewframe k known (the skyline's alignment), k predicts
+    ``(el_k - t_k, az_k + h_k, size_k)``; without it, only the size is compared (a heading error
+    moves every landmark alike, and would swamp the parallax). The residual ``r_k = (d_el, d_az,
+    log(size_o / size_k))`` scores ``ℓ_k = position_log_likelihood(r_k)`` (independent
+    Student-t terms of scales ``position_spread`` and ``position_dof`` degrees of freedom,
+    :func:`models.placement.position_log_likelihood`), and each such candidate's log-likelihood
+    gains ``max(ℓ_k - max_j ℓ_j, -max_position_llr)``: the best-fitting holder 0, the others
+    less, by at most ``max_position_llr`` (one wrong match cannot kill the truth). The position
+    evidence only moves belief between the candidates that show L by where they put it: that L
+    is there at all is the presence ratio's ``λ``. A neighbouring route point is a whole route
+    spacing off along the route, a camera frame at most a fraction of it, so a near landmark's
+    size and bearing tell them apart where its presence cannot. An answer with ``λ <= 0`` has
+    no trustworthy place and gives no position evidence.
+    ``position_spread`` is calibrated on the evaluation set's tuning split only
+    (bench/tuning/calibrate_position.py): the robust spread (1.4826 x median absolute residual,
+    about zero) of the detectors' found place, in answers with ``λ > 0`` about landmarks truly
+    there, against the frame's true viewframe's prediction carried by the skyline's turn.
+
     In both, an unanswered question (detector dead or late, or undecided) changes nothing.
 
 Which question next
@@ -79,6 +102,7 @@ from typing import Literal
 
 import numpy as np
 
+from models.placement import position_log_likelihood
 from models.scenario import SchedulerSpec
 
 __all__ = ["Question", "Decision", "SceneAnalysis", "ranking_weights", "information_gain"]
@@ -185,6 +209,20 @@ class SceneAnalysis:
         Sharpness of the ranking weights (:func:`ranking_weights`).
     track_prior : mapping viewframe -> probability, or array (N,) of each route point's, optional
         The tracker's prior over route points for this frame (see "Candidates and their weights").
+    placements : mapping viewframe -> {landmark: (elevation_deg, azimuth_deg, size_deg)}, optional
+        Where each viewframe shows each landmark (:mod:`models.placement`): the position
+        evidence's predictions; without one, no position evidence.
+    turns : mapping viewframe -> (heading_deg, pitch_deg), optional
+        The camera's turn (ccw) and tilt (up) against each viewframe (the skyline's alignment);
+        without a viewframe's, its position evidence compares sizes only.
+    position_evidence : bool
+        ``soft``: whether answers' places enter the posterior (module docstring).
+    position_spread : (elevation_deg, azimuth_deg, log_size)
+        The position evidence's Student-t scales.
+    position_dof : float
+        Its degrees of freedom.
+    max_position_llr : float
+        The most one answer's position evidence lowers a candidate's log-likelihood.
 
     Every default is the scenario schema's (:class:`models.scenario.SchedulerSpec`).
 
@@ -205,6 +243,12 @@ class SceneAnalysis:
     questions: QuestionOrder = _DEFAULTS.questions
     floor: float = _DEFAULTS.floor
     max_llr: float = _DEFAULTS.max_llr
+    placements: Mapping[int, Mapping[str, Sequence[float]]] | None = None
+    turns: Mapping[int, Sequence[float]] | None = None
+    position_evidence: bool = _DEFAULTS.position_evidence
+    position_spread: tuple[float, float, float] = _DEFAULTS.position_spread
+    position_dof: float = _DEFAULTS.position_dof
+    max_position_llr: float = _DEFAULTS.max_position_llr
     _weights: dict[int, float] = field(init=False, repr=False)
     _rank: dict[int, int] = field(init=False, repr=False)
     _likelihood: dict[int, float] = field(init=False, repr=False)
@@ -235,6 +279,12 @@ class SceneAnalysis:
             raise ValueError("floor must be in [0, 1)")
         if not self.max_llr > 0:
             raise ValueError("max_llr must be > 0")
+        if len(self.position_spread) != 3 or not all(float(v) > 0 for v in self.position_spread):
+            raise ValueError("position_spread must be three values > 0: (elevation_deg, azimuth_deg, log_size)")
+        if not self.position_dof > 0:
+            raise ValueError("position_dof must be > 0")
+        if not self.max_position_llr > 0:
+            raise ValueError("max_position_llr must be > 0")
         ranked = [int(k) for k, _ in self.ranking]
         self._rank = {k: i for i, k in enumerate(ranked)}
         if self.track_prior is not None:
@@ -354,14 +404,22 @@ class SceneAnalysis:
         return min(self._rank.get(k, len(self._rank)) for k in post if lm in self._landmarks(k))
 
     def answer(
-        self, question: Question, present: bool | None, *, score: float | None = None, llr: float | None = None
+        self,
+        question: Question,
+        present: bool | None,
+        *,
+        score: float | None = None,
+        llr: float | None = None,
+        where: Sequence[float] | None = None,
     ) -> None:
         """Record the detector's answer to ``question``.
 
         ``present`` is ``True``/``False``, or ``None`` when the detector could not tell or no answer
         came (detector dead or late): the landmark is then marked as asked and nothing else changes.
         ``llr`` is the detector's log-likelihood ratio (``soft`` backtracking uses it; ``hard``
-        uses ``present`` only). Every call counts as one query.
+        uses ``present`` only). ``where`` is where the detector found the landmark in the camera
+        frame, ``(elevation_deg, azimuth_deg, size_deg)`` (:mod:`models.placement`): the
+        position evidence (``soft`` only). Every call counts as one query.
         """
         if self._pending is None or question != self._pending:
             raise ValueError(f"answer to {question} does not match the pending question {self._pending}")
@@ -376,7 +434,7 @@ class SceneAnalysis:
         }
         self._queries += 1  # every question asked counts, answered or not
         if self.backtracking == "soft":
-            self._answer_soft(question, present, llr, step)
+            self._answer_soft(question, present, llr, step, where)
         elif present is None:
             step["effect"] = "no evidence"
         else:
@@ -395,7 +453,9 @@ class SceneAnalysis:
                 step["effect"] = f"discarded {sorted(holders)}"
         self._steps.append(step)
 
-    def _answer_soft(self, question: Question, present: bool | None, llr: float | None, step: dict) -> None:
+    def _answer_soft(
+        self, question: Question, present: bool | None, llr: float | None, step: dict, where: Sequence[float] | None
+    ) -> None:
         if llr is None or not math.isfinite(float(llr)):
             if present is None:
                 step["effect"] = "no evidence"
@@ -409,6 +469,12 @@ class SceneAnalysis:
             self._likelihood[k] += llr
         if llr > 0:
             self._present.add(question.landmark)
+            if self.position_evidence and where is not None:
+                moved = self.position_llr(question.landmark, where, holders)
+                for k, v in moved.items():
+                    self._likelihood[k] += v
+                if moved:
+                    step["position"] = {str(k): round(v, 4) for k, v in moved.items()}
         post = self.posterior()
         best = self._best(post)
         low = sorted(k for k, p in post.items() if p < self.floor and k != best)
@@ -418,6 +484,32 @@ class SceneAnalysis:
         if low:
             self._backtracks += 1
         step["effect"] = f"llr {llr:+.2f} on {len(holders)}" + (f", discarded {low}" if low else "")
+
+    def position_llr(self, landmark: str, where: Sequence[float], holders: Sequence[int]) -> dict[int, float]:
+        """The position evidence of ``where`` (the observed placement of ``landmark``) for each of
+        ``holders`` that has a placement of it: ``max(ℓ_k - max_j ℓ_j, -max_position_llr)``
+        (module docstring); empty when fewer than two holders can be compared."""
+        if self.placements is None or len(where) != 3 or not all(math.isfinite(float(v)) for v in where):
+            return {}
+        el, az, size = (float(v) for v in where)
+        if size <= 0:
+            return {}
+        scores: dict[int, float] = {}
+        for k in holders:
+            p = (self.placements.get(k) or {}).get(landmark)
+            if p is None or float(p[2]) <= 0:
+                continue
+            turn = None if self.turns is None else self.turns.get(k)
+            d_size = math.log(size / float(p[2]))
+            if turn is None:
+                residual: tuple[float | None, ...] = (None, None, d_size)
+            else:
+                residual = (el - (float(p[0]) - float(turn[1])), az - (float(p[1]) + float(turn[0])), d_size)
+            scores[k] = position_log_likelihood(residual, spread=self.position_spread, dof=self.position_dof)
+        if len(scores) < 2:
+            return {}
+        top = max(scores.values())
+        return {k: max(v - top, -self.max_position_llr) for k, v in scores.items()}
 
     def _decide(self, viewframe: int | None, confidence: float, reason: str) -> None:
         self._decision = Decision(

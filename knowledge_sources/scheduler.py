@@ -58,6 +58,7 @@ class _Frame:
     frame: int
     frame_time: float
     rankings: dict[tuple[str, int], Any] = field(default_factory=dict)  # (source, shard) -> ranking message
+    turns: dict[int, tuple[float, float]] = field(default_factory=dict)  # viewframe -> (heading, pitch), skyline
     shards: dict[str, int] = field(default_factory=dict)  # source -> its number of shards
     analysis: SceneAnalysis | None = None
     question: Question | None = None
@@ -76,7 +77,10 @@ class Scheduler(KnowledgeSource):
     ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
     the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``,
     ``backtracking`` ("hard" or "soft"), ``questions`` ("information" or "probability"),
-    ``floor``, ``max_llr`` (the scene-analysis rule's, :mod:`knowledge_sources.scene_analysis`);
+    ``floor``, ``max_llr``, ``position_evidence``, ``position_spread``, ``position_dof``,
+    ``max_position_llr`` (the scene-analysis rule's, :mod:`knowledge_sources.scene_analysis`; the
+    position evidence's predictions are the map's ``placements``, the camera's turn against each
+    viewframe the ``shifts`` of a ranking source that posts them, the skyline);
     each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`). ``sources``
     (``{source: weight}``: the ranking sources a frame waits for, all their shards, before its
     analysis starts, and their weights in the fusion of :mod:`knowledge_sources.fusion`; default
@@ -110,6 +114,10 @@ class Scheduler(KnowledgeSource):
         questions: str = _DEFAULTS.questions,
         floor: float = _DEFAULTS.floor,
         max_llr: float = _DEFAULTS.max_llr,
+        position_evidence: bool = _DEFAULTS.position_evidence,
+        position_spread: tuple[float, float, float] | list[float] = _DEFAULTS.position_spread,
+        position_dof: float = _DEFAULTS.position_dof,
+        max_position_llr: float = _DEFAULTS.max_position_llr,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -133,6 +141,13 @@ class Scheduler(KnowledgeSource):
         self.questions: QuestionOrder = questions  # type: ignore[assignment]  # checked just above
         self.floor = float(floor)
         self.max_llr = float(max_llr)
+        self.position_evidence = bool(position_evidence)
+        if len(position_spread) != 3:
+            raise ValueError(f"position_spread must be three values, got {position_spread!r}")
+        self.position_spread = (float(position_spread[0]), float(position_spread[1]), float(position_spread[2]))
+        self.position_dof = float(position_dof)
+        self.max_position_llr = float(max_position_llr)
+        self._placements: dict[int, dict[str, tuple[float, float, float]]] = {}  # viewframe -> landmark -> place
         self._map: levels.Map | None = None
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
         self._visible: dict[int, frozenset[str]] = {}  # viewframe -> landmarks worth asking about
@@ -212,6 +227,10 @@ class Scheduler(KnowledgeSource):
         self._visible = {
             int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in mp.visible.items()
         }
+        self._placements = {
+            int(k): {lm: (float(p[0]), float(p[1]), float(p[2])) for lm, p in v.items()}
+            for k, v in (mp.placements or {}).items()
+        }
 
     def _ensure_map(self, board: Board) -> levels.Map:
         if self._map is None:
@@ -229,6 +248,8 @@ class Scheduler(KnowledgeSource):
             return
         st.shards[rk.source] = rk.shards
         st.rankings[(rk.source, rk.shard)] = rk
+        if rk.shifts is not None and not st.turns:  # the first source with shifts (the skyline) gives the turns
+            st.turns = {int(k): (float(s[0]), float(s[1])) for k, s in zip(rk.viewframes, rk.shifts)}
         st.links.append(h.id)
         got = {src: sum(1 for s, _ in st.rankings if s == src) for src in self.sources}
         if any(src not in st.shards or got[src] < st.shards[src] for src in self.sources):
@@ -265,6 +286,12 @@ class Scheduler(KnowledgeSource):
             questions=self.questions,
             floor=self.floor,
             max_llr=self.max_llr,
+            placements=self._placements or None,
+            turns=st.turns or None,
+            position_evidence=self.position_evidence,
+            position_spread=self.position_spread,
+            position_dof=self.position_dof,
+            max_position_llr=self.max_position_llr,
         )
         self._advance(st, board)
 
@@ -277,7 +304,7 @@ class Scheduler(KnowledgeSource):
         assert question is not None
         present = answer.present
         st.links.append(h.id)
-        st.analysis.answer(question, present, score=answer.score, llr=answer.llr)
+        st.analysis.answer(question, present, score=answer.score, llr=answer.llr, where=answer.where)
         if present is None and (answer.llr is None or self.backtracking == "hard"):
             # the detector could not tell: no evidence either way, and not counted as a query
             st.degraded.append(f"{question.landmark}: undecided ({answer.reason})")

@@ -133,7 +133,11 @@ class Detection:
     corner at the best match, ``None`` when not searched. ``llr`` is the calibrated natural log of
     the likelihood ratio p(image | landmark there) / p(image | landmark not there), ``None``
     when the detector cannot give one (no view without the landmark, too few pixels);
-    ``statistic`` the uncalibrated with/without statistic it came from.
+    ``statistic`` the uncalibrated with/without statistic it came from. ``where`` is where the
+    landmark's best match lies in the camera image: ``(row, col, scale)``, the centroid of the
+    matched silhouette in camera pixels and the template scale relative to the viewframe's
+    silhouette (:meth:`EdgeTemplateDetector.match`), ``None`` when no likelihood ratio was
+    computed.
     """
 
     present: bool | None
@@ -142,6 +146,7 @@ class Detection:
     reason: str = ""
     llr: float | None = None
     statistic: float | None = None
+    where: tuple[float, float, float] | None = None
 
 
 @runtime_checkable
@@ -324,6 +329,23 @@ class EdgeTemplateDetector:
         """The energy-aware edge correlation of :meth:`_edge_score`, searched over the likelihood
         ratio's alignment search and over ``scales`` of the template about the silhouette's
         centre: the likelihood ratio's ``score`` feature."""
+        return self._scaled_edge_match(image, view, sil)[0]
+
+    def match(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float] | None:
+        """Where the landmark of ``view`` best matches in camera ``image``: ``(row, col, scale)``,
+        the centroid of the viewframe's silhouette carried to the best shift and template scale
+        of the likelihood ratio's edge search (:meth:`_scaled_edge_score`; a template is scaled
+        about its box's centre), in camera pixels, and that scale. ``None`` when the landmark
+        covers fewer than ``min_pixels`` or the viewframe shows no edges on it."""
+        sil = self._check(image, view)
+        if int(sil.sum()) < self.min_pixels:
+            return None
+        return self._scaled_edge_match(image, view, sil)[1]
+
+    def _scaled_edge_match(
+        self, image: np.ndarray, view: CandidateView, sil: np.ndarray
+    ) -> tuple[float, tuple[float, float, float] | None]:
+        """The best scaled edge score and its place (:meth:`match`)."""
         k = 2 * self.dilate + 1
         region = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         rows, cols = np.nonzero(region)
@@ -332,7 +354,10 @@ class EdgeTemplateDetector:
         tmask = region[r0:r1, c0:c1].astype(np.float32)
         sr, sc = self._search(r1 - r0, c1 - c0)
         edges = _highpass(edge_image(image, axis=self.axis))
-        best = 0.0
+        srows, scols = np.nonzero(sil)
+        # the silhouette's centroid from its box's centre (pixel centres at integers)
+        offset = (float(srows.mean()) - (r0 + r1 - 1) / 2, float(scols.mean()) - (c0 + c1 - 1) / 2)
+        best, where = 0.0, None
         for s in self.scales:
             m = _scaled_mask(tmask, s)
             weighted = cv2.resize(template, (m.shape[1], m.shape[0]), interpolation=cv2.INTER_LINEAR) * m
@@ -342,8 +367,20 @@ class EdgeTemplateDetector:
             win = _window(edges, (r0 + r1) / 2, (c0 + c1) / 2, m.shape, sr, sc, mode="constant")
             cross = cv2.matchTemplate(win, weighted, cv2.TM_CCORR)
             energy = cv2.matchTemplate(win * win, m, cv2.TM_CCORR)
-            best = max(best, float((2.0 * cross / (norm + energy + 1e-12)).max()))
-        return best
+            scores = 2.0 * cross / (norm + energy + 1e-12)
+            i, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
+            if where is None or float(scores[i, j]) > best:
+                best = max(best, float(scores[i, j]))
+                # offset (i, j) of the window puts the template's top-left here (see _window)
+                top = int(round((r0 + r1) / 2 - m.shape[0] / 2)) - sr + int(i)
+                left = int(round((c0 + c1) / 2 - m.shape[1] / 2)) - sc + int(j)
+                sy, sx = m.shape[0] / tmask.shape[0], m.shape[1] / tmask.shape[1]  # the scale, as rounded
+                where = (
+                    top + (m.shape[0] - 1) / 2 + sy * offset[0],
+                    left + (m.shape[1] - 1) / 2 + sx * offset[1],
+                    float(math.sqrt(sy * sx)),
+                )
+        return best, where
 
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
         sil = self._check(image, view)
@@ -353,25 +390,20 @@ class EdgeTemplateDetector:
         best, loc, why = self._edge_score(image, view, sil)
         if loc is None:
             return Detection(None, 0.0, None, why)
-        llr = statistic = None
+        llr = statistic = where = None
         if self.calibration is not None and view.without is not None:
             statistic = self._colour_statistic(image, view, sil)
             if statistic is not None:
-                features = (statistic, self._scaled_edge_score(image, view, sil), self._contrast(image, view, sil))
-                llr = self.calibration.llr(features)
+                scaled, where = self._scaled_edge_match(image, view, sil)
+                llr = self.calibration.llr((statistic, scaled, self._contrast(image, view, sil)))
         lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
         if best >= self.threshold:
-            return Detection(True, best, loc, f"score {best:.3f} >= {self.threshold}{lr}", llr, statistic)
-        if best < self.absent_threshold:
-            return Detection(False, best, loc, f"score {best:.3f} < {self.absent_threshold}{lr}", llr, statistic)
-        return Detection(
-            None,
-            best,
-            loc,
-            f"score {best:.3f} between {self.absent_threshold} and {self.threshold}{lr}",
-            llr,
-            statistic,
-        )
+            why, present = f"score {best:.3f} >= {self.threshold}{lr}", True
+        elif best < self.absent_threshold:
+            why, present = f"score {best:.3f} < {self.absent_threshold}{lr}", False
+        else:
+            why, present = f"score {best:.3f} between {self.absent_threshold} and {self.threshold}{lr}", None
+        return Detection(present, best, loc, why, llr, statistic, where)
 
     # -- parts ------------------------------------------------------------------------------
     @staticmethod

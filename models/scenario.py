@@ -417,6 +417,19 @@ class SchedulerSpec(_Spec):
     #: soft: no single answer moves a candidate's log-odds by more than this (natural log; 20 is
     #: a likelihood ratio of about 5e8, beyond which one answer would decide alone)
     max_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
+    #: soft: answers say where the landmark was found, and that place enters the posterior of every
+    #: candidate showing it by how well it fits where the candidate puts it (position evidence,
+    #: knowledge_sources.scene_analysis); false: presence only
+    position_evidence: bool = True
+    #: the position evidence's Student-t scales: (elevation degrees, azimuth degrees, log of the
+    #: size ratio), the robust spread (1.4826 x median |residual|) of the detectors' found place
+    #: about the true viewframe's prediction on the evaluation set's tuning split
+    #: (bench/tuning/calibrate_position.py; BENCHMARKS.md)
+    position_spread: tuple[float, float, float] = (1.6, 1.6, 0.21)
+    #: its degrees of freedom (3: heavy tails, a wrong match is not a Gaussian outlier)
+    position_dof: float = Field(default=3.0, gt=0, le=1e3)
+    #: the most one answer's position evidence lowers a candidate's log-likelihood (natural log)
+    max_position_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
     #: pose errors, (pitch, heading) degrees, the detectors' likelihood ratio must tolerate
     align_deg: tuple[float, float] = (2.0, 5.0)
     #: template scales the detectors' likelihood ratio searches (a position error along the route
@@ -450,6 +463,13 @@ class SchedulerSpec(_Spec):
     def _scales(cls, value: tuple[float, ...]) -> tuple[float, ...]:
         if not all(0.25 <= v <= 4 for v in value):
             raise ValueError("every scale must be within [0.25, 4]")
+        return value
+
+    @field_validator("position_spread")
+    @classmethod
+    def _position_spread(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not all(0 < v <= 90 for v in value):
+            raise ValueError("must be three values in (0, 90]: (elevation_deg, azimuth_deg, log_size)")
         return value
 
     @field_validator("align_deg")

@@ -106,3 +106,44 @@ def test_cache_keeps_a_bounded_number_of_hypotheses(small_rendered: dict) -> Non
     assert len(agent._store) == 1
     with pytest.raises(ValueError):
         LandmarkDetectorAgent("detector-x", cache="many")
+
+
+@pytest.mark.parametrize("shift", [0, 6])
+def test_the_answer_says_where_the_landmark_was_found(small_rendered: dict, shift: int) -> None:
+    """With the camera's field of view, the answer carries the landmark's placement in the camera
+    frame (models.placement): where the map says the viewframe shows it when the camera sees the
+    viewframe itself, and that many degrees to the right when the camera image is moved right."""
+    from models.placement import focal_px
+
+    vf, lm = _visible_landmark(small_rendered)
+    mp = levels.Map.from_hypothesis(small_rendered["map"])
+    predicted = mp.placements[str(vf.index)][lm["id"]]
+    image = np.roll(vf.image, shift, axis=1)
+    if shift:
+        image[:, :shift] = image[:, shift : shift + 1]
+    bb = MemoryBlackboard()
+    bb.add(LandmarkDetectorAgent("detector-x", camera_height=vf.image.shape[0], fov_y_deg=45.0))
+    _ask(bb, vf, lm, image, to="detector-x")
+    bb.run()
+    (h,) = bb.hypotheses(levels.ANSWER)
+    where = levels.Answer.from_hypothesis(h).where
+    assert where is not None and len(where) == 3
+    moved = np.degrees(np.arctan(shift / focal_px(vf.image.shape[0], 45.0)))
+    assert abs(where[0] - predicted[0]) < 0.5 and abs(where[1] - (predicted[1] + moved)) < 0.6, (where, predicted)
+    assert abs(np.log(where[2] / predicted[2])) < 0.1
+    # without the field of view the detector cannot turn pixels into angles
+    bb = MemoryBlackboard()
+    bb.add(LandmarkDetectorAgent("detector-x"))
+    _ask(bb, vf, lm, image, to="detector-x")
+    bb.run()
+    (h,) = bb.hypotheses(levels.ANSWER)
+    assert levels.Answer.from_hypothesis(h).where is None
+
+
+def test_the_map_places_every_visible_landmark(small_rendered: dict) -> None:
+    mp = levels.Map.from_hypothesis(small_rendered["map"])
+    assert set(mp.placements) == set(mp.visible)
+    for k, seen in mp.visible.items():
+        assert set(mp.placements[k]) == set(seen)
+        for el, az, size in mp.placements[k].values():
+            assert abs(el) <= 22.5 and abs(az) <= 30.0 and size > 0

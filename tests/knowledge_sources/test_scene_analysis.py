@@ -345,3 +345,97 @@ def test_a_track_prior_per_route_point_is_the_same_prior_as_a_mapping(strategy):
     b = SceneAnalysis(ranking, visible, strategy=strategy, track_prior=np.asarray(prior, dtype=np.float64))
     assert b._weights == a._weights and list(b._weights) == list(a._weights)
     assert b.next_question() == a.next_question()
+
+
+# -- position evidence ---------------------------------------------------------------------------
+
+# two neighbouring route points that show the same landmark L (and one that does not): from the
+# nearer one (1) L looks larger and further to the right, as a whole route spacing would make it
+PLACEMENTS = {0: {"L": (1.0, 2.0, 3.0)}, 1: {"L": (1.2, 6.0, 4.2)}, 2: {}}
+SAME_L = {0: {"L"}, 1: {"L"}, 2: set()}
+NO_TURN = {0: (0.0, 0.0), 1: (0.0, 0.0), 2: (0.0, 0.0)}
+
+
+def _position(**kw) -> SceneAnalysis:
+    opts = {"placements": PLACEMENTS, "turns": NO_TURN, "position_spread": (1.6, 1.6, 0.21), "max_position_llr": 3.0}
+    return SceneAnalysis([(0, 1.0), (1, 1.1), (2, 5.0)], SAME_L, **{**opts, **kw})
+
+
+@pytest.mark.parametrize(
+    "where, better, worse",
+    [
+        ((1.0, 2.0, 3.0), 0, 1),  # exactly where 0 shows it
+        ((1.1, 5.5, 4.0), 1, 0),  # near where 1 shows it
+        ((1.0, 2.5, 3.2), 0, 1),  # near 0, a little off
+    ],
+)
+def test_the_candidate_whose_place_matches_beats_the_one_a_route_spacing_away(where, better, worse):
+    moved = _position().position_llr("L", where, [0, 1, 2])
+    assert set(moved) == {0, 1}  # 2 does not show L: no position evidence for it
+    assert moved[better] == 0.0 and -3.0 <= moved[worse] < -0.5, moved
+
+
+def test_the_position_evidence_is_capped():
+    far = (10.0, -30.0, 0.5)  # a wrong match, far from both predictions
+    moved = _position(max_position_llr=2.0).position_llr("L", far, [0, 1])
+    assert min(moved.values()) >= -2.0 and max(moved.values()) == 0.0
+    assert _position(max_position_llr=2.0).position_llr("L", (1.0, 2.0, 3.0), [0, 1])[1] == -2.0
+
+
+def test_the_turn_against_each_viewframe_carries_its_prediction_into_the_camera_frame():
+    where = (1.0, 6.0, (3.0 * 4.2) ** 0.5)  # azimuth of 1's place, size half way in log between both
+    # the camera turned 4 degrees ccw from viewframe 0: 0 predicts L at azimuth 6, not 2
+    turned = _position(turns={0: (4.0, 0.0), 1: (0.0, 0.0)}).position_llr("L", where, [0, 1])
+    still = _position().position_llr("L", where, [0, 1])
+    assert still[0] < -1.0 and still[1] == 0.0
+    assert turned[0] > still[0]
+    # without the turns only the sizes are compared, and those fit both alike
+    sizes = _position(turns=None).position_llr("L", where, [0, 1])
+    assert sizes[0] == pytest.approx(sizes[1])
+
+
+@pytest.mark.parametrize("position, decided", [(True, 1), (False, 0)])
+def test_the_soft_rule_with_position_picks_the_right_of_two_candidates_showing_the_same_landmark(position, decided):
+    """The ranking prefers 0; the detector finds L present where 1 shows it. Presence alone cannot
+    tell 0 from 1 (both show L): the ranking's first stays; with the position evidence, 1."""
+    sa = _position(position_evidence=position)
+    q = sa.next_question()
+    assert q is not None and q.landmark == "L" and q.viewframe == 0
+    sa.answer(q, True, llr=2.0, where=(1.2, 6.3, 4.1))
+    assert sa.next_question() is None
+    assert sa.decision.viewframe == decided
+    assert ("position" in sa.decision.steps[0]) is position
+
+
+def test_a_negative_answer_gives_no_position_evidence():
+    sa = _position()
+    q = sa.next_question()
+    sa.answer(q, None, llr=-1.0, where=(1.2, 6.0, 4.2))
+    while (q := sa.next_question()) is not None:
+        sa.answer(q, None)
+    assert sa.decision is not None and "position" not in sa.decision.steps[0]
+
+
+def test_the_hard_rule_ignores_where():
+    """The seed paper's rule takes present/absent only: the place changes nothing."""
+    results = []
+    for where in (None, (1.2, 6.0, 4.2), (1.0, 2.0, 3.0)):
+        sa = _position(**HARD)
+        while (q := sa.next_question()) is not None:
+            sa.answer(q, True, llr=2.0, where=where)
+        results.append(sa.decision)
+    assert results[0] == results[1] == results[2]
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({"position_spread": (1.0, 0.0, 1.0)}, "position_spread"),
+        ({"position_spread": (1.0, 1.0)}, "position_spread"),
+        ({"position_dof": 0.0}, "position_dof"),
+        ({"max_position_llr": 0.0}, "max_position_llr"),
+    ],
+)
+def test_invalid_position_parameters(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        SceneAnalysis(_ranking(0), VISIBLE, **kwargs)

@@ -4,6 +4,8 @@ The test plays the detectors: it answers the scheduler's queries by posting ``an
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -315,3 +317,73 @@ def test_a_track_answers_the_track_query() -> None:
     bb.run()  # the query was answered: no timeout, frame 1 conditioned on the track
     p1 = levels.Position.from_hypothesis(bb.user.get(levels.position_id(1)))
     assert p1.track_prior and not any(d.startswith("tracker") for d in p1.degraded)
+
+
+# viewframes 0, 2 and 3 show H1: from 0 (the right one here) larger and further right than from 2
+PLACED = dataclasses.replace(
+    MAP,
+    placements={
+        "0": {"H1": [1.0, 6.0, 4.2]},
+        "1": {"T1": [5.0, 0.0, 3.0]},
+        "2": {"H1": [1.0, 2.0, 3.0]},
+        "3": {"H1": [0.5, -9.0, 2.5]},
+    },
+)
+
+
+@pytest.mark.parametrize("position, decided", [(True, 0), (False, 2)])
+def test_the_place_of_a_found_landmark_decides_between_candidates_that_show_it(position: bool, decided: int) -> None:
+    """The ranking prefers 2 a little; the detector (the test) finds H1 present where 0 shows it,
+    the camera turned by 1 degree against every viewframe (the ranking's shifts, as the skyline
+    posts them). With the position evidence the scheduler decides 0, without it 2."""
+    bb = MemoryBlackboard()
+    bb.add(Scheduler("scheduler", query_timeout_s=5.0, position_evidence=position))
+    levels.post(bb.user, PLACED)
+    entries = [(2, 1.0e-5), (0, 1.05e-5), (3, 1.1e-5), (1, 1.2e-5)]
+    levels.post(
+        bb.user,
+        levels.Ranking(
+            frame=1,
+            frame_time=0.0,
+            shard=0,
+            shards=1,
+            viewframes=[k for k, _ in entries],
+            variances=[v for _, v in entries],
+            reliability=3.0,
+            shifts=[[1.0, 0.0]] * len(entries),
+        ),
+    )
+    bb.run(timeouts=False)
+    answered = set()
+    for _ in range(10):
+        pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
+        if not pending:
+            break
+        ((qid, q),) = pending
+        answered.add(qid)
+        found = q.landmark == "H1"
+        levels.post(
+            bb.board("user"),
+            levels.Answer(
+                query=qid,
+                frame=q.frame,
+                landmark=q.landmark,
+                viewframe=q.viewframe,
+                present=found,
+                score=0.9 if found else 0.0,
+                location=None,
+                detector="test",
+                reason="scripted",
+                llr=2.0 if found else -2.0,
+                where=[1.1, 7.1, 4.0] if found else None,  # 0's place, turned by 1 degree
+            ),
+            links=(qid,),
+        )
+        bb.run(timeouts=False)
+    (ph,) = bb.hypotheses(levels.POSITION)
+    p = levels.Position.from_hypothesis(ph)
+    assert p.viewframe == decided, p.steps
+    h1 = next(s for s in p.steps if s["landmark"] == "H1")
+    assert ("position" in h1) is position
+    if position:
+        assert h1["position"]["0"] == 0.0 and h1["position"]["2"] < -1.0

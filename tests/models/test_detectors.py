@@ -296,3 +296,80 @@ def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
     for llr_with, llr_without in results:
         assert llr_with is not None and llr_without is not None
         assert llr_with > 0.0 > llr_without, results
+
+
+@pytest.mark.parametrize(
+    "box, scale",
+    [
+        (BOX, 1.0),
+        ((53, 53, 83, 83), 1.0),  # 3 rows down, 7 columns left
+        ((46, 70, 76, 100), 1.0),  # 4 rows up, 10 columns right
+        ((46, 55, 85, 94), 1.3),  # nearer: 39 x 39 pixels instead of 30 x 30, its centre 1.5 px up-left
+        ((52, 66, 76, 90), 0.8),  # farther: 24 x 24, and off to the right
+    ],
+)
+def test_the_match_reports_where_and_how_large_the_landmark_is(box, scale):
+    """The detector's best match (``Detection.where``): the centroid of the landmark in the camera
+    image within a pixel, and its scale against the viewframe's silhouette within one step of the
+    scale search."""
+    rng = np.random.default_rng(12)
+    sil = np.zeros((H, W), bool)
+    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
+    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
+    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    frame = _red(_scene(np.random.default_rng(13), box=box, noise=3.0), box)
+    det = _registry().for_kind("house")
+    found = det.detect(frame, view=view)
+    assert found.where is not None and found.where == det.match(frame, view=view)
+    row, col, s = found.where
+    assert abs(row - (box[0] + box[2] - 1) / 2) <= 1.0 and abs(col - (box[1] + box[3] - 1) / 2) <= 1.0, found.where
+    assert abs(np.log(s / scale)) <= 0.1, found.where
+
+
+def test_no_place_without_a_likelihood_ratio():
+    rng = np.random.default_rng(14)
+    found = EdgeTemplateDetector().detect(_scene(rng, box=BOX), view=_view(rng))  # no calibration, no background
+    assert found.llr is None and found.where is None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["house", "silo"])
+def test_the_match_on_real_renders_follows_a_known_turn_and_approach(kind):
+    """Real pyrender views: the camera frame taken 12 m nearer the landmark than its viewframe and
+    turned 2 degrees clockwise. The detector's found place, as a placement (models.placement), is where
+    the landmark's mask rendered at the frame's pose puts it (within a degree and 15% of size), and
+    further from where the viewframe shows it."""
+    from models.camera_emulator import CameraEmulator
+    from models.environment import build_environment
+    from models.placement import found_placement, placement
+    from models.scenario import scenario_from_dict
+
+    size = {"house": {"width": 20, "depth": 12, "height": 8}, "silo": {"width": 7, "depth": 7, "height": 16}}[kind]
+    data = {
+        "name": "where-test",
+        "seed": 1,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
+        "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": 310, **size}],
+        "route": [[230, 300], [300, 240]],
+        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+    }
+    scenario = scenario_from_dict(data, path=Path("/nonexistent/where-test.yaml"))
+    env = build_environment(scenario)
+    det = _registry().for_kind(kind)
+    with CameraEmulator(env, scenario.camera) as cam:
+        pose = cam.pose_at(230, 300, 0.0)
+        vf = cam.render(pose)
+        view = CandidateView.from_mask(vf.image, vf.mask, 0, background=cam.render_background(pose))
+        near = cam.render(cam.pose_at(242, 300, -2.0), light_intensity=1.3)
+    found = det.detect(near.image, view=view)
+    assert found.llr is not None and found.llr > 0 and found.where is not None
+    obs = found_placement(found.where, pixels=int(view.silhouette.sum()), shape=near.image.shape, fov_y_deg=45.0)
+
+    def place(mask):
+        rows, cols = np.nonzero(mask == 0)
+        return placement(rows.mean(), cols.mean(), len(rows), shape=mask.shape, fov_y_deg=45.0)
+
+    truth, predicted = place(near.mask), place(vf.mask)
+    assert abs(obs[0] - truth[0]) < 1.0 and abs(obs[1] - truth[1]) < 1.0, (obs, truth)
+    assert abs(np.log(obs[2] / truth[2])) < 0.15, (obs, truth)
+    assert abs(obs[1] - predicted[1]) > abs(obs[1] - truth[1]) + 1.0 and obs[2] > 1.1 * predicted[2]

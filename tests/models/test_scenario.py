@@ -119,6 +119,10 @@ MALFORMED = [
     ("scheduler", {"calibration": {"house": [1.0, 2.0]}}, "scheduler.calibration.house"),
     ("scheduler", {"detector_scales": [1.0, 8.0]}, "scheduler.detector_scales: every scale must be within [0.25, 4]"),
     ("scheduler", {"detector_scales": []}, "scheduler.detector_scales"),
+    ("scheduler", {"position_spread": [1.0, 0.0, 0.2]}, "scheduler.position_spread: must be three values in (0, 90]"),
+    ("scheduler", {"position_dof": 0}, "scheduler.position_dof: must be > 0"),
+    ("scheduler", {"max_position_llr": 50}, "scheduler.max_position_llr: must be <= 20"),
+    ("scheduler", {"position_evidence": "maybe"}, "scheduler.position_evidence"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
     ("expect", {"top1_frame_only_min": 1.5}, "expect.top1_frame_only_min: must be <= 1"),
     ("tracking", {"cell_m": 1e9}, "tracking.cell_m: must be <= 10000"),
@@ -303,6 +307,7 @@ _VALIDATED_NUMBERS = {
     ("MemorySpec", "max_shift"): (1, 10**9),
     ("SchedulerSpec", "align_deg"): (1.0, 1e300),
     ("SchedulerSpec", "detector_scales"): (1.0, 1e300),
+    ("SchedulerSpec", "position_spread"): (1.0, 1.0, 1e300),
     ("SchedulerSpec", "calibration"): {"outline": (1e300, 0.0, 0.0, 0.0)},
 }
 
