@@ -418,6 +418,9 @@ class BlackboardNode:
         event = Event(kind, hyp, reason)
         if self._listener is None:
             if len(self._unreported) < _MAX_UNREPORTED:
+                kept = self._store.listed(hyp.id) if kind in (EventKind.POSTED, EventKind.UPDATED) else None
+                if kept is not None and kept.version == hyp.version:  # a large body: held once, compressed
+                    event = Event(kind, kept, reason)
                 self._unreported.append(event)
             return
         try:

@@ -175,6 +175,13 @@ class Store:
             return _lazy(entry, self._unpack)
         return entry[0]
 
+    def listed(self, hypothesis_id: str) -> Hypothesis | None:
+        """The current version of a hypothesis as a listing gives it (a large message's body
+        decoded from the store's compressed message when read), or None."""
+        with self._lock:
+            entry = self._entries.get(hypothesis_id)
+        return None if entry is None else self._listed(entry)
+
     def remove(self, hypothesis_id: str) -> None:
         with self._lock:
             del self._entries[hypothesis_id]

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 
@@ -26,6 +28,9 @@ __all__ = [
     "Slow",
     "Booster",
     "Witness",
+    "FailingOn",
+    "Picky",
+    "Big",
 ]
 
 
@@ -125,6 +130,17 @@ class Picky(KnowledgeSource):
 
     def act(self, event: Event, board: Board) -> None:
         board.post("doubled", {"x": 2 * event.hypothesis.body["x"]}, id=f"d-{event.hypothesis.id}")
+
+
+class Big(KnowledgeSource):
+    """On each number x, posts a 'big' hypothesis carrying a (256, 256) float32 array of x."""
+
+    consumes = ("number",)
+    produces = ("big",)
+
+    def act(self, event: Event, board: Board) -> None:
+        x = event.hypothesis.body["x"]
+        board.post("big", {"x": x, "a": np.full((256, 256), float(x), np.float32)}, id=f"big-{x}")
 
 
 class Updater(KnowledgeSource):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -149,6 +150,27 @@ def test_an_agent_decodes_only_the_messages_it_wants(run_id: str, mode: str) -> 
         outcome = rt.run(timeout_s=20)
     assert outcome.failures == {} and outcome.agents == {"picky": "ok"}
     assert sorted(h.body["x"] for h in outcome.hypotheses if h.level == "doubled") == [0, 4, 8]
+
+
+def test_events_before_anyone_listens_keep_large_bodies_once(run_id: str) -> None:
+    """Events of a run nobody listens to yet are kept for the first listener; a large body is
+    kept as the store keeps it (compressed, decoded when read), not as a second decoded copy."""
+    import numpy as np
+
+    with Runtime(run_id=run_id) as rt:
+        rt.add(f"{AGENTS}:Big", name="big")
+        for x in range(4):
+            rt.post("number", {"x": x})
+        deadline = time.monotonic() + 20
+        while len(rt.hypotheses("big")) < 4 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        waiting = [e for e in list(rt.node._unreported) if e.hypothesis.level == "big"]
+        seen: list = []
+        rt.run(timeout_s=20, progress=seen.append)
+    assert len(waiting) == 4 and all(type(e.hypothesis).__name__ == "PackedHypothesis" for e in waiting)
+    big = sorted((e.hypothesis for e in seen if e.hypothesis.level == "big"), key=lambda h: h.body["x"])
+    assert [h.body["x"] for h in big] == [0, 1, 2, 3]
+    assert all(np.array_equal(h.body["a"], np.full((256, 256), float(h.body["x"]), np.float32)) for h in big)
 
 
 @pytest.mark.parametrize("mode", MODES)
