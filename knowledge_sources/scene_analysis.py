@@ -37,7 +37,7 @@ Posterior
     a candidate whose posterior falls below ``floor`` is discarded (a backtrack): one wrong
     "absent" lowers the right viewframe, consistent evidence against it removes it.
 
-    Position evidence (``soft`` only, ``position_evidence`` on, the default): an answer with
+    Position evidence (``soft`` only, with ``position_evidence``, off by default): an answer with
     ``λ > 0`` (after clipping) that also says *where* the detector found L in the camera frame,
     the placement ``o = (elevation, azimuth, size)`` of :mod:`models.placement` (angles from
     the optical axis, degrees), enters every surviving candidate k that shows L and has a

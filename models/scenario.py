@@ -419,8 +419,9 @@ class SchedulerSpec(_Spec):
     max_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
     #: soft: answers say where the landmark was found, and that place enters the posterior of every
     #: candidate showing it by how well it fits where the candidate puts it (position evidence,
-    #: knowledge_sources.scene_analysis); false: presence only
-    position_evidence: bool = True
+    #: knowledge_sources.scene_analysis); false (default): presence only. Off because on the
+    #: evaluation set's tuning split, through the whole pipeline, it did not pay (BENCHMARKS.md)
+    position_evidence: bool = False
     #: the position evidence's Student-t scales: (elevation degrees, azimuth degrees, log of the
     #: size ratio), the robust spread (1.4826 x median |residual|) of the detectors' found place
     #: about the true viewframe's prediction on the evaluation set's tuning split

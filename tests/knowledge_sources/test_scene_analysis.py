@@ -357,7 +357,13 @@ NO_TURN = {0: (0.0, 0.0), 1: (0.0, 0.0), 2: (0.0, 0.0)}
 
 
 def _position(**kw) -> SceneAnalysis:
-    opts = {"placements": PLACEMENTS, "turns": NO_TURN, "position_spread": (1.6, 1.6, 0.21), "max_position_llr": 3.0}
+    opts = {
+        "placements": PLACEMENTS,
+        "turns": NO_TURN,
+        "position_evidence": True,
+        "position_spread": (1.6, 1.6, 0.21),
+        "max_position_llr": 3.0,
+    }
     return SceneAnalysis([(0, 1.0), (1, 1.1), (2, 5.0)], SAME_L, **{**opts, **kw})
 
 
