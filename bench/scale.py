@@ -236,6 +236,9 @@ def seen(level, body, stamp):
     if level == "ranking":
         ranked.setdefault((body.get("source", "associative"), body["shard"]), []).append(len(body["viewframes"]))
 res = run_mission(sys.argv[1], trace_path=sys.argv[2], paced=opts["paced"], on_hypothesis=seen)
+if opts.get("results"):  # the mission's results file, frame by frame (as mapinterp run --out writes it)
+    from knowledge_sources.results import write_results
+    write_results(opts["results"], res)
 if profiles:
     import os
     os.makedirs(opts["profile"], exist_ok=True)
@@ -287,7 +290,11 @@ def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile
     ``profile``: a folder for one cProfile per agent of its activations on the localization levels
     (camera frames onwards; each agent's own thread), and each agent's busy seconds in them."""
     env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl"}
-    opts = {"paced": paced, "profile": None if profile is None else str(profile)}
+    opts = {
+        "paced": paced,
+        "profile": None if profile is None else str(profile),
+        "results": str(trace.with_suffix(".json")),
+    }
     done = subprocess.run(
         [sys.executable, "-c", _CHILD, str(path), str(trace), json.dumps(opts)],
         cwd=HERE.parent,
@@ -494,8 +501,8 @@ def main(argv: list[str] | None = None) -> int:
         "--keep",
         type=Path,
         default=None,
-        help="write the generated scenarios, the missions' traces and their logs (stderr) in this folder "
-        "and keep them (default: a temp folder, deleted)",
+        help="write the generated scenarios, the missions' traces, results (.json) and logs (.log) in this "
+        "folder and keep them (default: a temp folder, deleted)",
     )
     parser.add_argument(
         "--holders", action="store_true", help="only who holds what in a whole mission (a child process, cache filled)"
