@@ -501,10 +501,25 @@ def _estimate(grid: RouteGrid, belief: np.ndarray, state: str, evidence: bool) -
     w = belief[lo:hi] * (grid.region[lo:hi] == k)
     s = float((w * grid.centres[lo:hi]).sum() / max(w.sum(), 1e-300))
     j = int(np.clip(round(s / grid.cell_m - 0.5), 0, grid.cells - 1))
-    # interpolate (x, y) at s along the grid's own polyline of cell centres
-    x = float(np.interp(s, grid.centres, grid.xy[:, 0]))
-    y = float(np.interp(s, grid.centres, grid.xy[:, 1]))
+    x, y = _position_at(grid, s)
     return TrackEstimate(k, s, x, y, float(grid.heading_deg[j]), float(mass[k]), state, evidence, mass)
+
+
+def _position_at(grid: RouteGrid, s: float) -> tuple[float, float]:
+    """(x, y) at arc length ``s`` along the grid's own polyline of cell centres: ``np.interp``'s
+    value (clamped at the ends, the same formula), without its pass over the whole grid."""
+    c, xy = grid.centres, grid.xy
+    if not s > c[0]:
+        return float(xy[0, 0]), float(xy[0, 1])
+    if not s < c[-1]:
+        return float(xy[-1, 0]), float(xy[-1, 1])
+    j = int(np.searchsorted(c, s, side="right")) - 1
+    dx = float(c[j + 1] - c[j])
+    a, b = xy[j], xy[j + 1]
+    return (
+        float((b[0] - a[0]) / dx * (s - c[j]) + a[0]),
+        float((b[1] - a[1]) / dx * (s - c[j]) + a[1]),
+    )
 
 
 class RouteFilter:

@@ -239,3 +239,18 @@ def test_the_next_window_holds_the_motions_prediction_without_the_kidnap_part():
     first, last = f.window_next(pred, tail=WINDOW_TAIL)
     assert first <= 1005 < 1007 <= last and last - first < 60
     assert track_window(f.grid.point_mass(pred), margin=0, widest=1.0)[1] - first > n // 2
+
+
+def test_the_position_along_the_grid_is_numpys_interpolation_bit_for_bit():
+    """The estimate's (x, y) at arc length s: what np.interp gives along the cell centres
+    (clamped at the ends), found without a pass over the whole grid."""
+    from models.tracking import _position_at
+
+    rng = np.random.default_rng(3)
+    route = np.cumsum(rng.uniform(5, 40, (120, 2)) * rng.choice([-1, 1], (120, 2)), axis=0)
+    grid = RouteGrid.build(route, cell_m=4.0)
+    c = grid.centres
+    arcs = np.concatenate([rng.uniform(c[0] - 10, c[-1] + 10, 3000), c[::7], [c[0], c[-1], c[-1] + 1.0]])
+    for s in arcs:
+        want = (float(np.interp(s, c, grid.xy[:, 0])), float(np.interp(s, c, grid.xy[:, 1])))
+        assert _position_at(grid, float(s)) == want, s
