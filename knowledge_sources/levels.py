@@ -565,6 +565,15 @@ class Ranking(Message):
         ),
     )
     time: float | None = field(default=None, metadata=_doc("the camera frame's time, seconds, or null"))
+    profile: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "skyline: the camera frame's horizon profile it matched, (n,) float32 elevation per azimuth bin, "
+            "degrees, NaN: none (models.skyline); null for other sources",
+            dtype="float32",
+            ndim=1,
+        ),
+    )
 
     def id(self) -> str:
         return ranking_id(self.frame, self.shard, self.source)

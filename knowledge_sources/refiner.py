@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING, Any, ClassVar
 
+import numpy as np
+
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
@@ -110,6 +112,14 @@ class PoseRefiner(KnowledgeSource):
         self._emulator = self._world.emulator
         self._map = mp
 
+    def _profile(self, frame: int, board: Board) -> np.ndarray | None:
+        """The camera frame's skyline profile as the skyline ranker extracted it (its ranking of
+        the frame carries it), or None (no skyline ranker: the refiner extracts it)."""
+        from knowledge_sources.skyline import SKYLINE_SOURCE
+
+        got = board.get(levels.ranking_id(frame, 0, SKYLINE_SOURCE))
+        return None if got is None else levels.Ranking.from_hypothesis(got).profile
+
     def _refine(self, hypothesis: Hypothesis, board: Board) -> None:
         from models.refine import refine_pose
 
@@ -124,7 +134,7 @@ class PoseRefiner(KnowledgeSource):
         image = levels.SensorFrame.from_hypothesis(got).image
         x, y, _, heading, pitch = self._map.poses[position.viewframe]
         start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
-        r = refine_pose(image, self._emulator, start, **self.search)
+        r = refine_pose(image, self._emulator, start, query_skyline=self._profile(position.frame, board), **self.search)
         levels.post(
             board,
             levels.Pose(

@@ -130,6 +130,7 @@ class SkylineRanker(RouteRanker):
                 reliability=float(rel),
                 source=SKYLINE_SOURCE,
                 shifts=[[float(m.heading_deg[i]), float(m.pitch_deg[i])] for i in order],
+                profile=np.asarray(query, dtype=np.float32),  # the refiner matches the same profile
             ),
             links=(hypothesis.id,),
             credibility=float(min(1.0, max(0.0, rel / (1.0 + rel)))),

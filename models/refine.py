@@ -164,6 +164,7 @@ class _Scorer:
         truncate_deg,
         max_roll_deg,
         edge_weight,
+        query_skyline=None,
     ) -> None:
         self.emulator = emulator
         self.fov = float(emulator.camera.fov_y_deg)
@@ -172,8 +173,13 @@ class _Scorer:
             step_deg=step_deg, max_pitch_deg=max_pitch_deg, truncate_deg=truncate_deg, max_roll_deg=max_roll_deg
         )
         self.max_heading = max_heading_deg
-        self.query = skyline_from_image(image, fov_y_deg=self.fov, step_deg=step_deg)
         h, w = emulator.height, emulator.width
+        bins = skyline_from_depth(np.zeros((h, w), np.float32), fov_y_deg=self.fov, step_deg=step_deg).size
+        given = None if query_skyline is None else np.asarray(query_skyline, dtype=np.float32).ravel()
+        if given is not None and given.size == bins:
+            self.query = given
+        else:  # none given, or on another grid (another field of view or step)
+            self.query = skyline_from_image(image, fov_y_deg=self.fov, step_deg=step_deg)
         img = np.asarray(image)
         if img.shape[:2] != (h, w):
             img = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
@@ -224,6 +230,7 @@ def refine_pose(
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
     max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
     position: bool = DEFAULT_POSITION,
+    query_skyline: NDArray | None = None,
 ) -> RefinedPose:
     """Refine ``start`` (the chosen route point's pose) against the camera ``image`` (H, W, 3).
 
@@ -232,6 +239,10 @@ def refine_pose(
     ``position=False`` only heading and pitch are refined (step 1, two views): the position
     stays the start's, its uncertainty that of a uniform spread over ``+-along_m`` and
     ``+-across_m``.
+
+    ``query_skyline``: the image's skyline profile (:func:`models.skyline.skyline_from_image`
+    with the emulator's field of view and ``step_deg``), when already extracted (the skyline
+    ranker posts it); None, or a profile of another length: extracted here.
     """
     if levels < 1 or grid < 2:
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
@@ -246,6 +257,7 @@ def refine_pose(
         truncate_deg=truncate_deg,
         max_roll_deg=max_roll_deg,
         edge_weight=edge_weight,
+        query_skyline=query_skyline,
     )
     # 1. heading and pitch at the start point, then score it again at that heading
     _, heading, pitch, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg)

@@ -75,3 +75,40 @@ def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_pat
     assert plan["skyline"]["max_heading_deg"] == 8.0 and plan["skyline"]["fov_y_deg"] == 45
     assert plan["skyline"]["max_roll_deg"] == 1.5 and plan["refiner"]["max_roll_deg"] == 0.5
     assert plan["refiner"]["along_m"] == 12.0 and plan["refiner"]["grid"] == 3 and plan["refiner"]["position"]
+
+
+def test_the_refiner_reuses_the_skyline_rankers_profile_of_the_frame(small_data, tmp_path, monkeypatch):
+    """The skyline ranking of a frame carries the camera frame's profile it matched; the refiner
+    takes it from there instead of extracting the same horizon again (in one process, the
+    refiner's own extraction is made to fail: every frame is still refined)."""
+    import numpy as np
+
+    import models.refine as refine
+    from knowledge_sources import levels
+    from models.skyline import skyline_from_image
+
+    def no_extraction(*args, **kwargs):
+        raise AssertionError("the refiner extracted the frame's skyline again")
+
+    monkeypatch.setattr(refine, "skyline_from_image", no_extraction)
+    small = tmp_path / "small.yaml"
+    small.write_text(yaml.safe_dump(small_data))
+    seen: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def on_hypothesis(level, body, stamp):
+        if level == levels.RANKING and body.get("source") == "skyline":
+            seen[body["frame"]] = body["profile"]
+
+    results = run_mission(small, on_hypothesis=on_hypothesis)
+    assert not [d for d in results["degraded"] if d.startswith("agent refiner")], results["degraded"]
+    localized = [f for f in results["frames"] if f["frame_only"]["viewframe"] is not None]
+    assert localized and all(f["pose"] is not None for f in localized)
+    scenario = load_scenario(small)
+    from models.world import World
+
+    with World(scenario) as world:
+        frames = {f.index: f.image for f in world.sensor_frames}
+    assert sorted(seen) == sorted(frames)
+    for k, profile in seen.items():  # the profile is the frame's, as the refiner would have extracted it
+        want = skyline_from_image(frames[k], fov_y_deg=scenario.camera.fov_y_deg, step_deg=scenario.skyline.step_deg)
+        np.testing.assert_array_equal(profile, want)

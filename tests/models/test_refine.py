@@ -68,3 +68,25 @@ def test_heading_only_refinement_keeps_the_position_and_renders_two_views(emulat
     r = refine_pose(view.image, emulator, start, position=False)
     assert (r.x, r.y) == (start.x, start.y) and r.renders == 2
     assert r.heading_deg == pytest.approx(64.0, abs=0.75)
+
+
+@pytest.mark.parametrize("position", [False, True])
+def test_a_skyline_already_extracted_gives_the_same_refinement_without_extracting_again(
+    emulator, monkeypatch, position
+):
+    import models.refine as refine
+    from models.skyline import skyline_from_image
+
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    image = emulator.render(emulator.pose_at(425.0, 383.0, 63.0)).image
+    want = refine_pose(image, emulator, start, position=position)
+    profile = skyline_from_image(image, fov_y_deg=emulator.camera.fov_y_deg)
+
+    def no_extraction(*args, **kwargs):
+        raise AssertionError("the image's skyline was extracted again")
+
+    monkeypatch.setattr(refine, "skyline_from_image", no_extraction)
+    assert refine_pose(image, emulator, start, position=position, query_skyline=profile) == want
+    # a profile on another grid (another step or field of view) is not used: extracted here
+    monkeypatch.setattr(refine, "skyline_from_image", skyline_from_image)
+    assert refine_pose(image, emulator, start, position=position, query_skyline=profile[:-3]) == want
