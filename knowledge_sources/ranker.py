@@ -91,8 +91,6 @@ class RouteRanker(KnowledgeSource):
         if event.kind is not EventKind.POSTED:
             return None
         h = event.hypothesis
-        if h.level == levels.VIEWFRAME and not self.mine(levels.Viewframe.from_hypothesis(h).index):
-            return None
         if h.level == levels.TRACK and not self.tracked:
             return None
         return 2.0 if h.level != levels.SENSOR_FRAME else 1.0
@@ -101,9 +99,11 @@ class RouteRanker(KnowledgeSource):
         from models.index import TrackWindows
 
         h = event.hypothesis
-        if h.level == levels.VIEWFRAME:
+        if h.level == levels.VIEWFRAME:  # wants() declined the others by id; an id it cannot read is checked here
             if not self.built:
-                self.keep(levels.Viewframe.from_hypothesis(h))
+                vf = levels.Viewframe.from_hypothesis(h)
+                if self.mine(vf.index):
+                    self.keep(vf)
         elif h.level == levels.MAP:
             mp = levels.Map.from_hypothesis(h)
             settings = self.build(mp, board)
