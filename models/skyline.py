@@ -383,6 +383,9 @@ class SkylineMatch:
     roll_deg: NDArray[np.float64] | None = None
 
 
+_MATCH_FIELDS = ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg")
+
+
 def match_skylines(
     query: NDArray,
     references: NDArray,
@@ -417,43 +420,27 @@ def match_skylines(
         raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0, max_roll_deg in [0, 45)")
     if roll_candidates is not None and roll_candidates < 1:
         raise ValueError(f"roll_candidates must be >= 1 or None, got {roll_candidates}")
+    kw = {
+        "step_deg": step_deg,
+        "max_heading_deg": max_heading_deg,
+        "max_pitch_deg": max_pitch_deg,
+        "truncate_deg": truncate_deg,
+        "min_overlap": min_overlap,
+    }
     if max_roll_deg > 0 and roll_candidates is not None and roll_candidates < len(r):
-        kw = {
-            "step_deg": step_deg,
-            "max_heading_deg": max_heading_deg,
-            "max_pitch_deg": max_pitch_deg,
-            "truncate_deg": truncate_deg,
-            "min_overlap": min_overlap,
-        }
         flat = match_skylines(q, r, max_roll_deg=0.0, roll_candidates=None, **kw)
         best = np.argsort(flat.error, kind="stable")[:roll_candidates]
         rolled = match_skylines(q, r[best], max_roll_deg=max_roll_deg, roll_candidates=None, **kw)
-        fields = ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg")
-        out = {f: np.array(getattr(flat, f), dtype=np.float64) for f in fields}
-        for f in fields:
+        out = {f: np.array(getattr(flat, f), dtype=np.float64) for f in _MATCH_FIELDS}
+        for f in _MATCH_FIELDS:
             out[f][best] = getattr(rolled, f)
         return SkylineMatch(**out)
     if len(r) > _BLOCK:  # rows are matched independently: in blocks whose temporaries stay in cache
         parts = [
-            match_skylines(
-                q,
-                r[i : i + _BLOCK],
-                step_deg=step_deg,
-                max_heading_deg=max_heading_deg,
-                max_pitch_deg=max_pitch_deg,
-                truncate_deg=truncate_deg,
-                max_roll_deg=max_roll_deg,
-                roll_candidates=None,
-                min_overlap=min_overlap,
-            )
+            match_skylines(q, r[i : i + _BLOCK], max_roll_deg=max_roll_deg, roll_candidates=None, **kw)
             for i in range(0, len(r), _BLOCK)
         ]
-        return SkylineMatch(
-            *(
-                np.concatenate([getattr(m, f) for m in parts])
-                for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg")
-            )
-        )
+        return SkylineMatch(**{f: np.concatenate([getattr(m, f) for m in parts]) for f in _MATCH_FIELDS})
     v, n = r.shape
     smax = min(int(round(max_heading_deg / step_deg)), n - 1)
     shifts = np.arange(-smax, smax + 1)
