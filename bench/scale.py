@@ -185,21 +185,35 @@ print(json.dumps({"traced_kb_per_vf_written": written / count / 1024, "traced_kb
 """
 
 
+def _child(
+    script: str,
+    args: list[str],
+    *,
+    what: str,
+    cwd: Path,
+    timeout: float,
+    env: dict | None = None,
+    log: Path | None = None,
+) -> dict:
+    """Run ``script`` in a fresh Python (``-c``) and return the JSON of its last stdout line; its
+    stderr goes to ``log`` when given; a failure raises naming ``what`` (and the log)."""
+    done = subprocess.run(
+        [sys.executable, "-c", script, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
+    )
+    if log is not None:
+        log.write_text(done.stderr)
+    if done.returncode != 0:
+        where = f" ({log})" if log is not None else ""
+        raise RuntimeError(f"{what} failed{where}: {done.stderr[-2000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def banks(count: int) -> dict:
     """Memory of a BankedMemory of ``count`` random patterns (N=128, bank_size 2), per viewframe,
     with the spectrum in complex128 and in complex64: one fresh child process each."""
     out = {}
     for dtype in ("complex128", "complex64"):
-        done = subprocess.run(
-            [sys.executable, "-c", _BANKS, str(count), dtype],
-            cwd=HERE.parent,
-            capture_output=True,
-            text=True,
-            timeout=1800,
-        )
-        if done.returncode != 0:
-            raise RuntimeError(f"bank measurement failed: {done.stderr[-2000:]}")
-        out[dtype] = json.loads(done.stdout.strip().splitlines()[-1])
+        out[dtype] = _child(_BANKS, [str(count), dtype], what="bank measurement", cwd=HERE.parent, timeout=1800)
     return out
 
 
@@ -295,18 +309,15 @@ def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile
         "profile": None if profile is None else str(profile),
         "results": str(trace.with_suffix(".json")),
     }
-    done = subprocess.run(
-        [sys.executable, "-c", _CHILD, str(path), str(trace), json.dumps(opts)],
+    out = _child(
+        _CHILD,
+        [str(path), str(trace), json.dumps(opts)],
+        what="mission run",
         cwd=HERE.parent,
         env=env,
-        capture_output=True,
-        text=True,
         timeout=3600,
+        log=trace.with_suffix(".log"),
     )
-    trace.with_suffix(".log").write_text(done.stderr)
-    if done.returncode != 0:
-        raise RuntimeError(f"mission run failed ({trace.with_suffix('.log')}): {done.stderr[-2000:]}")
-    out = json.loads(done.stdout.strip().splitlines()[-1])
     out["trace_mb"] = trace.stat().st_size / MB
     out["load_avg"] = os.getloadavg()
     return out
@@ -431,17 +442,9 @@ def holders(path: Path, cache: str, *, cwd: Path, frames: int) -> dict:
     env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl", "PYTHONPATH": str(cwd)}
     out: dict = {}
     for run in ("fill", "measured"):  # the first run fills the cache for this checkout's renderer
-        done = subprocess.run(
-            [sys.executable, "-c", _HOLDERS, str(path), str(frames), str(shards)],
-            cwd=cwd,
-            env=env,
-            capture_output=True,
-            text=True,
-            timeout=7200,
+        out[run] = _child(
+            _HOLDERS, [str(path), str(frames), str(shards)], what=f"holders run ({cwd})", cwd=cwd, env=env, timeout=7200
         )
-        if done.returncode != 0:
-            raise RuntimeError(f"holders run ({cwd}) failed: {done.stderr[-2000:]}")
-        out[run] = json.loads(done.stdout.strip().splitlines()[-1])
     return out
 
 
