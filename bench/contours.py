@@ -67,39 +67,17 @@ def _terrains(heldout: bool = False) -> dict[str, tuple[np.ndarray, float, list[
     """name -> (true heights, cell metres, route); tuning entries and this script's own seeds;
     ``heldout`` adds the held-out contour terrain (to report on, never to choose by)."""
     base = {t.name: t for t in TERRAINS if t.split == "tuning"}
+    # this script's own terrains: (name, seed, source, changes to the t-contours-fbm case)
+    specs = [
+        ("own-ridged-1", 9101, {"family": "ridged", "size": 200, "relief": 120.0}, {}),
+        ("own-ridged-2", 9102, {"family": "ridged", "size": 200, "relief": 160.0}, {}),
+        ("own-fbm-0.5", 9103, {"family": "fbm", "size": 200, "relief": 150.0, "hurst": 0.5}, {}),
+        ("own-mesas", 9105, {"family": "mesas", "size": 200, "relief": 90.0}, {"cell": 12.0}),
+        ("own-valleys", 9104, {"family": "valleys", "size": 200, "relief": 90.0}, {"cell": 10.0}),
+    ]
     own = {
-        "own-ridged-1": replace(
-            base["t-contours-fbm"],
-            name="own-ridged-1",
-            seed=9101,
-            source={"family": "ridged", "size": 200, "relief": 120.0},
-        ),
-        "own-ridged-2": replace(
-            base["t-contours-fbm"],
-            name="own-ridged-2",
-            seed=9102,
-            source={"family": "ridged", "size": 200, "relief": 160.0},
-        ),
-        "own-fbm-0.5": replace(
-            base["t-contours-fbm"],
-            name="own-fbm-0.5",
-            seed=9103,
-            source={"family": "fbm", "size": 200, "relief": 150.0, "hurst": 0.5},
-        ),
-        "own-mesas": replace(
-            base["t-contours-fbm"],
-            name="own-mesas",
-            seed=9105,
-            cell=12.0,
-            source={"family": "mesas", "size": 200, "relief": 90.0},
-        ),
-        "own-valleys": replace(
-            base["t-contours-fbm"],
-            name="own-valleys",
-            seed=9104,
-            cell=10.0,
-            source={"family": "valleys", "size": 200, "relief": 90.0},
-        ),
+        name: replace(base["t-contours-fbm"], name=name, seed=seed, source=source, **more)
+        for name, seed, source, more in specs
     }
     out = {}
     extra = [t for t in TERRAINS if heldout and t.split == "heldout" and t.contours > 0]
