@@ -52,7 +52,12 @@ def _rank(bb: MemoryBlackboard, frame: int, shards: dict[int, list[tuple[int, fl
 
 
 def _answer(
-    bb: MemoryBlackboard, query: levels.Query, query_id: str, present: bool | None, llr: float | None = None
+    bb: MemoryBlackboard,
+    query: levels.Query,
+    query_id: str,
+    present: bool | None,
+    llr: float | None = None,
+    where: list[float] | None = None,
 ) -> None:
     levels.post(
         bb.board("user"),
@@ -67,9 +72,25 @@ def _answer(
             detector="test",
             reason="scripted",
             llr=llr,
+            where=where,
         ),
         links=(query_id,),
     )
+
+
+def _answer_each(bb: MemoryBlackboard, reply) -> set[str]:
+    """Answer the scheduler's queries one at a time as they come (at most 10), each with
+    ``reply(query) -> dict`` of :func:`_answer`'s arguments; returns the ids answered."""
+    answered: set[str] = set()
+    for _ in range(10):
+        pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
+        if not pending:
+            break
+        ((qid, q),) = pending
+        answered.add(qid)
+        _answer(bb, q, qid, **reply(q))
+        bb.run(timeouts=False)
+    return answered
 
 
 def _board(**options: object) -> MemoryBlackboard:
@@ -130,15 +151,8 @@ def test_an_absent_landmark_backtracks() -> None:
     bb = _board(backtracking="hard", questions="probability")  # the seed paper's rule
     _rank(bb, 1, SHARDS)
     bb.run(timeouts=False)
-    answered = set()
-    for _ in range(10):
-        pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
-        if not pending:
-            break
-        ((qid, q),) = pending
-        answered.add(qid)
-        _answer(bb, q, qid, q.landmark != "H1")  # H1 is absent: every candidate showing it goes
-        bb.run(timeouts=False)
+    # H1 is absent: every candidate showing it goes
+    answered = _answer_each(bb, lambda q: {"present": q.landmark != "H1"})
     p = levels.Position.from_hypothesis(bb.hypotheses(levels.POSITION)[0])
     assert p.backtracks >= 1 and p.viewframe not in (0, 2, 3)
     assert [q.number for _, q in _queries(bb)] == list(range(1, len(answered) + 1))
@@ -154,15 +168,8 @@ def test_soft_backtracking_takes_the_answers_likelihood_ratio() -> None:
         bb = _board()
         _rank(bb, 1, close)
         bb.run(timeouts=False)
-        answered = set()
-        for _ in range(10):
-            pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
-            if not pending:
-                break
-            ((qid, q),) = pending
-            answered.add(qid)
-            _answer(bb, q, qid, None, llr=llr if q.viewframe == 2 else -llr)  # the detector itself undecided
-            bb.run(timeouts=False)
+        # the detector itself undecided
+        _answer_each(bb, lambda q, llr=llr: {"present": None, "llr": llr if q.viewframe == 2 else -llr})
         (ph,) = bb.hypotheses(levels.POSITION)
         results[llr] = levels.Position.from_hypothesis(ph)
     # H1 (seen by 0, 2, 3) there and T1 (seen by 1) not: 2, the best of them; the other way: 1
@@ -354,32 +361,8 @@ def test_the_place_of_a_found_landmark_decides_between_candidates_that_show_it(p
         ),
     )
     bb.run(timeouts=False)
-    answered = set()
-    for _ in range(10):
-        pending = [(qid, q) for qid, q in _queries(bb) if qid not in answered]
-        if not pending:
-            break
-        ((qid, q),) = pending
-        answered.add(qid)
-        found = q.landmark == "H1"
-        levels.post(
-            bb.board("user"),
-            levels.Answer(
-                query=qid,
-                frame=q.frame,
-                landmark=q.landmark,
-                viewframe=q.viewframe,
-                present=found,
-                score=0.9 if found else 0.0,
-                location=None,
-                detector="test",
-                reason="scripted",
-                llr=2.0 if found else -2.0,
-                where=[1.1, 7.1, 4.0] if found else None,  # 0's place, turned by 1 degree
-            ),
-            links=(qid,),
-        )
-        bb.run(timeouts=False)
+    found = {"present": True, "llr": 2.0, "where": [1.1, 7.1, 4.0]}  # where: 0's place, turned by 1 degree
+    _answer_each(bb, lambda q: found if q.landmark == "H1" else {"present": False, "llr": -2.0})
     (ph,) = bb.hypotheses(levels.POSITION)
     p = levels.Position.from_hypothesis(ph)
     assert p.viewframe == decided, p.steps
