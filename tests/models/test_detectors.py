@@ -248,6 +248,31 @@ def test_scaled_templates_near_the_border_keep_their_shape(scales):
     assert ev is not None and all(np.isfinite(ev))
 
 
+#: landmark sizes of the render tests (metres)
+_SIZES = {
+    "house": {"width": 20, "depth": 12, "height": 8},
+    "tower": {"width": 4, "depth": 4, "height": 30},
+    "silo": {"width": 7, "depth": 7, "height": 16},
+    "barn": {"width": 30, "depth": 16, "height": 10},
+}
+
+
+def _one_landmark(kind: str, name: str, *, y: float, start: list[float], **more: object):
+    """A small terrain with one landmark ``L1`` of ``kind`` at (300, ``y``), a route from ``start``."""
+    from models.scenario import scenario_from_dict
+
+    data = {
+        "name": name,
+        "seed": 1,
+        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
+        "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": y, **_SIZES[kind]}],
+        "route": [start, [300, 240]],
+        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
+        **more,
+    }
+    return scenario_from_dict(data, path=Path(f"/nonexistent/{name}.yaml"))
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["house", "tower", "silo", "barn"])
 def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
@@ -257,25 +282,9 @@ def test_likelihood_ratio_on_real_renders_with_and_without_the_landmark(kind):
     first and its absence in the second."""
     from models.camera_emulator import CameraEmulator
     from models.environment import build_environment
-    from models.scenario import scenario_from_dict
     from models.sensor import degrade
 
-    size = {
-        "house": {"width": 20, "depth": 12, "height": 8},
-        "tower": {"width": 4, "depth": 4, "height": 30},
-        "silo": {"width": 7, "depth": 7, "height": 16},
-        "barn": {"width": 30, "depth": 16, "height": 10},
-    }[kind]
-    data = {
-        "name": "lr-test",
-        "seed": 1,
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
-        "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": 300, **size}],
-        "route": [[240, 300], [300, 240]],
-        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
-        "sensor": {"simulate": {}},
-    }
-    scenario = scenario_from_dict(data, path=Path("/nonexistent/lr-test.yaml"))
+    scenario = _one_landmark(kind, "lr-test", y=300, start=[240, 300], sensor={"simulate": {}})
     env = build_environment(scenario)
     spec = scenario.sensor.simulate
     det = _registry().for_kind(kind)
@@ -342,18 +351,8 @@ def test_the_match_on_real_renders_follows_a_known_turn_and_approach(kind):
     from models.camera_emulator import CameraEmulator
     from models.environment import build_environment
     from models.placement import found_placement, placement
-    from models.scenario import scenario_from_dict
 
-    size = {"house": {"width": 20, "depth": 12, "height": 8}, "silo": {"width": 7, "depth": 7, "height": 16}}[kind]
-    data = {
-        "name": "where-test",
-        "seed": 1,
-        "terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 30.0, "seed": 3}},
-        "landmarks": [{"id": "L1", "kind": kind, "x": 300, "y": 310, **size}],
-        "route": [[230, 300], [300, 240]],
-        "camera": {"width": W, "height": H, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
-    }
-    scenario = scenario_from_dict(data, path=Path("/nonexistent/where-test.yaml"))
+    scenario = _one_landmark(kind, "where-test", y=310, start=[230, 300])
     env = build_environment(scenario)
     det = _registry().for_kind(kind)
     with CameraEmulator(env, scenario.camera) as cam:
