@@ -79,6 +79,9 @@ def test_a_skyline_already_extracted_gives_the_same_refinement_without_extractin
 
     start = emulator.pose_at(420.0, 380.0, 60.0)
     image = emulator.render(emulator.pose_at(425.0, 383.0, 63.0)).image
+    # the first refinement in a fresh emulator can differ from a later one in the 7th digit of an
+    # uncertainty (seen when this test ran alone): not what this test is about, so one goes first
+    refine_pose(image, emulator, start, position=position)
     want = refine_pose(image, emulator, start, position=position)
     profile = skyline_from_image(image, fov_y_deg=emulator.camera.fov_y_deg)
 
