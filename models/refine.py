@@ -30,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import cv2
@@ -152,6 +153,12 @@ def _shifted(profile: NDArray, s: int) -> NDArray[np.float64]:
     return out
 
 
+@lru_cache(maxsize=16)
+def _profile_bins(height: int, width: int, fov_y_deg: float, step_deg: float) -> int:
+    """Bins of a skyline profile of a (height, width) view (the grid a given profile must be on)."""
+    return skyline_from_depth(np.zeros((height, width), np.float32), fov_y_deg=fov_y_deg, step_deg=step_deg).size
+
+
 class _Scorer:
     def __init__(
         self,
@@ -174,9 +181,8 @@ class _Scorer:
         )
         self.max_heading = max_heading_deg
         h, w = emulator.height, emulator.width
-        bins = skyline_from_depth(np.zeros((h, w), np.float32), fov_y_deg=self.fov, step_deg=step_deg).size
         given = None if query_skyline is None else np.asarray(query_skyline, dtype=np.float32).ravel()
-        if given is not None and given.size == bins:
+        if given is not None and given.size == _profile_bins(h, w, self.fov, step_deg):
             self.query = given
         else:  # none given, or on another grid (another field of view or step)
             self.query = skyline_from_image(image, fov_y_deg=self.fov, step_deg=step_deg)
