@@ -464,6 +464,13 @@ class Map(Message):
             "visible landmark, angles from the optical axis (models.placement)"
         ),
     )
+    entry: str | None = field(
+        default=None,
+        metadata=_doc(
+            "absolute path of the viewframe cache entry (folder) the viewframes came from or were written "
+            "into (models.viewframe_cache), null: rendered without a cache"
+        ),
+    )
 
     def id(self) -> str:
         return map_id()

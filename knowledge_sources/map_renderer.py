@@ -44,6 +44,7 @@ class MapRenderer(KnowledgeSource):
             scenario = world.scenario
             viewframes = world.viewframes
             priors = world.priors
+            entry = None if world.entry is None else str(world.entry.resolve())
         poses = []
         for k, vf in enumerate(viewframes):
             message = levels.Viewframe.of(vf)
@@ -90,6 +91,7 @@ class MapRenderer(KnowledgeSource):
                     for vf in viewframes
                 },
                 memory=scenario.memory.model_dump(),
+                entry=entry,
             ),
             links=(source.id,),
         )

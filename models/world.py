@@ -72,6 +72,9 @@ class World:
         if isinstance(cache, str) and cache != "env":
             raise ValueError(f'cache must be a ViewframeCache, None or "env", not {cache!r}')
         self.cache: ViewframeCache | None = ViewframeCache.from_env() if isinstance(cache, str) else cache
+        #: the viewframe cache entry (folder) :attr:`viewframes` came from or were written into;
+        #: None until they are built, and when they were rendered without a cache
+        self.entry: Path | None = None
         self._emulator: CameraEmulator | None = None
 
     @classmethod
@@ -111,6 +114,7 @@ class World:
             if cached is not None:
                 if self._progress is not None:
                     self._progress(len(cached), len(cached))
+                self.entry = self.cache.path(key)
                 return cached
         if self.cache is None or key is None:
             return self._render(sink=None)
@@ -130,7 +134,10 @@ class World:
         finally:
             writer.abort()
         back = cache.read(key)  # the entry just written, memory-mapped
-        return back if back is not None else self._render(sink=None)
+        if back is None:
+            return self._render(sink=None)
+        self.entry = cache.path(key)
+        return back
 
     def _render(self, *, sink: Callable[[int, Viewframe], None] | None) -> list[Viewframe]:
         """Every route point's viewframe, rendered (see :attr:`viewframes`); with ``sink``, each is

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from blackboard.memory_board import MemoryBlackboard
@@ -35,6 +37,8 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     assert set(mp.priors) == {lm["id"] for lm in SMALL["landmarks"]}
     assert all(0.0 <= p <= 1.0 for p in mp.priors.values())
     assert mp_h.links == (levels.scenario_id(),)
+    # the tests' cache (tests/conftest.py) holds the viewframes: the map names its entry
+    assert mp.entry is not None and (Path(mp.entry) / "meta.json").is_file() and Path(mp.entry).is_absolute()
 
 
 def test_the_renderer_waits_for_the_board_after_each_batch(tmp_path, monkeypatch) -> None:

@@ -56,15 +56,19 @@ def test_a_second_world_reads_the_viewframes_without_rendering(tmp_path):
     cache = ViewframeCache(tmp_path)
     scenario = scenario_from_dict(_data())
     with World(scenario, cache=cache) as first:
+        assert first.entry is None  # not built yet
         rendered = first.viewframes
         assert first._emulator is not None and cache.misses == 1 and cache.hits == 0
     entries = [p for p in tmp_path.iterdir()]
     assert len(entries) == 1 and (entries[0] / "meta.json").is_file()  # no temporary folder left
+    assert first.entry == entries[0]  # the entry written
     with World(scenario_from_dict(_data()), cache=cache) as second:
         cached = second.viewframes
         assert second._emulator is None  # no renderer opened
         assert cache.hits == 1
         assert second.priors == first.priors
+        assert second.entry == entries[0]  # the entry read
+    assert World(scenario_from_dict(_data()), cache=None).entry is None
     _same(rendered, cached)
     cached[0].image[0, 0] = 7  # copy-on-write: writable, and the entry is unchanged
     _same(rendered, World(scenario_from_dict(_data()), cache=cache).viewframes)
