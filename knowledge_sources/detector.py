@@ -72,6 +72,13 @@ class LandmarkDetectorAgent(KnowledgeSource):
         self._registry: DetectorRegistry | None = None
         self._store: OrderedDict[str, Hypothesis] = OrderedDict()
 
+    def input_error(self, err: Exception) -> str | None:
+        from models.errors import CacheEntryError
+
+        # a viewframe's cache entry this host cannot read (another machine, a stale reference):
+        # no retry helps, the run stops with the message naming the entry, viewframe and agent
+        return str(err) if isinstance(err, CacheEntryError) else None
+
     def setup(self, board: Board) -> None:
         from models.detectors import align_pixels, default_registry
 
@@ -114,14 +121,15 @@ class LandmarkDetectorAgent(KnowledgeSource):
         frame = levels.SensorFrame.from_hypothesis(frame_h)
         vf = levels.Viewframe.from_hypothesis(vf_h)
         detector = self._registry.for_kind(q.kind)
-        view = CandidateView.from_mask(vf.image, vf.mask, q.landmark_index, background=vf.background)
+        px = vf.pixels(agent=self.name)
+        view = CandidateView.from_mask(px.image, px.mask, q.landmark_index, background=px.background)
         det = detector.detect(frame.image, view=view)
         where = None
         if det.where is not None and self.fov_y_deg is not None:
             from models.placement import found_placement
 
-            px = int(view.silhouette.sum())
-            where = list(found_placement(det.where, pixels=px, shape=frame.image.shape, fov_y_deg=self.fov_y_deg))
+            pixels = int(view.silhouette.sum())
+            where = list(found_placement(det.where, pixels=pixels, shape=frame.image.shape, fov_y_deg=self.fov_y_deg))
         levels.post(
             board,
             levels.Answer(

@@ -73,9 +73,10 @@ class AssociativeIndexer(RouteRanker):
         self.shard = shard
         self.shards = shards
         self.block = None if block is None else int(block)
-        # the shard's viewframe images until the map is complete, zlib-compressed (a long route's
-        # images would otherwise be resident at once: about 57 KB each at 160 x 120)
-        self._images: dict[int, tuple[bytes, tuple[int, ...], str]] = {}
+        # the shard's viewframe images until the map is complete: inline ones zlib-compressed (a
+        # long route's images would otherwise be resident at once: about 57 KB each at 160 x 120),
+        # by reference the message (its pixels are read from the cache entry as they are indexed)
+        self._images: dict[int, tuple[bytes, tuple[int, ...], str] | levels.Viewframe] = {}
         self._index: ViewframeIndex | None = None
 
     def mine(self, index: int) -> bool:
@@ -85,11 +86,17 @@ class AssociativeIndexer(RouteRanker):
         return index % self.shards == self.shard
 
     def keep(self, viewframe: levels.Viewframe) -> None:
-        image = np.ascontiguousarray(viewframe.image)
+        if viewframe.entry is not None:
+            self._images[viewframe.index] = viewframe
+            return
+        image = np.ascontiguousarray(viewframe.pixels(agent=self.name).image)
         self._images[viewframe.index] = (zlib.compress(image.data, 1), image.shape, image.dtype.str)
 
     def _image(self, k: int) -> np.ndarray:
-        data, shape, dtype = self._images.pop(k)
+        kept = self._images.pop(k)
+        if isinstance(kept, levels.Viewframe):
+            return kept.pixels(agent=self.name).image
+        data, shape, dtype = kept
         return np.frombuffer(zlib.decompress(data), dtype=dtype).reshape(shape)
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:

@@ -56,6 +56,7 @@ if TYPE_CHECKING:
     from blackboard.knowledge_source import Board
     from models import viewframes as models_viewframes
     from models.associative import Ranking as MemoryRanking
+    from models.viewframe_cache import Pixels
 
 __all__ = [
     "ANSWER",
@@ -380,8 +381,6 @@ class Viewframe(Message):
     id_pattern: ClassVar[str] = "vf-<index:06d>"
     index: int = field(metadata=_doc("viewframe index k (its route point)"))
     pose: list = field(metadata=_doc("[x, y, z, heading_deg, pitch_deg], world metres and degrees", length=5))
-    image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
-    mask: np.ndarray = field(metadata=_doc("(H, W) int16 landmark index per pixel, -1 none", dtype="int16", ndim=2))
     description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
     skyline: np.ndarray = field(
         metadata=_doc(
@@ -390,32 +389,116 @@ class Viewframe(Message):
             ndim=1,
         )
     )
-    background: np.ndarray | None = field(
+    image: np.ndarray | None = field(
         default=None,
         metadata=_doc(
-            "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view",
+            "(H, W, 3) uint8 RGB, null: in the cache entry named by entry (read with pixels())",
             dtype="uint8",
             ndim=3,
             channels=3,
         ),
     )
+    mask: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "(H, W) int16 landmark index per pixel, -1 none; null: in the cache entry named by entry",
+            dtype="int16",
+            ndim=2,
+        ),
+    )
+    background: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "(H, W, 3) uint8 RGB, the same view without landmarks, or null when none is in view "
+            "(or when the pixels are in the cache entry named by entry)",
+            dtype="uint8",
+            ndim=3,
+            channels=3,
+        ),
+    )
+    entry: str | None = field(
+        default=None,
+        metadata=_doc(
+            "absolute path of the viewframe cache entry holding this viewframe's image, mask and "
+            "background at row index (models.viewframe_cache), null: they are inline"
+        ),
+    )
+    entry_count: int | None = field(
+        default=None, metadata=_doc("viewframes in that entry (checked when it is read), null: inline")
+    )
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        if self.entry is None:
+            for name in ("image", "mask"):
+                if getattr(self, name) is None:
+                    raise MessageError(self.level, name, "missing: a viewframe without an entry carries its pixels")
+            if self.entry_count is not None:
+                raise MessageError(self.level, "entry_count", "given without an entry")
+            return
+        for name in ("image", "mask", "background"):
+            if getattr(self, name) is not None:
+                raise MessageError(self.level, name, "a viewframe naming a cache entry carries no pixel arrays")
+        if not self.entry.startswith("/"):
+            raise MessageError(self.level, "entry", f"must be an absolute path, got {self.entry!r}")
+        if self.entry_count is None or not 0 <= self.index < self.entry_count:
+            raise MessageError(
+                self.level, "entry_count", f"must be a count above the index {self.index}, got {self.entry_count}"
+            )
 
     @classmethod
-    def of(cls, viewframe: models_viewframes.Viewframe) -> Self:
+    def of(cls, viewframe: models_viewframes.Viewframe, *, entry: str | None = None, count: int | None = None) -> Self:
         """The message of a rendered viewframe (:class:`models.viewframes.Viewframe`): its pose as
-        a list, its image and background as C-contiguous arrays, its mask as int16 and its
-        symbolic description as plain data; the depth map stays behind (no agent reads it)."""
+        a list, its symbolic description as plain data, its skyline; the depth map stays behind (no
+        agent reads it). Without ``entry``, the pixels inline: its image and background as
+        C-contiguous arrays, its mask as int16. With ``entry`` (the absolute path of the cache
+        entry the viewframe was read from, holding ``count`` viewframes; the viewframe's row is its
+        index), no pixel arrays: a reader gets them with :meth:`pixels`."""
         p = viewframe.pose
+        pose = [p.x, p.y, p.z, p.heading_deg, p.pitch_deg]
+        index, description = int(viewframe.index), viewframe.description.to_dict()
+        if entry is not None:
+            return cls(
+                index=index,
+                pose=pose,
+                description=description,
+                skyline=viewframe.skyline,
+                entry=entry,
+                entry_count=count,
+            )
         background = viewframe.background
         return cls(
-            index=int(viewframe.index),
-            pose=[p.x, p.y, p.z, p.heading_deg, p.pitch_deg],
+            index=index,
+            pose=pose,
+            description=description,
+            skyline=viewframe.skyline,
             image=np.ascontiguousarray(viewframe.image),
             mask=viewframe.mask.astype(np.int16),
-            description=viewframe.description.to_dict(),
-            skyline=viewframe.skyline,
             background=None if background is None else np.ascontiguousarray(background),
         )
+
+    def pixels(self, *, agent: str) -> Pixels:
+        """The viewframe's image, mask and background (:class:`models.viewframe_cache.Pixels`): the
+        message's own arrays when inline, else read from the cache entry it names (memory-mapped,
+        opened once per process; copies). :class:`models.errors.CacheEntryError` naming the entry,
+        this viewframe and ``agent`` (the reader) when this host cannot read the entry or it is not
+        the one the reference names (another count: stale)."""
+        from models.errors import CacheEntryError
+        from models.viewframe_cache import Pixels, read_pixels
+
+        if self.entry is None:
+            assert self.image is not None and self.mask is not None  # __post_init__
+            return Pixels(image=self.image, mask=self.mask, background=self.background)
+        assert self.entry_count is not None  # __post_init__
+        try:
+            return read_pixels(self.entry, self.index, count=self.entry_count)
+        except CacheEntryError as err:
+            raise CacheEntryError(
+                err.path,
+                f"agent {agent}, viewframe {self.id()}: {err.message}. The map renderer posts viewframes by "
+                "reference to its viewframe cache: every agent's host must see that folder at the same path "
+                "(a shared folder), or set render: {inline: true} in the scenario to post the pixels inline",
+            ) from None
 
     @classmethod
     def read(cls, board: Board, index: int) -> Self:

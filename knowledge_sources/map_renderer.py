@@ -3,26 +3,40 @@
 from __future__ import annotations
 
 import logging
-from typing import ClassVar
+import os
+from typing import Any, ClassVar
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.errors import input_error_message
 
-__all__ = ["MapRenderer"]
+__all__ = ["INLINE_ENV", "MapRenderer"]
 
 log = logging.getLogger(__name__)
 
 #: viewframes posted between two returns of their memory-mapped pages (models.viewframe_cache.release_pages),
 #: and between two reads that wait for the blackboard node to have received them (flow control)
 RELEASE_EVERY = 64
+#: set (to anything but 0/off/no/false) by ``mapinterp run --inline-viewframes``: the pixels inline
+INLINE_ENV = "MAPINTERP_INLINE_VIEWFRAMES"
 
 
 class MapRenderer(KnowledgeSource):
     """Builds the environment model F*, renders a viewframe at every route point and posts each
     with its symbolic description, then posts the ``map`` hypothesis (count, priors P(L),
     landmarks, route, visible landmarks per viewframe) that tells the others the map is complete.
+
+    When the viewframes are in a viewframe cache entry (:attr:`models.world.World.entry`), each
+    ``viewframe`` message names the entry instead of carrying the image, mask and background
+    (the readers get them with :meth:`knowledge_sources.levels.Viewframe.pixels`), unless the
+    scenario says ``render: {inline: true}``, the option ``inline`` is true or ``$MAPINTERP_INLINE_VIEWFRAMES``
+    is set (``mapinterp run --inline-viewframes``).
     """
+
+    def __init__(self, name: str, *, inline: bool = False, **options: Any) -> None:
+        super().__init__(name, **options)
+        #: post the pixels inline even when they are in a cache entry (hosts without a shared folder)
+        self.inline = bool(inline)
 
     consumes: ClassVar[tuple[str, ...]] = (levels.SCENARIO,)
     produces: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP)
@@ -45,9 +59,15 @@ class MapRenderer(KnowledgeSource):
             viewframes = world.viewframes
             priors = world.priors
             entry = None if world.entry is None else str(world.entry.resolve())
+        inline = self.inline or scenario.render.inline or _env_inline()
+        by_reference = entry is not None and not inline
+        if entry is not None and not by_reference:
+            log.info("%s: viewframe pixels posted inline (render.inline), not by reference to %s", self.name, entry)
         poses = []
         for k, vf in enumerate(viewframes):
-            message = levels.Viewframe.of(vf)
+            message = (
+                levels.Viewframe.of(vf, entry=entry, count=len(viewframes)) if by_reference else levels.Viewframe.of(vf)
+            )
             poses.append(message.pose)
             levels.post(
                 board,
@@ -96,6 +116,11 @@ class MapRenderer(KnowledgeSource):
             links=(source.id,),
         )
         log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)
+
+
+def _env_inline() -> bool:
+    value = os.environ.get(INLINE_ENV, "").strip().lower()
+    return value not in ("", "0", "off", "no", "false")
 
 
 def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:

@@ -46,6 +46,13 @@ class RouteRanker(KnowledgeSource):
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
 
+    def input_error(self, err: Exception) -> str | None:
+        from models.errors import CacheEntryError
+
+        # a viewframe's cache entry this host cannot read (another machine, a stale reference):
+        # no retry helps, the run stops with the message naming the entry, viewframe and agent
+        return str(err) if isinstance(err, CacheEntryError) else None
+
     # -- what a subclass provides ------------------------------------------------------------
 
     def mine(self, index: int) -> bool:

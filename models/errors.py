@@ -7,6 +7,7 @@ line can print one clear sentence instead of a traceback::
     ModelError                  root of the models' errors
     ├── ScenarioError           a scenario file is malformed          (.path, .field, .message)
     ├── InputError              a data or image file is missing/bad   (.path, .message)
+    │   └── CacheEntryError     a viewframe cache entry named by a message is missing or stale
     ├── RenderError             the offscreen renderer failed         (.message)
     └── AssociativeMemoryError  bad memory configuration or input     (.message)
 
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-__all__ = ["ModelError", "ScenarioError", "InputError", "RenderError", "AssociativeMemoryError"]
+__all__ = ["ModelError", "ScenarioError", "InputError", "CacheEntryError", "RenderError", "AssociativeMemoryError"]
 
 
 class ModelError(Exception):
@@ -51,6 +52,12 @@ class InputError(ModelError):
     def __init__(self, path: str | Path | None, message: str) -> None:
         self.path = None if path is None else Path(path)
         super().__init__(message, where=None if self.path is None else str(self.path))
+
+
+class CacheEntryError(InputError):
+    """A viewframe cache entry (:mod:`models.viewframe_cache`) that a viewframe message names for its
+    pixels cannot be read here: missing (another host, a deleted cache), not committed, of another
+    count than the reference says (stale), or the row out of range. ``path`` is the entry's folder."""
 
 
 class RenderError(ModelError):

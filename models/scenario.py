@@ -523,16 +523,21 @@ class SkylineSpec(_Spec):
 
 
 class RenderSpec(_Spec):
-    """How the map's viewframes are rendered (:mod:`models.viewframes`): ``{workers: null,
-    viewframes_per_worker: 250}``. ``workers`` processes, each with its own offscreen renderer,
-    render shares of the route (the viewframes are the same as rendered in one process); null:
-    one worker per ``viewframes_per_worker`` route points, at most the machine's CPU count
+    """How the map's viewframes are rendered (:mod:`models.viewframes`) and posted: ``{workers: null,
+    viewframes_per_worker: 250, inline: false}``. ``workers`` processes, each with its own offscreen
+    renderer, render shares of the route (the viewframes are the same as rendered in one process);
+    null: one worker per ``viewframes_per_worker`` route points, at most the machine's CPU count
     (a worker costs a few seconds to start, so short routes render in the calling process);
-    1: in the calling process.
+    1: in the calling process. ``inline``: false (default) posts each ``viewframe`` message
+    without its pixels when the viewframes are in a viewframe cache entry, naming the entry, and
+    the agents read the pixels from it (every agent's host must see the cache folder at the same
+    path); true: the pixels travel in the messages (agents on hosts without a shared folder).
+    Without a cache the pixels are always inline.
     """
 
     workers: int | None = Field(default=None, ge=1, le=256)
     viewframes_per_worker: int = Field(default=250, ge=1, le=MAX_ROUTE_POINTS)
+    inline: bool = False
 
     def worker_count(self, viewframes: int) -> int:
         """The number of worker processes for a route of ``viewframes`` points (1: none)."""

@@ -19,6 +19,13 @@ added to ``Viewframe`` later is stored without changes here. An entry is written
 place and renamed into place in one step: concurrent runs never see a partial entry, and when
 two write the same entry at once, one rename wins and the other run's copy is dropped.
 
+Agents that need a viewframe's pixels read them from the entry the map was rendered into
+(:func:`read_pixels`: the ``image``, ``mask`` and ``background`` row of one viewframe, from the
+entry's stacked arrays memory-mapped read-only; a few entries opened per process, see
+:data:`OPEN_ENTRIES`), so the ``viewframe`` messages need not carry them
+(:class:`knowledge_sources.levels.Viewframe`). A missing entry, an entry of another count or a
+row out of range is a :class:`~models.errors.CacheEntryError` naming the entry.
+
 The cache folder is, in this order: the ``root`` given, ``$MAPINTERP_CACHE``,
 ``$XDG_CACHE_HOME/mapinterp``, ``~/.cache/mapinterp``. ``MAPINTERP_CACHE=off`` turns it off.
 """
@@ -33,13 +40,16 @@ import mmap
 import os
 import shutil
 import tempfile
+import threading
 import typing
+from collections import OrderedDict
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from models.errors import CacheEntryError
 from models.viewframes import Viewframe
 
 __all__ = [
@@ -47,6 +57,9 @@ __all__ = [
     "RENDERER_MODULES",
     "CACHE_ENV",
     "EntryWriter",
+    "OPEN_ENTRIES",
+    "Pixels",
+    "read_pixels",
     "ViewframeCache",
     "cache_key",
     "default_cache_root",
@@ -78,16 +91,18 @@ def default_cache_root() -> Path | None:
 
 #: Linux madvise(2) MADV_PAGEOUT (5.4 and later; Python's mmap module may not name it)
 _MADV_PAGEOUT = getattr(mmap, "MADV_PAGEOUT", 21)
+_MADV_DONTNEED = getattr(mmap, "MADV_DONTNEED", 4)
 
 
-def release_pages(arrays: Iterable[np.ndarray | None]) -> int:
+def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PAGEOUT) -> int:
     """Give back the resident pages of arrays read from a cache entry (memory-mapped), e.g. once a
     batch of viewframes is posted: the kernel drops them from this process (``MADV_PAGEOUT``)
     and reads them from the file again if they are used again; nothing is lost, written
     copy-on-write pages included. One call per memory map, over the span of the arrays in it:
     give a batch of neighbouring rows at once (the kernel keeps a page-cache folio only partly
     in the span). Arrays not backed by a memory map are left alone; where the system does not
-    support it, nothing happens. Returns the bytes advised."""
+    support it, nothing happens. ``advice``: ``mmap.MADV_DONTNEED`` for a read-only map (the pages
+    leave this process, the page cache keeps them). Returns the bytes advised."""
     spans: dict[int, tuple[mmap.mmap, int, int]] = {}
     for a in arrays:
         base = a
@@ -105,7 +120,7 @@ def release_pages(arrays: Iterable[np.ndarray | None]) -> int:
             start = np.frombuffer(mm, dtype=np.uint8, count=1).ctypes.data
             rel = lo - start
             rel -= rel % mmap.PAGESIZE
-            mm.madvise(_MADV_PAGEOUT, rel, hi - start - rel)
+            mm.madvise(advice, rel, hi - start - rel)
             done += hi - start - rel
         except (OSError, ValueError, TypeError, AttributeError):
             continue
@@ -416,3 +431,115 @@ class EntryWriter:
         self._close_files()
         if self.folder.exists():
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+# -- the pixels of one viewframe, read from an entry ------------------------------------------------
+
+#: the array fields a viewframe message may leave in the entry (read by :func:`read_pixels`)
+PIXEL_FIELDS = ("image", "mask", "background")
+#: cache entries kept open (memory-mapped) per process, least recently used closed first
+OPEN_ENTRIES = 4
+
+
+class Pixels(NamedTuple):
+    """A viewframe's pixel arrays, images (row, col): ``image`` uint8 (H, W, 3) RGB, ``mask`` int16
+    (H, W) landmark index per pixel (-1: none), ``background`` uint8 (H, W, 3) the view without
+    landmarks, or None when no landmark is in view."""
+
+    image: np.ndarray
+    mask: np.ndarray
+    background: np.ndarray | None
+
+
+class _EntryPixels:
+    """The pixel arrays of one committed entry, memory-mapped read-only (only the rows read are
+    resident, and only while they are copied)."""
+
+    def __init__(self, folder: Path) -> None:
+        meta_path = folder / "meta.json"
+        if not folder.is_dir():
+            raise CacheEntryError(folder, "no such viewframe cache entry (folder)")
+        if not meta_path.is_file():
+            raise CacheEntryError(folder, "not a committed viewframe cache entry (no meta.json)")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, ValueError) as err:
+            raise CacheEntryError(folder, f"unreadable meta.json: {err}") from None
+        if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
+            got = meta.get("format") if isinstance(meta, dict) else None
+            raise CacheEntryError(folder, f"entry format {got!r}, expected {_FORMAT}")
+        self.folder = folder
+        self.count = int(meta["count"])
+        self._stacked: dict[str, np.ndarray] = {}
+        self._absent: dict[str, list[bool]] = {}
+        self._ragged: dict[str, list[bool]] = {}
+        for name in PIXEL_FIELDS:
+            if name in meta.get("arrays", []):
+                try:
+                    stacked = np.load(folder / f"{name}.npy", mmap_mode="r", allow_pickle=False)
+                except (OSError, ValueError) as err:
+                    raise CacheEntryError(folder, f"unreadable {name}.npy: {err}") from None
+                if stacked.shape[0] != self.count:
+                    raise CacheEntryError(
+                        folder, f"{name}.npy holds {stacked.shape[0]} viewframes, meta.json says {self.count}"
+                    )
+                self._stacked[name] = stacked
+                self._absent[name] = meta.get("absent", {}).get(name) or []
+            elif name in meta.get("ragged", {}):
+                self._ragged[name] = list(meta["ragged"][name])
+            elif name != "background":
+                raise CacheEntryError(folder, f"entry holds no {name} arrays")
+
+    def _row(self, name: str, row: int) -> np.ndarray | None:
+        if name in self._stacked:
+            absent = self._absent[name]
+            if absent and absent[row]:
+                return None
+            view = self._stacked[name][row]
+            out = np.array(view)  # a copy: the mapped pages are given back below
+            release_pages([view], advice=_MADV_DONTNEED)
+            return out
+        if name in self._ragged:
+            if not self._ragged[name][row]:
+                return None
+            try:
+                return np.load(self.folder / f"{name}.{row}.npy", allow_pickle=False)
+            except (OSError, ValueError) as err:
+                raise CacheEntryError(self.folder, f"unreadable {name}.{row}.npy: {err}") from None
+        return None
+
+    def pixels(self, row: int) -> Pixels:
+        image, mask = self._row("image", row), self._row("mask", row)
+        if image is None or mask is None:
+            raise CacheEntryError(self.folder, f"row {row} holds no image or no mask")
+        return Pixels(image=image, mask=mask.astype(np.int16, copy=False), background=self._row("background", row))
+
+
+_open: OrderedDict[Path, _EntryPixels] = OrderedDict()
+_open_lock = threading.Lock()
+
+
+def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
+    """The pixels of row ``row`` (the viewframe index) of the committed cache entry ``entry`` (its
+    folder, absolute), which must hold ``count`` viewframes: copies, the entry's pages are not kept
+    resident. The entry is opened (memory-mapped) on first use and kept open, at most
+    :data:`OPEN_ENTRIES` entries per process. :class:`~models.errors.CacheEntryError` (naming the
+    entry) when it is missing, not committed, of another format or count, or ``row`` is out of range.
+    """
+    folder = Path(entry)
+    if not folder.is_absolute():
+        raise CacheEntryError(folder, "a viewframe cache entry must be named by its absolute path")
+    with _open_lock:
+        opened = _open.get(folder)
+        if opened is None:
+            opened = _EntryPixels(folder)
+            _open[folder] = opened
+            while len(_open) > OPEN_ENTRIES:
+                _open.popitem(last=False)
+        else:
+            _open.move_to_end(folder)
+    if opened.count != count:
+        raise CacheEntryError(folder, f"the entry holds {opened.count} viewframes, the reference says {count} (stale)")
+    if not 0 <= row < count:
+        raise CacheEntryError(folder, f"row {row} out of range [0, {count})")
+    return opened.pixels(row)

@@ -124,15 +124,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="the viewframe cache folder (default: $MAPINTERP_CACHE, else ~/.cache/mapinterp)",
     )
+    parser.add_argument(
+        "--inline-viewframes",
+        action="store_true",
+        help="post every viewframe with its pixels, not by reference to the viewframe cache entry (for "
+        "agents on hosts that do not see the cache folder; as render: {inline: true} in the scenario)",
+    )
     add_zenoh_arguments(parser)
 
 
 def apply_cache_arguments(args: argparse.Namespace) -> None:
     """``--no-cache`` / ``--cache-dir`` as ``$MAPINTERP_CACHE``, which this process's worlds and
-    the agent processes it starts read (:mod:`models.viewframe_cache`)."""
+    the agent processes it starts read (:mod:`models.viewframe_cache`); ``--inline-viewframes`` as
+    ``$MAPINTERP_INLINE_VIEWFRAMES`` (:data:`knowledge_sources.map_renderer.INLINE_ENV`)."""
     import os
 
+    from knowledge_sources.map_renderer import INLINE_ENV
     from models.viewframe_cache import CACHE_ENV
+
+    if getattr(args, "inline_viewframes", False):
+        os.environ[INLINE_ENV] = "1"
 
     if getattr(args, "no_cache", False):
         os.environ[CACHE_ENV] = "off"

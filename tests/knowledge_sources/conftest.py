@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -21,6 +22,16 @@ SMALL = {
     "sensor": {"simulate": {"per_point": 1, "jitter_m": 0.5, "jitter_deg": 1.0, "advance": 0.05}},
     "scheduler": {"query_timeout_s": 3.0},
 }
+
+
+def inline_viewframe(vf: Any) -> Any:
+    """The viewframe message ``vf`` (:class:`knowledge_sources.levels.Viewframe`) with its pixels
+    inline, read from its cache entry when it names one (the map renderer posts them by reference
+    when the viewframes come from the cache, as in the tests)."""
+    import dataclasses
+
+    px = vf.pixels(agent="test")
+    return dataclasses.replace(vf, image=px.image, mask=px.mask, background=px.background, entry=None, entry_count=None)
 
 
 @pytest.fixture

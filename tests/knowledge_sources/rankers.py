@@ -28,7 +28,7 @@ def frames_from_viewframes(bb: MemoryBlackboard, small_rendered: dict, ks: list[
     """Camera frames that are exactly viewframes ``ks`` (each must rank its own viewframe first)."""
     for k in ks:
         vf = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][k])
-        levels.post(bb.user, levels.SensorFrame(frame=k, image=vf.image, source="test"))
+        levels.post(bb.user, levels.SensorFrame(frame=k, image=vf.pixels(agent="test").image, source="test"))
 
 
 def track(frame: int, state: str, point: int, n: int) -> levels.Track:

@@ -8,13 +8,14 @@ import pytest
 from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
 from knowledge_sources.detector import LandmarkDetectorAgent
+from tests.knowledge_sources.conftest import inline_viewframe
 
 
 def _visible_landmark(small_rendered: dict) -> tuple[levels.Viewframe, dict]:
     """A viewframe and a landmark well visible in it."""
     mp = levels.Map.from_hypothesis(small_rendered["map"])
     best = max(((k, lm, px) for k, seen in mp.visible.items() for lm, px in seen.items()), key=lambda t: t[2])
-    vf = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][int(best[0])])
+    vf = inline_viewframe(levels.Viewframe.from_hypothesis(small_rendered["viewframes"][int(best[0])]))
     return vf, next(lm for lm in mp.landmarks if lm["id"] == best[1])
 
 

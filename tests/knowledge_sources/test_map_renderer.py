@@ -20,7 +20,8 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     assert {h.id for h in small_rendered["viewframes"]} == {levels.viewframe_id(k) for k in range(n)}
     cam = SMALL["camera"]
     for v in vfs:
-        assert v.image.shape == (cam["height"], cam["width"], 3) and v.mask.shape == v.image.shape[:2]
+        px = v.pixels(agent="test")
+        assert px.image.shape == (cam["height"], cam["width"], 3) and px.mask.shape == px.image.shape[:2]
         assert v.pose[:2] == pytest.approx(SMALL["route"][v.index])
     mp_h = small_rendered["map"]
     mp = levels.Map.from_hypothesis(mp_h)
@@ -32,7 +33,7 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     assert set(mp.visible) == {str(k) for k in range(n)}
     # what the map says is visible is what the viewframe masks show
     for v in vfs:
-        shown = {mp.landmarks[i]["id"] for i in set(v.mask.ravel().tolist()) - {-1}}
+        shown = {mp.landmarks[i]["id"] for i in set(v.pixels(agent="test").mask.ravel().tolist()) - {-1}}
         assert set(mp.visible[str(v.index)]) <= shown
     assert set(mp.priors) == {lm["id"] for lm in SMALL["landmarks"]}
     assert all(0.0 <= p <= 1.0 for p in mp.priors.values())
