@@ -29,3 +29,43 @@ def test_cache_dir_is_filled_then_read_and_no_cache_writes_nothing(small, tmp_pa
     assert main(["run", str(small), "--no-cache", "--no-progress"]) == 0
     assert not (tmp_path / "env-cache").exists() and [p for p in cache.iterdir()] == entries
     capsys.readouterr()
+
+
+#: the runs compared: (extra flags, pixels posted by reference)
+RUNS = {
+    "no-cache": (["--no-cache"], False),
+    "cache-by-reference": ([], True),
+    "cache-by-reference-processes": (["--processes"], True),
+    "cache-inline-viewframes": (["--inline-viewframes"], False),
+}
+
+
+def test_a_mission_with_viewframes_by_reference_gives_the_results_of_one_without_cache(
+    small, tmp_path, monkeypatch, capsys
+) -> None:
+    """The same scenario run without a cache (pixels inline in every viewframe message), from a
+    filled cache (by reference: the indexers and detectors read the pixels from the entry, in this
+    process or each agent in its own), and from the cache with ``--inline-viewframes``: every
+    frame's answer, queries and ranking are the same."""
+    from blackboard.trace import read_trace
+
+    monkeypatch.delenv("MAPINTERP_INLINE_VIEWFRAMES", raising=False)
+    cache = tmp_path / "cache"
+    assert main(["run", str(small), "--cache-dir", str(cache), "--no-progress"]) == 0  # fills it
+    keys = ("frame", "viewframe", "queries", "backtracks", "correct")
+    got = {}
+    for name, (flags, by_reference) in RUNS.items():
+        out, trace = tmp_path / f"{name}.json", tmp_path / f"{name}.trace"
+        cached = [] if "--no-cache" in flags else ["--cache-dir", str(cache)]
+        argv = ["run", str(small), *cached, *flags, "--out", str(out), "--trace", str(trace), "--no-progress"]
+        assert main(argv) == 0, name
+        monkeypatch.delenv("MAPINTERP_INLINE_VIEWFRAMES", raising=False)  # the flag sets it for the run
+        results = json.loads(out.read_text())
+        got[name] = [({k: f[k] for k in keys}, [k for k, _ in f["ranking"]]) for f in results["frames"]]
+        posts = [r for r in read_trace(trace) if r.get("kind") == "post" and r.get("level") == "viewframe"]
+        assert len(posts) == 8 and all((r["body"]["entry"] is not None) == by_reference for r in posts), name
+        assert all(isinstance(r["body"]["image"], dict) != by_reference for r in posts), name  # a summary, or null
+    assert all(f[0]["viewframe"] is not None for f in got["no-cache"])
+    for name in RUNS:
+        assert got[name] == got["no-cache"], name
+    capsys.readouterr()

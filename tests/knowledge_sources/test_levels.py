@@ -298,32 +298,91 @@ def test_module_docstring_carries_the_table() -> None:
     assert levels.__doc__ is not None and levels.levels_table().splitlines()[2] in levels.__doc__
 
 
-def test_a_rendered_viewframe_becomes_its_message_and_survives_the_codec():
-    from blackboard.codec import decode, encode
+OF_SCENARIO = {
+    "name": "of",
+    "terrain": {"cell_size": 10.0, "procedural": {"size": 48, "relief": 20.0, "seed": 1}},
+    "landmarks": [{"id": "H1", "kind": "house", "x": 230.0, "y": 240.0, "width": 16, "depth": 10, "height": 8}],
+    "route": [[170.0, 240.0], [200.0, 240.0], [330.0, 240.0]],
+    "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 800.0},
+}
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> tuple[list, list, str]:
+    """OF_SCENARIO's viewframes rendered without a cache, the same read back from a cache entry,
+    and that entry's absolute path."""
     from models.scenario import scenario_from_dict
+    from models.viewframe_cache import ViewframeCache
     from models.world import World
 
-    scenario = scenario_from_dict(
-        {
-            "name": "of",
-            "terrain": {"cell_size": 10.0, "procedural": {"size": 48, "relief": 20.0, "seed": 1}},
-            "landmarks": [{"id": "H1", "kind": "house", "x": 230.0, "y": 240.0, "width": 16, "depth": 10, "height": 8}],
-            "route": [[170.0, 240.0], [200.0, 240.0], [330.0, 240.0]],
-            "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 800.0},
-        }
-    )
-    with World(scenario, cache=None) as world:
-        viewframes = world.viewframes
-    assert viewframes[1].background is not None and viewframes[2].background is None
-    for vf in viewframes:
-        msg = levels.Viewframe.of(vf)
+    with World(scenario_from_dict(OF_SCENARIO), cache=None) as world:
+        plain = world.viewframes
+    with World(scenario_from_dict(OF_SCENARIO), cache=ViewframeCache(tmp_path_factory.mktemp("of"))) as world:
+        cached = world.viewframes
+        assert world.entry is not None
+        entry = str(world.entry.resolve())
+    return plain, cached, entry
+
+
+@pytest.mark.parametrize("by_reference", [False, True], ids=["inline", "by-reference"])
+def test_a_rendered_viewframe_becomes_its_message_and_survives_the_codec(rendered, by_reference):
+    """Inline, the message carries the pixels; by reference it names the cache entry and carries
+    no pixel array, and :meth:`levels.Viewframe.pixels` gives the same arrays either way."""
+    plain, cached, entry = rendered
+    assert plain[1].background is not None and plain[2].background is None
+    for vf, vc in zip(plain, cached):
+        msg = levels.Viewframe.of(vc, entry=entry, count=len(cached)) if by_reference else levels.Viewframe.of(vf)
         assert msg.id() == levels.viewframe_id(vf.index)
         assert msg.pose == [vf.pose.x, vf.pose.y, vf.pose.z, vf.pose.heading_deg, vf.pose.pitch_deg]
-        assert msg.mask.dtype == np.int16 and np.array_equal(msg.mask, vf.mask)
         assert msg.description == vf.description.to_dict()
-        back = levels.Viewframe.from_body(decode(encode(msg.to_body())))
-        np.testing.assert_array_equal(back.image, vf.image)
+        wire = encode(msg.to_body())
+        back = levels.Viewframe.from_body(decode(wire))
         np.testing.assert_array_equal(back.skyline, vf.skyline)
-        assert (back.background is None) == (vf.background is None)
+        if by_reference:
+            assert (back.image, back.mask, back.background) == (None, None, None)
+            assert (back.entry, back.entry_count) == (entry, len(cached))
+            assert len(wire) < vf.image.nbytes / 4  # no pixels on the wire
+        else:
+            assert back.mask.dtype == np.int16 and back.entry is None
+        px = back.pixels(agent="test")
+        np.testing.assert_array_equal(px.image, vf.image)
+        assert px.mask.dtype == np.int16 and np.array_equal(px.mask, vf.mask)
+        assert (px.background is None) == (vf.background is None)
         if vf.background is not None:
-            np.testing.assert_array_equal(back.background, vf.background)
+            np.testing.assert_array_equal(px.background, vf.background)
+
+
+_IMAGE = np.zeros((4, 6, 3), np.uint8)
+_MASK = np.full((4, 6), -1, np.int16)
+BAD_VIEWFRAMES = {
+    "inline-without-image": ({"mask": _MASK}, "image: missing"),
+    "inline-without-mask": ({"image": _IMAGE}, "mask: missing"),
+    "count-without-entry": ({"image": _IMAGE, "mask": _MASK, "entry_count": 3}, "entry_count: given without"),
+    "entry-and-image": ({"image": _IMAGE, "entry": "/e", "entry_count": 3}, "image: a viewframe naming a cache"),
+    "entry-and-background": ({"background": _IMAGE, "entry": "/e", "entry_count": 3}, "background: a viewframe"),
+    "relative-entry": ({"entry": "cache/e", "entry_count": 3}, "entry: must be an absolute path"),
+    "entry-without-count": ({"entry": "/e"}, "entry_count: must be a count above the index 2"),
+    "row-beyond-count": ({"entry": "/e", "entry_count": 2}, "entry_count: must be a count above the index 2"),
+}
+
+
+@pytest.mark.parametrize(("extra", "problem"), BAD_VIEWFRAMES.values(), ids=BAD_VIEWFRAMES.keys())
+def test_a_viewframe_is_inline_or_a_reference_never_both_nor_neither(extra, problem) -> None:
+    body = {"index": 2, "pose": [0.0] * 5, "description": {}, "skyline": np.zeros(3, np.float32), **extra}
+    with pytest.raises(levels.MessageError, match=f"level viewframe hypothesis vf-000002: {problem}"):
+        levels.Viewframe.from_body(body, hypothesis_id="vf-000002")
+
+
+@pytest.mark.parametrize("change", ["deleted", "other-count"])
+def test_pixels_of_a_reference_this_host_cannot_read_name_entry_viewframe_and_agent(rendered, tmp_path, change):
+    """A reference to an entry that is not there (another host, a deleted cache) or not the one it
+    names (another count: stale) is a CacheEntryError naming the entry, the viewframe and the agent."""
+    from models.errors import CacheEntryError
+
+    _, cached, entry = rendered
+    where, count = (str(tmp_path / "gone"), len(cached)) if change == "deleted" else (entry, len(cached) + 4)
+    msg = levels.Viewframe.of(cached[1], entry=where, count=count)
+    with pytest.raises(CacheEntryError) as err:
+        msg.pixels(agent="indexer-7")
+    text = str(err.value)
+    assert text.startswith(f"{where}: agent indexer-7, viewframe vf-000001: ") and "render: {inline: true}" in text

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from blackboard.memory_board import MemoryBlackboard
@@ -81,3 +82,56 @@ def test_a_missing_scenario_file_is_named(tmp_path) -> None:
     with pytest.raises(MAPINTERP_ERRORS, match="nope.yaml"):
         bb.run()
     assert bb.hypotheses(levels.VIEWFRAME) == []
+
+
+#: how the map renderer is told to post the pixels: (scenario render block, environment, option,
+#: cache on, pixels expected inline)
+POSTING = {
+    "cache-by-reference": ({}, {}, {}, True, False),
+    "render-inline": ({"inline": True}, {}, {}, True, True),
+    "inline-viewframes-flag": ({}, {"MAPINTERP_INLINE_VIEWFRAMES": "1"}, {}, True, True),
+    "inline-option": ({}, {}, {"inline": True}, True, True),
+    "no-cache": ({}, {}, {}, False, True),
+}
+
+
+@pytest.mark.parametrize(("render", "env", "option", "cache", "inline"), POSTING.values(), ids=POSTING.keys())
+def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_asked(
+    tmp_path, monkeypatch, small_rendered, render, env, option, cache, inline
+) -> None:
+    """With a cache entry, each viewframe message names the entry and carries no pixel array;
+    with ``render.inline``, ``--inline-viewframes`` (its environment variable), the ``inline``
+    option or without a cache they carry them. Either way the readers get the same pixels."""
+    import yaml
+
+    from blackboard.codec import encode
+    from knowledge_sources.map_renderer import INLINE_ENV
+
+    monkeypatch.delenv(INLINE_ENV, raising=False)
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    if not cache:
+        monkeypatch.setenv("MAPINTERP_CACHE", "off")
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump({**SMALL, **({"render": render} if render else {})}))
+    bb = MemoryBlackboard()
+    bb.add(MapRenderer("map-renderer", **option))
+    levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))
+    bb.run()
+    mp = levels.Map.from_hypothesis(bb.user.get(levels.map_id()))
+    assert (mp.entry is not None) == cache
+    reference = {h.id: levels.Viewframe.from_hypothesis(h).pixels(agent="test") for h in small_rendered["viewframes"]}
+    for h in bb.hypotheses(levels.VIEWFRAME):
+        vf = levels.Viewframe.from_hypothesis(h)
+        if inline:
+            assert vf.entry is None and vf.image is not None and vf.mask is not None
+        else:
+            assert (vf.entry, vf.entry_count) == (mp.entry, mp.viewframes)
+            assert (vf.image, vf.mask, vf.background) == (None, None, None)
+            assert len(encode(h.body)) < 4096  # pose, description and skyline only
+        px, ref = vf.pixels(agent="test"), reference[h.id]
+        for name in ("image", "mask", "background"):
+            a, b = getattr(px, name), getattr(ref, name)
+            assert (a is None) == (b is None), name
+            if a is not None:
+                assert a.dtype == b.dtype and np.array_equal(a, b), name

@@ -245,6 +245,62 @@ def test_an_input_error_met_during_a_run_exits_2_with_one_line(small_data, tmp_p
     assert str(err.value) == f"{path}: sensor.frames[0].image: {image}: not a readable image (PNG or JPEG expected)"
 
 
+#: a viewframe reference an agent cannot follow: the entry is not on this host (another machine
+#: without the shared folder, a deleted cache), or it is not the entry the reference was made for
+UNREADABLE = {"entry-missing": "no such viewframe cache entry", "other-count": "the reference says 99 (stale)"}
+
+
+@pytest.mark.parametrize("agent", ["indexer-0", "detector-house"])
+@pytest.mark.parametrize("change", UNREADABLE, ids=UNREADABLE)
+def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
+    small_rendered, tmp_path, agent: str, change: str
+) -> None:
+    """The viewframes are posted by reference to a cache entry the agent cannot read: the agent
+    dies of it at once (no retry helps) and the run reports the entry, the viewframe and the
+    agent; the run does not hang, nothing crashes."""
+    from tests.knowledge_sources.conftest import inline_viewframe
+
+    vfs = [levels.Viewframe.from_hypothesis(h) for h in small_rendered["viewframes"]]
+    assert all(v.entry is not None for v in vfs)  # the tests' cache: by reference
+    entry, count = (str(tmp_path / "elsewhere"), len(vfs)) if change == "entry-missing" else (vfs[0].entry, 99)
+    with Runtime() as rt:
+        if agent == "indexer-0":
+            rt.add("knowledge_sources.indexer:AssociativeIndexer", name=agent)
+        else:
+            rt.add("knowledge_sources.detector:LandmarkDetectorAgent", name=agent)
+        for v in vfs:
+            forged = levels.Viewframe(
+                index=v.index, pose=v.pose, description=v.description, skyline=v.skyline, entry=entry, entry_count=count
+            )
+            rt.post(levels.VIEWFRAME, forged.to_body(), id=forged.id())
+        if agent == "indexer-0":
+            rt.post(levels.MAP, dict(small_rendered["map"].body), id=levels.map_id())
+            first = 0
+        else:
+            mp = levels.Map.from_hypothesis(small_rendered["map"])
+            first, (lm, _) = next((int(k), next(iter(seen.items()))) for k, seen in mp.visible.items() if seen)
+            landmark = next(x for x in mp.landmarks if x["id"] == lm)
+            image = inline_viewframe(vfs[first]).image
+            rt.post(
+                levels.SENSOR_FRAME, levels.SensorFrame(frame=0, image=image, source="test").to_body(), id="sf-000000"
+            )
+            query = levels.Query(
+                frame=0,
+                number=1,
+                landmark=lm,
+                landmark_index=landmark["index"],
+                kind=landmark["kind"],
+                viewframe=first,
+                p=0.5,
+            )
+            rt.post(levels.QUERY, query.to_body(), id=query.id(), addressed_to=agent, deadline_s=30.0)
+        outcome = rt.run(timeout_s=120)
+    assert list(outcome.input_errors) == [agent] and outcome.agents[agent].startswith("dead")
+    message = outcome.input_errors[agent]
+    assert message.startswith(f"{entry}: agent {agent}, viewframe {levels.viewframe_id(first)}: ")
+    assert UNREADABLE[change] in message and "render: {inline: true}" in message
+
+
 @pytest.mark.parametrize("via", ["flag", "config-file"])
 def test_a_second_run_with_a_run_id_in_use_is_refused_untouched(tmp_path, via: str) -> None:
     endpoint = loopback_endpoint()

@@ -248,3 +248,100 @@ def test_released_pages_of_a_cache_entry_leave_this_process(tmp_path):
     assert _rss_file_kb() - before < touched / 4  # and given back
     assert sum(int(v[::4096].sum()) for v in views) == total and views[5][0] == 99  # still readable, unchanged
     assert release_pages([np.zeros(10), None]) == 0  # arrays not from a memory map are left alone
+
+
+# -- the pixels of one viewframe read from an entry (viewframe messages by reference) ---------------
+
+
+@pytest.fixture(scope="module")
+def entry(tmp_path_factory) -> tuple[Path, list]:
+    """A committed entry of a route whose first viewframe shows the landmark (a background) and
+    whose others may not, and the viewframes rendered without a cache (the reference)."""
+    data = _data(route=[[200, 300], [240, 310], [280, 305], [300, 300], [330, 300]])
+    cache = ViewframeCache(tmp_path_factory.mktemp("pixels"))
+    with World(scenario_from_dict(data), cache=cache) as world:
+        _ = world.viewframes
+        folder = world.entry
+    with World(scenario_from_dict(data), cache=None) as world:
+        rendered = world.viewframes
+    assert folder is not None and {vf.background is None for vf in rendered} == {True, False}
+    return folder, rendered
+
+
+def test_read_pixels_gives_each_row_as_rendered(entry) -> None:
+    folder, rendered = entry
+    for vf in rendered:
+        px = viewframe_cache.read_pixels(folder, vf.index, count=len(rendered))
+        np.testing.assert_array_equal(px.image, vf.image)
+        assert px.mask.dtype == np.int16 and np.array_equal(px.mask, vf.mask)
+        assert (px.background is None) == (vf.background is None)
+        if vf.background is not None:
+            np.testing.assert_array_equal(px.background, vf.background)
+        # copies, not views of the memory map: nothing of the entry stays mapped through them
+        assert px.image.base is None or not isinstance(px.image.base, np.memmap)
+        px.image[:] = 0  # and writing them leaves the entry as it was
+    again = viewframe_cache.read_pixels(folder, 0, count=len(rendered))
+    np.testing.assert_array_equal(again.image, rendered[0].image)
+
+
+def _stale(folder: Path, tmp: Path, what: str) -> tuple[Path, int, int]:
+    """(entry, row, count) of a reference that does not fit: see the cases of the test."""
+    n = len(json.loads((folder / "meta.json").read_text())["values"]["index"])
+    if what == "missing":
+        return tmp / ("0" * 64), 0, n
+    if what == "uncommitted":  # an entry being written: its arrays, no meta.json yet
+        part = tmp / "partial"
+        part.mkdir()
+        for f in folder.glob("*.npy"):
+            (part / f.name).write_bytes(f.read_bytes())
+        return part, 0, n
+    if what == "count":
+        return folder, 0, n + 1
+    if what == "row":
+        return folder, n, n
+    if what == "relative":
+        return Path(folder.name), 0, n
+    if what == "format":
+        other = tmp / "format"
+        other.mkdir()
+        (other / "meta.json").write_text(json.dumps({"format": 99, "count": n}))
+        return other, 0, n
+    raise AssertionError(what)
+
+
+STALE = {
+    "missing": "no such viewframe cache entry",
+    "uncommitted": "not a committed viewframe cache entry",
+    "count": "the entry holds 5 viewframes, the reference says 6",
+    "row": r"row 5 out of range \[0, 5\)",
+    "relative": "absolute path",
+    "format": "entry format 99",
+}
+
+
+@pytest.mark.parametrize("what", STALE, ids=STALE)
+def test_read_pixels_of_a_stale_or_forged_reference_names_the_entry(entry, tmp_path, what) -> None:
+    from models.errors import CacheEntryError
+
+    folder, _ = entry
+    where, row, count = _stale(folder, tmp_path, what)
+    with pytest.raises(CacheEntryError, match=STALE[what]) as err:
+        viewframe_cache.read_pixels(where, row, count=count)
+    assert str(err.value).startswith(str(where)) and err.value.path == where
+
+
+def test_at_most_a_few_entries_stay_open(entry, tmp_path) -> None:
+    """Each entry read is opened once per process; only the last OPEN_ENTRIES stay open."""
+    folder, rendered = entry
+    copies = []
+    for i in range(viewframe_cache.OPEN_ENTRIES + 2):
+        copy = tmp_path / f"copy{i}"
+        copy.mkdir()
+        for f in folder.iterdir():
+            (copy / f.name).write_bytes(f.read_bytes())
+        copies.append(copy)
+        viewframe_cache.read_pixels(copy, 1, count=len(rendered))
+        viewframe_cache.read_pixels(copy, 2, count=len(rendered))
+    opened = list(viewframe_cache._open)
+    assert opened[-viewframe_cache.OPEN_ENTRIES :] == copies[-viewframe_cache.OPEN_ENTRIES :]
+    assert len(opened) == viewframe_cache.OPEN_ENTRIES and copies[0] not in opened
