@@ -218,7 +218,7 @@ def banks(count: int) -> dict:
 
 
 _CHILD = """
-import cProfile, json, resource, sys, time
+import cProfile, json, os, resource, sys, time
 import numpy as np
 from knowledge_sources.mission import run_mission
 opts = json.loads(sys.argv[3])
@@ -246,15 +246,32 @@ def timed(self):
 AgentRunner._run_one = timed
 t0 = time.perf_counter()
 ranked = {}  # (source, shard) -> [viewframes ranked per ranking]
+marks = {}  # "map_s": the map posted, "indexed_s": the last shard's index posted (s from t0)
+indexed = set()
+def peak_mb():
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 def seen(level, body, stamp):
     if level == "ranking":
         ranked.setdefault((body.get("source", "associative"), body["shard"]), []).append(len(body["viewframes"]))
+    elif level == "viewframe" and "by_reference" not in marks:  # pixels in the message or in the cache entry
+        marks["by_reference"] = body.get("entry") is not None
+    elif level == "map":
+        marks["map_s"] = time.perf_counter() - t0
+        marks["viewframes"] = body["viewframes"]
+        marks["shards"] = -(-body["viewframes"] // body["memory"]["shard_size"])
+    elif level == "index":
+        indexed.add(body["shard"])
+        if len(indexed) == marks.get("shards"):
+            marks["indexed_s"] = time.perf_counter() - t0
+            if opts.get("setup_only"):  # the map is up: report and stop here (the trace ends here too)
+                print(json.dumps({"peak_rss_mb": peak_mb(), "setup_s": marks["indexed_s"],
+                                  "wall_s": marks["indexed_s"], **marks}), flush=True)
+                os._exit(0)
 res = run_mission(sys.argv[1], trace_path=sys.argv[2], paced=opts["paced"], on_hypothesis=seen)
 if opts.get("results"):  # the mission's results file, frame by frame (as mapinterp run --out writes it)
     from knowledge_sources.results import write_results
     write_results(opts["results"], res)
 if profiles:
-    import os
     os.makedirs(opts["profile"], exist_ok=True)
     for name, prof in profiles.items():
         prof.dump_stats(os.path.join(opts["profile"], name + ".prof"))
@@ -262,7 +279,7 @@ wall = time.perf_counter() - t0
 s = res["summary"]
 lat = [f["latency_ms"] for f in res["frames"] if f["latency_ms"] is not None]
 windows = [f for f in res["frames"] if f.get("state") == "tracking"]
-print(json.dumps({"peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "wall_s": wall,
+print(json.dumps({"peak_rss_mb": peak_mb(), "wall_s": wall, **marks,
                   "setup_s": wall - (s["localization_s"] or 0.0), "frames": s["frames"], "top1": s["top1"],
                   "top1_frame_only": s["top1_frame_only"], "mean_error_m": s["mean_error_m"],
                   "tracking_frames": s["tracking"], "localization_s": s["localization_s"],
@@ -298,22 +315,37 @@ def drive_scenario(path: Path, *, frames: int, overrides: dict[str, object] | No
     return out
 
 
-def mission(path: Path, cache: str, trace: Path, *, paced: bool = False, profile: Path | None = None) -> dict:
+def mission(
+    path: Path,
+    cache: str,
+    trace: Path,
+    *,
+    paced: bool = False,
+    profile: Path | None = None,
+    setup_only: bool = False,
+    checkout: Path | None = None,
+) -> dict:
     """One whole mission in a child process (every agent in it); ``paced``: the camera posts
     each frame once the previous frame's track (tracking on) is posted, else all at once (burst);
     ``profile``: a folder for one cProfile per agent of its activations on the localization levels
-    (camera frames onwards; each agent's own thread), and each agent's busy seconds in them."""
-    env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl"}
+    (camera frames onwards; each agent's own thread), and each agent's busy seconds in them;
+    ``setup_only``: the child stops once every shard's index is posted (the map is up), reporting
+    the setup time and the peak RSS until then; ``checkout``: run another checkout's code (e.g.
+    main's, for a before and after; default this one). Besides ``setup_s`` (until the first
+    frame) the result has ``map_s`` (the map posted) and ``indexed_s`` (the last index posted)."""
+    cwd = (checkout or HERE.parent).resolve()
+    env = {**os.environ, "MAPINTERP_CACHE": cache, "PYOPENGL_PLATFORM": "egl", "PYTHONPATH": str(cwd)}
     opts = {
         "paced": paced,
         "profile": None if profile is None else str(profile),
         "results": str(trace.with_suffix(".json")),
+        "setup_only": setup_only,
     }
     out = _child(
         _CHILD,
         [str(path), str(trace), json.dumps(opts)],
-        what="mission run",
-        cwd=HERE.parent,
+        what=f"mission run ({cwd})",
+        cwd=cwd,
         env=env,
         timeout=3600,
         log=trace.with_suffix(".log"),
@@ -336,8 +368,23 @@ def _print_drives(n: str, r: dict) -> None:
     drives = {k: v for k, v in r.items() if k.startswith("mission drive")}
     if not drives:
         return
+    if all("frames" not in m for m in drives.values()):  # --setup-only
+        print(f"route of {n} viewframes, setup of drive missions (cache filled), until the map is up")
+        head = ("run", "map s", "indexed s", "peak RSS MB", "by ref", "load")
+        print(f"  {head[0]:<44}" + "".join(f"{h:>12}" for h in head[1:]))
+        for label, m in drives.items():
+            cells = (
+                f"{m['map_s']:.1f}",
+                f"{m['indexed_s']:.1f}",
+                f"{m['peak_rss_mb']:.0f}",
+                m.get("by_reference"),
+                f"{m['load_avg'][0]:.1f}",
+            )
+            print(f"  {label[len('mission ') :]:<44}" + "".join(f"{c!s:>12}" for c in cells))
+        return
     print(f"route of {n} viewframes, drive missions (paced on the track, cache filled)")
-    head = ("run", "frames", "frames/s", "p50 ms", "p95 ms", "top-1", "frame-only", "tracking", "setup s", "load")
+    head = ("run", "frames", "frames/s", "p50 ms", "p95 ms", "top-1", "frame-only", "tracking", "map s", "indexed s")
+    head += ("setup s", "peak MB", "load")
     print(f"  {head[0]:<44}" + "".join(f"{h:>11}" for h in head[1:]))
     for label, m in drives.items():
         cells = (
@@ -348,7 +395,10 @@ def _print_drives(n: str, r: dict) -> None:
             f"{m['top1']:.1%}" if m["top1"] is not None else "-",
             f"{m['top1_frame_only']:.1%}" if m["top1_frame_only"] is not None else "-",
             m["tracking_frames"],
+            f"{m['map_s']:.1f}" if "map_s" in m else "-",
+            f"{m['indexed_s']:.1f}" if "indexed_s" in m else "-",
             f"{m['setup_s']:.0f}",
+            f"{m['peak_rss_mb']:.0f}",
             f"{m['load_avg'][0]:.1f}",
         )
         print(f"  {label[len('mission ') :]:<44}" + "".join(f"{c!s:>11}" for c in cells))
@@ -511,7 +561,22 @@ def main(argv: list[str] | None = None) -> int:
         "--holders", action="store_true", help="only who holds what in a whole mission (a child process, cache filled)"
     )
     parser.add_argument(
-        "--baseline", type=Path, help="with --holders: also run it with this checkout's code (e.g. main)"
+        "--baseline",
+        type=Path,
+        help="also run with this checkout's code (e.g. a worktree of main): with --holders, its holders run; "
+        "with drive missions, each drive mission alternating baseline and this checkout (--repeat times)",
+    )
+    parser.add_argument(
+        "--repeat",
+        type=int,
+        default=1,
+        help="drive: run each drive mission this many times (alternating with --baseline)",
+    )
+    parser.add_argument(
+        "--setup-only",
+        action="store_true",
+        help="drive: each mission stops once the map is up (every shard's index posted): setup time and peak RSS "
+        "until then",
     )
     args = parser.parse_args(argv)
     results: dict = {
@@ -576,12 +641,24 @@ def main(argv: list[str] | None = None) -> int:
                 runs = {"drive": {}}
                 for variant in args.variant:
                     runs["drive " + " ".join(f"{k}={v}" for k, v in variant)] = dict(variant)
+                checkouts: list[tuple[str, Path | None]] = [("", None)]
+                if args.baseline is not None:
+                    checkouts = [(" [baseline]", args.baseline), (" [this]", None)]
                 for i, (label, overrides) in enumerate(runs.items()):
                     drive = drive_scenario(path, frames=args.frames, overrides=overrides)
                     prof = args.profile / str(n) if args.profile is not None and i == 0 else None
-                    r[f"mission {label}"] = mission(
-                        drive, drive_cache, tmp / f"drive{n}.trace", paced=True, profile=prof
-                    )
+                    for rep in range(args.repeat):
+                        for tag, checkout in checkouts:  # alternating: the same load on both
+                            name = f"mission {label}{tag}" + (f" #{rep + 1}" if args.repeat > 1 else "")
+                            r[name] = mission(
+                                drive,
+                                drive_cache,
+                                tmp / f"drive{n}.trace",
+                                paced=True,
+                                profile=prof if rep == 0 and checkout is None else None,
+                                setup_only=args.setup_only,
+                                checkout=checkout,
+                            )
             results["routes"][str(n)] = r
     results["machine"]["load_avg_end"] = os.getloadavg()
     results["machine"]["peak_rss_bench_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -92,9 +92,12 @@ def default_cache_root() -> Path | None:
 #: Linux madvise(2) MADV_PAGEOUT (5.4 and later; Python's mmap module may not name it)
 _MADV_PAGEOUT = getattr(mmap, "MADV_PAGEOUT", 21)
 _MADV_DONTNEED = getattr(mmap, "MADV_DONTNEED", 4)
+#: the bytes around a faulting address that Linux maps too when they are in the page cache
+#: (``fault_around_bytes``, 64 KiB by default): what :func:`read_pixels` gives back besides the row
+FAULT_AROUND = 64 * 1024
 
 
-def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PAGEOUT) -> int:
+def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PAGEOUT, margin: int = 0) -> int:
     """Give back the resident pages of arrays read from a cache entry (memory-mapped), e.g. once a
     batch of viewframes is posted: the kernel drops them from this process (``MADV_PAGEOUT``)
     and reads them from the file again if they are used again; nothing is lost, written
@@ -102,7 +105,10 @@ def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PA
     give a batch of neighbouring rows at once (the kernel keeps a page-cache folio only partly
     in the span). Arrays not backed by a memory map are left alone; where the system does not
     support it, nothing happens. ``advice``: ``mmap.MADV_DONTNEED`` for a read-only map (the pages
-    leave this process, the page cache keeps them). Returns the bytes advised."""
+    leave this process, the page cache keeps them). ``margin``: bytes more on either side of the
+    span, within the map (a page fault maps the neighbouring pages already cached too, up to
+    :data:`FAULT_AROUND` bytes: a row read alone leaves its neighbours' pages mapped otherwise).
+    Returns the bytes advised."""
     spans: dict[int, tuple[mmap.mmap, int, int]] = {}
     for a in arrays:
         base = a
@@ -118,10 +124,11 @@ def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PA
     for mm, lo, hi in spans.values():
         try:
             start = np.frombuffer(mm, dtype=np.uint8, count=1).ctypes.data
-            rel = lo - start
+            rel = max(0, lo - margin - start)
             rel -= rel % mmap.PAGESIZE
-            mm.madvise(advice, rel, hi - start - rel)
-            done += hi - start - rel
+            end = min(len(mm), hi + margin - start)
+            mm.madvise(advice, rel, end - rel)
+            done += end - rel
         except (OSError, ValueError, TypeError, AttributeError):
             continue
     return done
@@ -497,7 +504,7 @@ class _EntryPixels:
                 return None
             view = self._stacked[name][row]
             out = np.array(view)  # a copy: the mapped pages are given back below
-            release_pages([view], advice=_MADV_DONTNEED)
+            release_pages([view], advice=_MADV_DONTNEED, margin=FAULT_AROUND)
             return out
         if name in self._ragged:
             if not self._ragged[name][row]:
