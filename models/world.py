@@ -31,6 +31,7 @@ from models.scenario import Scenario, load_scenario
 from models.sensor import SensorFrame, frames_from_files, simulate_frames
 from models.symbolic import landmark_priors
 from models.terrain import Terrain
+from models.terrain_sources import scenario_terrain
 from models.viewframe_cache import ViewframeCache, cache_key
 from models.viewframes import Viewframe, render_viewframes, render_viewframes_parallel, route_poses
 
@@ -84,9 +85,15 @@ class World:
 
     # -- the parts, each built on first use ------------------------------------------------
     @cached_property
+    def terrain(self) -> Terrain:
+        """The scenario's terrain (heights and cell size), loaded without building any mesh: the
+        viewframe cache's key and the route poses need only it."""
+        return self._terrain if self._terrain is not None else scenario_terrain(self.scenario)
+
+    @cached_property
     def environment(self) -> EnvironmentModel:
         """F* = T(F, L): the terrain and the placed landmarks, as meshes for rendering."""
-        return build_environment(self.scenario, terrain=self._terrain, **self._lod)
+        return build_environment(self.scenario, terrain=self.terrain, **self._lod)
 
     @property
     def emulator(self) -> CameraEmulator:
@@ -98,7 +105,7 @@ class World:
     @cached_property
     def poses(self) -> list[Pose]:
         """The camera pose at every route point (:func:`models.viewframes.route_poses`)."""
-        return route_poses(self.scenario, self.environment.terrain)
+        return route_poses(self.scenario, self.terrain)
 
     @cached_property
     def viewframes(self) -> list[Viewframe]:
@@ -109,7 +116,8 @@ class World:
         rendered arrays are never all in memory (without a cache they are)."""
         key = None
         if self.cache is not None:
-            key = cache_key(self.scenario, self.environment.terrain, lod=self._lod)
+            # the terrain alone, not the environment's meshes: a hit renders nothing
+            key = cache_key(self.scenario, self.terrain, lod=self._lod)
             cached = self.cache.load(key)
             if cached is not None:
                 if self._progress is not None:
