@@ -216,6 +216,9 @@ def _body_summary(r: TraceRecord) -> str:
         where = f" in viewframe {body['viewframe']}" if "viewframe" in body else ""
         verdict = {True: "present", False: "absent"}.get(body["present"], "uncertain")
         return f"{body.get('landmark', '?')} {verdict}{score}{where}"
+    if r.get("level") == "viewframe" and isinstance(body.get("entry"), str):  # pixels by reference
+        entry = body["entry"].rstrip("/").rsplit("/", 1)[-1]
+        return f"index={body.get('index')} pixels in cache entry {entry[:16]} (row {body.get('index')} of {body.get('entry_count')})"
     shown = []
     for key, value in body.items():
         if isinstance(value, bool) or value is None or isinstance(value, (int, str)):

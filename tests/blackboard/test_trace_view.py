@@ -118,3 +118,16 @@ def test_timeline_and_json() -> None:
     back = json.loads(to_json(summarize(RECORDS)))
     assert back["agents"]["ranker"]["posts"] == 2
     assert json.loads(to_json([{"b": b"xyz"}])) == [{"b": {"__bytes__": 3}}]
+
+
+@pytest.mark.parametrize("by_reference", [False, True], ids=["inline", "by-reference"])
+def test_a_viewframe_by_reference_reads_as_its_entry_and_row(by_reference: bool) -> None:
+    """A viewframe posted by reference to a cache entry shows the entry's key and its row, not the
+    pixel fields it leaves out; an inline one its scalar fields as any post."""
+    entry = "/cache/mapinterp/430201c04bb23e34b89d8db100d61ceb489f8c8fb4851def4e034a2024cb6ec1"
+    body = {"index": 7, "entry": entry, "entry_count": 10, "image": None} if by_reference else {"index": 7}
+    text = render_timeline([_post(1, "map-renderer", "viewframe", "vf-000007", **body)])
+    if by_reference:
+        assert "index=7 pixels in cache entry 430201c04bb23e34 (row 7 of 10)" in text and "image" not in text
+    else:
+        assert "index=7" in text and "cache entry" not in text
