@@ -22,7 +22,11 @@ the map is up. Per run: frames/s, latency p50/p95, top-1 of the track and of the
 decisions, each agent's CPU seconds per frame in its activations on the localization levels,
 how many rankings were windowed; ``--variant block.field=value`` adds runs with other scenario
 settings (a change turned off, for a ratio in one run); ``--profile DIR`` writes a cProfile per
-agent. With ``--mission burst`` (the first version of this benchmark), frames at every
+agent; every drive mission also reports when the map was posted (``map_s``) and when the last
+shard's index was (``indexed_s``: the map is up), and its peak RSS. ``--baseline DIR`` runs every
+drive mission with that checkout's code too (e.g. a worktree of main), alternating with this one
+``--repeat`` times, for a before and after in one run; ``--setup-only`` stops each mission once
+the map is up (setup time and peak RSS of the setup alone). With ``--mission burst`` (the first version of this benchmark), frames at every
 (route / frames)-th route point are posted at once, cold and warm: peak RSS (``ru_maxrss``), map
 and setup time, frames/s and the trace file's size, once with the cache off (cold) and once with
 a filled cache (warm).
@@ -42,7 +46,7 @@ in complex128 and complex64), in fresh child processes.
 
     python bench/scale.py [--sizes 1000 2000] [--frames 20] [--no-mission] [--banks-only] [--json-only]
         [--mission drive|burst] [--no-components] [--cache-dir DIR] [--variant a.b=v ...] [--profile DIR]
-        [--holders [--baseline /work/main]]
+        [--baseline DIR [--repeat N]] [--setup-only] [--holders [--baseline /work/main]]
 """
 
 from __future__ import annotations
