@@ -52,6 +52,14 @@ def samples(width: int, height: int, viewframes: int) -> dict[str, levels.Messag
             description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]},
             skyline=np.zeros(width // 2, np.float32),
         ),
+        "viewframe (ref)": levels.Viewframe(  # the pixels in the cache entry it names (a warm run's)
+            index=3,
+            pose=[1.0, 2.0, 2.0, 90.0, 0.0],
+            description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]},
+            skyline=np.zeros(width // 2, np.float32),
+            entry="/home/user/.cache/mapinterp/" + "0" * 64,
+            entry_count=viewframes,
+        ),
         "ranking": levels.Ranking(
             frame=3,
             frame_time=1.0,
@@ -120,12 +128,12 @@ def main(argv: list[str] | None = None) -> int:
         )
     print(json.dumps({"size": [width, height], "ranking_entries": args.viewframes, "rows": rows}))
     print(
-        f"{'level':13} {'bytes':>8} {'make+to_body us':>16} {'from_body us':>13} {'encode+decode us':>17} "
+        f"{'level':15} {'bytes':>8} {'make+to_body us':>16} {'from_body us':>13} {'encode+decode us':>17} "
         f"{'typed/codec':>12}"
     )
     for r in rows:
         print(
-            f"{r['level']:13} {r['bytes']:8d} {r['make_to_body_us']:16.2f} {r['from_body_us']:13.2f} "
+            f"{r['level']:15} {r['bytes']:8d} {r['make_to_body_us']:16.2f} {r['from_body_us']:13.2f} "
             f"{r['codec_us']:17.2f} {r['overhead']:12.2f}"
         )
     return 0
