@@ -469,7 +469,7 @@ class _EntryPixels:
         if not meta_path.is_file():
             raise CacheEntryError(folder, "not a committed viewframe cache entry (no meta.json)")
         try:
-            meta = json.loads(meta_path.read_text())
+            meta = _meta_head(meta_path.read_text(), ("format", "count", "arrays", "absent", "ragged"))
         except (OSError, ValueError) as err:
             raise CacheEntryError(folder, f"unreadable meta.json: {err}") from None
         if not isinstance(meta, dict) or meta.get("format") != _FORMAT:
@@ -520,6 +520,32 @@ class _EntryPixels:
         if image is None or mask is None:
             raise CacheEntryError(self.folder, f"row {row} holds no image or no mask")
         return Pixels(image=image, mask=mask.astype(np.int16, copy=False), background=self._row("background", row))
+
+
+def _meta_head(text: str, keys: Sequence[str]) -> dict[str, Any]:
+    """The members ``keys`` of the JSON object ``text`` (a ``meta.json``), parsed member by member
+    until all are seen: the per-viewframe ``values`` (the descriptions: most of the file, 26 MB at
+    10,000 viewframes) come last and are not parsed; ValueError on malformed JSON."""
+    decoder = json.JSONDecoder()
+    ws = json.decoder.WHITESPACE.match  # type: ignore[attr-defined]
+    out: dict[str, Any] = {}
+    i = ws(text, 0).end()
+    if text[i : i + 1] != "{":
+        raise ValueError("meta.json is not a JSON object")
+    i = ws(text, i + 1).end()
+    while text[i : i + 1] != "}" and not set(keys) <= set(out):
+        key, i = decoder.raw_decode(text, i)
+        i = ws(text, i).end()
+        if text[i : i + 1] != ":":
+            raise ValueError(f"meta.json: expected ':' at character {i}")
+        value, i = decoder.raw_decode(text, ws(text, i + 1).end())
+        out[key] = value
+        i = ws(text, i).end()
+        if text[i : i + 1] == ",":
+            i = ws(text, i + 1).end()
+        elif text[i : i + 1] != "}":
+            raise ValueError(f"meta.json: expected ',' or '}}' at character {i}")
+    return out
 
 
 _open: OrderedDict[Path, _EntryPixels] = OrderedDict()

@@ -345,3 +345,28 @@ def test_at_most_a_few_entries_stay_open(entry, tmp_path) -> None:
     opened = list(viewframe_cache._open)
     assert opened[-viewframe_cache.OPEN_ENTRIES :] == copies[-viewframe_cache.OPEN_ENTRIES :]
     assert len(opened) == viewframe_cache.OPEN_ENTRIES and copies[0] not in opened
+
+
+META_HEADS = {
+    "values-last": ('{"format": 2, "count": 3, "values": {"x": [1, 2, 3]}}', {"format": 2, "count": 3}),
+    "values-first": (
+        '{"values": {"x": [1]}, "count": 3, "format": 2}',
+        {"values": {"x": [1]}, "count": 3, "format": 2},
+    ),
+    "spaces": (' {\n "format" : 2 ,\n "count":3 } ', {"format": 2, "count": 3}),
+    "key-missing": ('{"format": 2}', {"format": 2}),
+}
+
+
+@pytest.mark.parametrize(("text", "head"), META_HEADS.values(), ids=META_HEADS.keys())
+def test_the_head_of_meta_json_is_parsed_up_to_the_keys_asked(text, head) -> None:
+    """A reader of pixels parses meta.json only up to the keys it needs (the descriptions, most of
+    the file, come last): the same values as a whole parse."""
+    assert viewframe_cache._meta_head(text, ("format", "count")) == head
+    assert all(json.loads(text)[k] == v for k, v in head.items())
+
+
+@pytest.mark.parametrize("text", ["[1, 2]", '{"format" 2}', '{"format": 2 "count": 3}', '{"format": 2, "count"'])
+def test_a_malformed_meta_json_head_is_a_value_error(text) -> None:
+    with pytest.raises(ValueError):
+        viewframe_cache._meta_head(text, ("format", "count"))
