@@ -64,11 +64,20 @@ class MapRenderer(KnowledgeSource):
         if entry is not None and not by_reference:
             log.info("%s: viewframe pixels posted inline (render.inline), not by reference to %s", self.name, entry)
         poses = []
+        # per viewframe: {landmark id: pixels} and {landmark id: placement}, from the description's
+        # plain data (a description read from the cache builds no graph for them)
+        visible: dict[str, dict[str, int]] = {}
+        placements: dict[str, dict[str, list[float]]] = {}
+        fov_y_deg = scenario.camera.fov_y_deg
         for k, vf in enumerate(viewframes):
             message = (
                 levels.Viewframe.of(vf, entry=entry, count=len(viewframes)) if by_reference else levels.Viewframe.of(vf)
             )
             poses.append(message.pose)
+            nodes = message.description["nodes"]
+            shown = message.description["visible"]
+            visible[str(vf.index)] = {n: int(nodes[n]["pixels"]) for n in shown}
+            placements[str(vf.index)] = {n: list(_placement(nodes[n], vf.image.shape, fov_y_deg)) for n in shown}
             levels.post(
                 board,
                 message,
@@ -84,7 +93,8 @@ class MapRenderer(KnowledgeSource):
                 # flow control: a read is answered once the node has received every post this agent
                 # sent (the read barrier), so the node's queue holds at most a batch of viewframes; a
                 # renderer reading a filled cache outruns the node, whose queue of 150 KB messages
-                # otherwise grew by gigabytes on a route of 10,000 viewframes
+                # (inline) otherwise grew by gigabytes on a route of 10,000 viewframes (by reference
+                # a message is about 3 KB, and the subscribers' queues stay short too)
                 board.get(levels.viewframe_id(k))
         levels.post(
             board,
@@ -99,17 +109,8 @@ class MapRenderer(KnowledgeSource):
                 ],
                 route=[[float(x), float(y)] for x, y in scenario.route],
                 poses=poses,
-                visible={
-                    str(vf.index): {n: int(vf.description.graph.nodes[n]["pixels"]) for n in vf.description.visible}
-                    for vf in viewframes
-                },
-                placements={
-                    str(vf.index): {
-                        n: list(_placement(vf.description.graph.nodes[n], vf.image.shape, scenario.camera.fov_y_deg))
-                        for n in vf.description.visible
-                    }
-                    for vf in viewframes
-                },
+                visible=visible,
+                placements=placements,
                 memory=scenario.memory.model_dump(),
                 entry=entry,
             ),
@@ -124,7 +125,8 @@ def _env_inline() -> bool:
 
 
 def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:
-    """A symbolic description node's placement (:mod:`models.placement`): centroid and pixels."""
+    """A symbolic description node's placement (:mod:`models.placement`) from its ``centroid``
+    (row, col) and ``pixels`` (a node of the description's plain data, SymbolicDescription.to_dict)."""
     from models.placement import placement
 
     row, col = node["centroid"]

@@ -50,10 +50,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from models.errors import CacheEntryError
+from models.symbolic import SymbolicDescription
 from models.viewframes import Viewframe
 
 __all__ = [
     "RENDERER_VERSION",
+    "StoredDescription",
     "RENDERER_MODULES",
     "CACHE_ENV",
     "EntryWriter",
@@ -193,6 +195,49 @@ def _encode(value: Any) -> Any:
     raise TypeError(f"cannot store a {type(value).__name__} in the viewframe cache")
 
 
+class StoredDescription(SymbolicDescription):
+    """A symbolic description read from a cache entry: its graph is built from the stored data on
+    first use of :attr:`graph`; until then :attr:`visible` and :meth:`to_dict` answer from the data
+    (a warm run's map renderer needs nothing else of most viewframes: building 10,000 graphs and
+    turning them back into plain data cost it about 20 s on the loaded 2-core machine). The data
+    is checked for its shape when read; its values when the graph is built (ValueError)."""
+
+    def __init__(self, data: dict[str, Any]) -> None:  # no super().__init__: the graph is built later
+        if not (
+            isinstance(data, dict)
+            and isinstance(data.get("visible"), list)
+            and isinstance(data.get("nodes"), dict)
+            and isinstance(data.get("edges"), list)
+            and set(data["visible"]) == set(data["nodes"])
+        ):
+            raise ValueError(f"malformed symbolic description: {str(data)[:200]}")
+        self._data: dict[str, Any] | None = data
+        self._graph: Any = None
+
+    @property
+    def graph(self) -> Any:
+        if self._graph is None:
+            assert self._data is not None
+            self._graph = SymbolicDescription.from_dict(self._data).graph
+            self._data = None  # the graph is the description from now on
+        return self._graph
+
+    @graph.setter
+    def graph(self, value: Any) -> None:
+        self._graph, self._data = value, None
+
+    @property
+    def visible(self) -> list[str]:
+        if self._data is not None:
+            return list(self._data["visible"])
+        return super().visible
+
+    def to_dict(self) -> dict[str, Any]:
+        if self._data is not None:
+            return dict(self._data)
+        return super().to_dict()
+
+
 def _decode(data: Any, kind: Any) -> Any:
     """Inverse of :func:`_encode` for a field declared as ``kind``."""
     if data is None:
@@ -205,6 +250,8 @@ def _decode(data: Any, kind: Any) -> Any:
         if dataclasses.is_dataclass(kind):
             hints = typing.get_type_hints(kind)
             return kind(**{k: _decode(v, hints.get(k, Any)) for k, v in data.items()})
+        if kind is SymbolicDescription:
+            return StoredDescription(data)
         if hasattr(kind, "from_dict"):
             return kind.from_dict(data)
         if kind is tuple:

@@ -120,6 +120,10 @@ def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_aske
     bb.run()
     mp = levels.Map.from_hypothesis(bb.user.get(levels.map_id()))
     assert (mp.entry is not None) == cache
+    # the map is the same however its viewframes came (rendered, or read with their descriptions' data)
+    first = levels.Map.from_hypothesis(small_rendered["map"])
+    for name in ("viewframes", "priors", "poses", "visible", "placements", "landmarks"):
+        assert getattr(mp, name) == getattr(first, name), name
     reference = {h.id: levels.Viewframe.from_hypothesis(h).pixels(agent="test") for h in small_rendered["viewframes"]}
     for h in bb.hypotheses(levels.VIEWFRAME):
         vf = levels.Viewframe.from_hypothesis(h)

@@ -370,3 +370,32 @@ def test_the_head_of_meta_json_is_parsed_up_to_the_keys_asked(text, head) -> Non
 def test_a_malformed_meta_json_head_is_a_value_error(text) -> None:
     with pytest.raises(ValueError):
         viewframe_cache._meta_head(text, ("format", "count"))
+
+
+def test_a_description_read_from_an_entry_builds_its_graph_on_first_use(entry) -> None:
+    """Read back, a viewframe's description answers ``visible`` and ``to_dict`` from the stored
+    data, and builds the same graph as the rendered one's when it is first asked for."""
+    from models.viewframe_cache import StoredDescription
+
+    folder, rendered = entry
+    back = ViewframeCache(folder.parent).load(folder.name)
+    assert back is not None
+    for vf, vr in zip(back, rendered):
+        d = vf.description
+        assert isinstance(d, StoredDescription) and d._graph is None
+        assert d.visible == vr.description.visible and d.to_dict() == vr.description.to_dict() and d == vr.description
+        assert d._graph is None  # none of these built it
+        g, gr = d.graph, vr.description.graph
+        assert dict(g.nodes(data=True)) == dict(gr.nodes(data=True)) and list(g.edges) == list(gr.edges)
+        assert d.visible == vr.description.visible and d.to_dict() == vr.description.to_dict()
+
+
+@pytest.mark.parametrize(
+    "data",
+    [[], {"visible": ["H1"], "nodes": {}, "edges": []}, {"visible": [], "nodes": {}}, {"visible": "H1", "nodes": {}}],
+)
+def test_a_malformed_stored_description_is_a_value_error(data) -> None:
+    from models.viewframe_cache import StoredDescription
+
+    with pytest.raises(ValueError, match="malformed symbolic description"):
+        StoredDescription(data)
