@@ -904,6 +904,9 @@ def _georeferenced(scenario: Scenario, path: Path | None) -> Scenario:
     return out
 
 
+_YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file; raises :class:`ScenarioError`."""
     path = Path(path)
@@ -914,7 +917,9 @@ def load_scenario(path: str | Path) -> Scenario:
     except (OSError, UnicodeDecodeError) as exc:
         raise ScenarioError(path, None, f"cannot read: {exc}") from None
     try:
-        data = yaml.safe_load(text)
+        # libyaml's parser where PyYAML has it (the same data and error marks, about 4x faster:
+        # a generated route of 10,000 points is a 350 KB file, read by several agents of a run)
+        data = yaml.load(text, Loader=_YAML_LOADER)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
