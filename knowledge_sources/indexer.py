@@ -75,8 +75,8 @@ class AssociativeIndexer(RouteRanker):
         self.block = None if block is None else int(block)
         # the shard's viewframe images until the map is complete: inline ones zlib-compressed (a
         # long route's images would otherwise be resident at once: about 57 KB each at 160 x 120),
-        # by reference the message (its pixels are read from the cache entry as they are indexed)
-        self._images: dict[int, tuple[bytes, tuple[int, ...], str] | levels.Viewframe] = {}
+        # by reference where they are (read from the cache entry as they are indexed)
+        self._images: dict[int, tuple[bytes, tuple[int, ...], str] | levels.PixelsRef] = {}
         self._index: ViewframeIndex | None = None
 
     def mine(self, index: int) -> bool:
@@ -86,15 +86,16 @@ class AssociativeIndexer(RouteRanker):
         return index % self.shards == self.shard
 
     def keep(self, viewframe: levels.Viewframe) -> None:
-        if viewframe.entry is not None:
-            self._images[viewframe.index] = viewframe
+        ref = viewframe.reference()
+        if ref is not None:
+            self._images[viewframe.index] = ref
             return
         image = np.ascontiguousarray(viewframe.pixels(agent=self.name).image)
         self._images[viewframe.index] = (zlib.compress(image.data, 1), image.shape, image.dtype.str)
 
     def _image(self, k: int) -> np.ndarray:
         kept = self._images.pop(k)
-        if isinstance(kept, levels.Viewframe):
+        if isinstance(kept, levels.PixelsRef):
             return kept.pixels(agent=self.name).image
         data, shape, dtype = kept
         return np.frombuffer(zlib.decompress(data), dtype=dtype).reshape(shape)

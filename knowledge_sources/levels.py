@@ -70,6 +70,7 @@ __all__ = [
     "MessageError",
     "POSITION",
     "POSE",
+    "PixelsRef",
     "Pose",
     "Position",
     "QUERY",
@@ -480,25 +481,23 @@ class Viewframe(Message):
     def pixels(self, *, agent: str) -> Pixels:
         """The viewframe's image, mask and background (:class:`models.viewframe_cache.Pixels`): the
         message's own arrays when inline, else read from the cache entry it names (memory-mapped,
-        opened once per process; copies). :class:`models.errors.CacheEntryError` naming the entry,
-        this viewframe and ``agent`` (the reader) when this host cannot read the entry or it is not
-        the one the reference names (another count: stale)."""
-        from models.errors import CacheEntryError
-        from models.viewframe_cache import Pixels, read_pixels
+        opened once per process; copies; see :meth:`PixelsRef.pixels` for the errors)."""
+        from models.viewframe_cache import Pixels
 
-        if self.entry is None:
+        ref = self.reference()
+        if ref is None:
             assert self.image is not None and self.mask is not None  # __post_init__
             return Pixels(image=self.image, mask=self.mask, background=self.background)
+        return ref.pixels(agent=agent)
+
+    def reference(self) -> PixelsRef | None:
+        """Where this viewframe's pixels are when it names a cache entry (None: inline): all an
+        agent need keep of it to read them later (a decoded message is about 18 KB, mostly its
+        description; a reference about 100 bytes)."""
+        if self.entry is None:
+            return None
         assert self.entry_count is not None  # __post_init__
-        try:
-            return read_pixels(self.entry, self.index, count=self.entry_count)
-        except CacheEntryError as err:
-            raise CacheEntryError(
-                err.path,
-                f"agent {agent}, viewframe {self.id()}: {err.message}. The map renderer posts viewframes by "
-                "reference to its viewframe cache: every agent's host must see that folder at the same path "
-                "(a shared folder), or set render: {inline: true} in the scenario to post the pixels inline",
-            ) from None
+        return PixelsRef(index=self.index, entry=self.entry, count=self.entry_count)
 
     @classmethod
     def read(cls, board: Board, index: int) -> Self:
@@ -511,6 +510,34 @@ class Viewframe(Message):
 
     def id(self) -> str:
         return viewframe_id(self.index)
+
+
+@dataclass(frozen=True, slots=True)
+class PixelsRef:
+    """Where the pixels of viewframe ``index`` are: row ``index`` of the viewframe cache entry
+    ``entry`` (its folder, absolute), which holds ``count`` viewframes (:meth:`Viewframe.reference`)."""
+
+    index: int
+    entry: str
+    count: int
+
+    def pixels(self, *, agent: str) -> Pixels:
+        """The viewframe's pixels read from the entry (:func:`models.viewframe_cache.read_pixels`).
+        :class:`models.errors.CacheEntryError` naming the entry, the viewframe and ``agent`` (the
+        reader) when this host cannot read the entry or it is not the one the reference names
+        (another count: stale)."""
+        from models.errors import CacheEntryError
+        from models.viewframe_cache import read_pixels
+
+        try:
+            return read_pixels(self.entry, self.index, count=self.count)
+        except CacheEntryError as err:
+            raise CacheEntryError(
+                err.path,
+                f"agent {agent}, viewframe {viewframe_id(self.index)}: {err.message}. The map renderer posts "
+                "viewframes by reference to its viewframe cache: every agent's host must see that folder at the "
+                "same path (a shared folder), or set render: {inline: true} in the scenario to post the pixels inline",
+            ) from None
 
 
 def viewframe_id(index: int) -> str:
