@@ -258,11 +258,18 @@ def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
     """The viewframes are posted by reference to a cache entry the agent cannot read: the agent
     dies of it at once (no retry helps) and the run reports the entry, the viewframe and the
     agent; the run does not hang, nothing crashes."""
+    from models.viewframe_cache import ViewframeCache
+    from models.world import World
     from tests.knowledge_sources.conftest import inline_viewframe
 
     vfs = [levels.Viewframe.from_hypothesis(h) for h in small_rendered["viewframes"]]
-    assert all(v.entry is not None for v in vfs)  # the tests' cache: by reference
-    entry, count = (str(tmp_path / "elsewhere"), len(vfs)) if change == "entry-missing" else (vfs[0].entry, 99)
+    if change == "entry-missing":
+        entry, count = str(tmp_path / "elsewhere"), len(vfs)
+    else:  # a real entry of this route, named with another count
+        with World(load_scenario(small_rendered["path"]), cache=ViewframeCache(tmp_path / "cache")) as world:
+            _ = world.viewframes
+            assert world.entry is not None
+            entry, count = str(world.entry.resolve()), 99
     with Runtime() as rt:
         if agent == "indexer-0":
             rt.add("knowledge_sources.indexer:AssociativeIndexer", name=agent)
