@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import zlib
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -33,7 +34,19 @@ class AssociativeIndexer(RouteRanker):
 
     Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1),
     ``block`` (route points per shard, consecutive; a mission gives ``memory.shard_size``;
-    default None: every ``shards``-th point), ``tracked`` (a tracker runs; default False).
+    default None: every ``shards``-th point), ``tracked`` (a tracker runs; default False),
+    ``keep_images`` (see below; default None: decided from this process's viewframe cache).
+
+    A stored index: when the ``map`` names the viewframe cache entry its viewframes came from
+    (``entry``), the shard's index is stored beside it and a later run of the same map loads it,
+    memory-mapped, instead of indexing (:func:`models.index_store.cached_index`; any change of
+    the memory settings, of the shard's viewframes or of the code that builds it is a miss). The
+    images are then never needed: with ``keep_images`` False the viewframe messages are not even
+    decoded (:meth:`wants`), and on a miss they are read back from the blackboard. With
+    ``keep_images`` True each image is kept (zlib-compressed) as its message arrives, the
+    cheaper path without a cache. The default is False when a viewframe cache is on in this
+    process (:func:`models.viewframe_cache.default_cache_root`; the map will most likely name an
+    entry), True when it is off (``--no-cache``, ``MAPINTERP_CACHE=off``).
     Consecutive blocks keep a track window on one or two shards: the others post an empty
     ranking without preprocessing the frame, so a windowed frame's cost does not grow with the
     number of shards. Memory parameters (size, edge method, blur, bank
@@ -63,8 +76,11 @@ class AssociativeIndexer(RouteRanker):
         shards: int = 1,
         block: int | None = None,
         tracked: bool = False,
+        keep_images: bool | None = None,
         **options: Any,
     ) -> None:
+        from models.viewframe_cache import default_cache_root
+
         super().__init__(name, tracked=tracked, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
@@ -77,6 +93,10 @@ class AssociativeIndexer(RouteRanker):
         # images would otherwise be resident at once: about 57 KB each at 160 x 120)
         self._images: dict[int, tuple[bytes, tuple[int, ...], str]] = {}
         self._index: ViewframeIndex | None = None
+        #: the images are kept as their messages arrive (else read back from the board on a miss)
+        self.keep_images = default_cache_root() is None if keep_images is None else bool(keep_images)
+        #: the shard's index was loaded from a stored copy (set by build)
+        self.loaded = False
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""
@@ -84,7 +104,16 @@ class AssociativeIndexer(RouteRanker):
             return min(index // self.block, self.shards - 1) == self.shard
         return index % self.shards == self.shard
 
+    def wants(self, level: str, hypothesis_id: str) -> bool:
+        """As :meth:`RouteRanker.wants`; and no viewframe at all when the images are not kept (the
+        map decides whether they are needed)."""
+        if level == levels.VIEWFRAME and not self.keep_images:
+            return False
+        return super().wants(level, hypothesis_id)
+
     def keep(self, viewframe: levels.Viewframe) -> None:
+        if not self.keep_images:
+            return  # decided on the map: a stored index needs none, a miss reads them back
         image = np.ascontiguousarray(viewframe.image)
         self._images[viewframe.index] = (zlib.compress(image.data, 1), image.shape, image.dtype.str)
 
@@ -93,16 +122,21 @@ class AssociativeIndexer(RouteRanker):
         return np.frombuffer(zlib.decompress(data), dtype=dtype).reshape(shape)
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
-        from models.index import ViewframeIndex
+        from models.index_store import cached_index
 
         mine = [k for k in range(mp.viewframes) if self.mine(k)]
-        for k in mine:
-            if k not in self._images:
-                self.keep(levels.Viewframe.read(board, k))
-        index = ViewframeIndex(mp.memory, seed=self.shard)
-        # each image is decompressed as it is made into a pattern and dropped: the images and
-        # the banks are never all resident at once
-        index.add((self._image(k) for k in mine), mine)
+
+        def images() -> Iterator[np.ndarray]:
+            # a miss: each image is decompressed (or read back from the board) as it is made into
+            # a pattern and dropped: the images and the banks are never all resident at once
+            if self.keep_images:  # the images missed as events, read back first (a missing one fails early)
+                for k in mine:
+                    if k not in self._images:
+                        self.keep(levels.Viewframe.read(board, k))
+            for k in mine:
+                yield self._image(k) if k in self._images else levels.Viewframe.read(board, k).image
+
+        index, self.loaded = cached_index(mp.entry, mp.memory, mine, seed=self.shard, images=images)
         self._index = index
         self._images.clear()
         stored = len(mine) - len(index.featureless)
@@ -111,7 +145,14 @@ class AssociativeIndexer(RouteRanker):
             levels.Index(shard=self.shard, shards=self.shards, viewframes=stored, featureless=list(index.featureless)),
             links=(levels.map_id(),),
         )
-        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, stored)
+        log.info(
+            "%s: shard %d/%d holds %d viewframes (%s)",
+            self.name,
+            self.shard,
+            self.shards,
+            stored,
+            "a stored index" if self.loaded else "indexed",
+        )
         if index.featureless:
             log.warning(
                 "%s: %d featureless viewframes not stored (never ranked by the memory): %s",
