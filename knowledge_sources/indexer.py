@@ -22,6 +22,9 @@ __all__ = ["AssociativeIndexer"]
 
 log = logging.getLogger(__name__)
 
+#: images read from a cache entry between two returns of their memory-mapped pages
+RELEASE_EVERY = 64
+
 
 class AssociativeIndexer(RouteRanker):
     """Stores the viewframes of its shard (``index // block == shard``, consecutive route points,
@@ -42,7 +45,8 @@ class AssociativeIndexer(RouteRanker):
     memory-mapped, instead of indexing (:func:`models.index_store.cached_index`; any change of
     the memory settings, of the shard's viewframes or of the code that builds it is a miss). The
     images are then never needed: with ``keep_images`` False the viewframe messages are not even
-    decoded (:meth:`wants`), and on a miss they are read back from the blackboard. With
+    decoded (:meth:`wants`), and on a miss they are read from the cache entry (memory-mapped),
+    or back from the blackboard when the entry cannot be read here. With
     ``keep_images`` True each image is kept (zlib-compressed) as its message arrives, the
     cheaper path without a cache. The default is False when a viewframe cache is on in this
     process (:func:`models.viewframe_cache.default_cache_root`; the map will most likely name an
@@ -113,7 +117,7 @@ class AssociativeIndexer(RouteRanker):
 
     def keep(self, viewframe: levels.Viewframe) -> None:
         if not self.keep_images:
-            return  # decided on the map: a stored index needs none, a miss reads them back
+            return  # decided on the map: a stored index needs none, a miss reads them from the entry
         image = np.ascontiguousarray(viewframe.image)
         self._images[viewframe.index] = (zlib.compress(image.data, 1), image.shape, image.dtype.str)
 
@@ -123,18 +127,30 @@ class AssociativeIndexer(RouteRanker):
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
         from models.index_store import cached_index
+        from models.viewframe_cache import entry_field, release_pages
 
         mine = [k for k in range(mp.viewframes) if self.mine(k)]
 
         def images() -> Iterator[np.ndarray]:
-            # a miss: each image is decompressed (or read back from the board) as it is made into
-            # a pattern and dropped: the images and the banks are never all resident at once
+            # a miss: each image is decompressed (or read) as it is made into a pattern and
+            # dropped: the images and the banks are never all resident at once
             if self.keep_images:  # the images missed as events, read back first (a missing one fails early)
                 for k in mine:
                     if k not in self._images:
                         self.keep(levels.Viewframe.read(board, k))
-            for k in mine:
-                yield self._image(k) if k in self._images else levels.Viewframe.read(board, k).image
+                for k in mine:
+                    yield self._image(k)
+                return
+            # not kept: from the map's cache entry (memory-mapped, its pages given back batch by
+            # batch), else read back from the board
+            stacked = None if mp.entry is None else entry_field(mp.entry, "image", count=mp.viewframes)
+            for i, k in enumerate(mine):
+                if stacked is None:
+                    yield levels.Viewframe.read(board, k).image
+                    continue
+                yield np.asarray(stacked[k])
+                if (i + 1) % RELEASE_EVERY == 0 or i + 1 == len(mine):
+                    release_pages(stacked[j] for j in mine[max(0, i + 1 - 2 * RELEASE_EVERY) : i + 1])
 
         index, self.loaded = cached_index(mp.entry, mp.memory, mine, seed=self.shard, images=images)
         self._index = index

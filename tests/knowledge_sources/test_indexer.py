@@ -181,3 +181,18 @@ def test_a_changed_memory_setting_indexes_again(small_rendered: dict, tmp_path: 
     assert not ix.loaded and len(list((entry / INDEX_FOLDER).iterdir())) == 2
     (ix,), _ = _run_shards(small_rendered, entry, 1, viewframes=False, window_margin=3)  # ranking only: a hit
     assert ix.loaded
+
+
+def test_a_miss_reads_the_images_from_the_entry_or_else_back_from_the_board(
+    small_rendered: dict, tmp_path: Path, caplog
+) -> None:
+    entry = _entry_copy(small_rendered, tmp_path)
+    _, want = _run_shards(small_rendered, entry, 1, viewframes=False)  # from the entry: no message needed
+    other = _entry_copy(small_rendered, tmp_path / "other")
+    (other / "image.npy").unlink()  # an entry whose images cannot be read here
+    with caplog.at_level("WARNING", logger="models.viewframe_cache"):
+        (ix,), got = _run_shards(small_rendered, other, 1, viewframes=True)
+    assert not ix.loaded and "cannot read image.npy" in caplog.text
+    for k, r in got.items():
+        assert r.viewframes == want[k].viewframes
+        np.testing.assert_allclose(r.variances, want[k].variances, rtol=1e-5, atol=1e-9)
