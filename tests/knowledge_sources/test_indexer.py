@@ -196,3 +196,13 @@ def test_a_miss_reads_the_images_from_the_entry_or_else_back_from_the_board(
     for k, r in got.items():
         assert r.viewframes == want[k].viewframes
         np.testing.assert_allclose(r.variances, want[k].variances, rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("cache, keeps", [("off", True), ("OFF", True), ("some/folder", False)])
+def test_images_are_kept_as_they_come_only_without_a_viewframe_cache(monkeypatch, cache: str, keeps: bool) -> None:
+    """Without a cache (``--no-cache``) no map names an entry: each image is kept as its message
+    comes; with one, the map decides, and the messages are not decoded."""
+    monkeypatch.setenv("MAPINTERP_CACHE", cache)
+    ix = AssociativeIndexer("indexer-0")
+    assert ix.keep_images is keeps and ix.wants(levels.VIEWFRAME, levels.viewframe_id(0)) is keeps
+    assert AssociativeIndexer("indexer-0", keep_images=not keeps).keep_images is not keeps
