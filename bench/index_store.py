@@ -20,7 +20,9 @@ drive, ``--frames`` frames), all with the viewframe cache in ``WORK/cache``, fil
 this checkout with no stored index (a miss: it indexes and stores), then alternating the
 baseline (``--baseline-commit``, exported with ``git archive`` into WORK: the code before stored
 indices, which indexes every run) and this checkout (a hit). Per run: setup seconds (until the
-first frame), wall, peak RSS, and whether the answers equal the baseline's.
+first frame), wall, peak RSS, whether the answers equal the baseline's, and the CPU seconds of
+the indexer agents' threads on the viewframe messages (receiving, decoding, keeping the image)
+and on the map (indexing or loading).
 
     python bench/index_store.py --entry /work/cache/scale10k/<key> --work /work/cache/me-10k
     python bench/index_store.py --route 2000 --work /work/cache/me-2k --baseline-commit a846c8d
@@ -121,6 +123,36 @@ print(json.dumps(out))
 """
 
 
+#: prepended to bench/scale.py's mission child: the CPU seconds of the indexer agents' threads on the
+#: viewframe messages (receiving, decoding, keeping) and on the map (building), written to $INDEXER_CPU
+_INDEXER_CPU = """
+import atexit, json, os, time
+from blackboard.agent import AgentRunner
+_cpu = {"viewframe": 0.0, "map": 0.0, "viewframe_messages": 0}
+_on_sample, _run = AgentRunner._on_sample, AgentRunner._run_one
+def _sample(self, sample):
+    if not self.name.startswith("indexer") or not str(sample.key_expr).split("/")[-2:-1] == ["viewframe"]:
+        return _on_sample(self, sample)
+    c = time.thread_time()
+    try:
+        return _on_sample(self, sample)
+    finally:
+        _cpu["viewframe"] += time.thread_time() - c
+        _cpu["viewframe_messages"] += 1
+def _one(self):
+    level = self._agenda[0][2].hypothesis.level if self._agenda else None
+    if not self.name.startswith("indexer") or level not in ("viewframe", "map"):
+        return _run(self)
+    c = time.thread_time()
+    try:
+        return _run(self)
+    finally:
+        _cpu[level] += time.thread_time() - c
+AgentRunner._on_sample, AgentRunner._run_one = _sample, _one
+atexit.register(lambda: open(os.environ["INDEXER_CPU"], "w").write(json.dumps(_cpu)))
+"""
+
+
 def _child(script: str, args: list[str], *, cwd: Path, env: dict | None = None, timeout: float = 7200) -> dict:
     done = subprocess.run(
         [sys.executable, "-c", script, *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout
@@ -213,16 +245,18 @@ def route_mode(args: argparse.Namespace) -> dict:
     def run(label: str, cwd: Path) -> dict:
         trace = work / f"{label}.trace"
         opts = {"paced": True, "profile": None, "results": str(trace.with_suffix(".json"))}
+        cpu = work / f"{label}.cpu.json"
         r = scale._child(
-            scale._CHILD,
+            _INDEXER_CPU + scale._CHILD,
             [str(drive), str(trace), json.dumps(opts)],
             what=label,
             cwd=cwd,
-            env=env,
+            env={**env, "INDEXER_CPU": str(cpu)},
             timeout=3600,
             log=trace.with_suffix(".log"),
         )
         r.update(_stamp())
+        r["indexer_cpu_s"] = json.loads(cpu.read_text())
         r["answers"] = [
             (f["frame"], f.get("viewframe")) for f in json.loads(trace.with_suffix(".json").read_text())["frames"]
         ]
@@ -253,12 +287,17 @@ def route_mode(args: argparse.Namespace) -> dict:
 
 def _print_route(doc: dict) -> None:
     print(f"\nwhole missions, route of {doc['route']} viewframes, {doc['frames']} drive frames, viewframe cache filled")
-    print(f"{'run':<32} {'UTC':<21} {'load avg':<18} {'setup s':>8} {'wall s':>8} {'peak RSS MB':>11} {'same':>5}")
+    print(
+        f"{'run':<32} {'UTC':<21} {'load avg':<18} {'setup s':>8} {'wall s':>8} {'peak RSS MB':>11} {'same':>5} "
+        f"{'indexers CPU s: viewframe msgs':>30} {'map (index)':>11}"
+    )
     for label, r in doc["runs"].items():
         la = "/".join(f"{v:.1f}" for v in r["load_avg"])
+        cpu = r["indexer_cpu_s"]
         print(
             f"{label:<32} {r['utc']:<21} {la:<18} {r['setup_s']:>8.1f} {r['wall_s']:>8.1f} "
-            f"{r['peak_rss_mb']:>11.0f} {str(r['same_answers_as_baseline']):>5}"
+            f"{r['peak_rss_mb']:>11.0f} {str(r['same_answers_as_baseline']):>5} "
+            f"{cpu['viewframe']:>22.2f} ({cpu['viewframe_messages']:>5}) {cpu['map']:>11.2f}"
         )
 
 
