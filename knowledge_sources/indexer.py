@@ -44,8 +44,9 @@ class AssociativeIndexer(RouteRanker):
     (``entry``), the shard's index is stored beside it and a later run of the same map loads it,
     memory-mapped, instead of indexing (:func:`models.index_store.cached_index`; any change of
     the memory settings, of the shard's viewframes or of the code that builds it is a miss). The
-    images are then never needed: with ``keep_images`` False the viewframe messages are not even
-    decoded (:meth:`wants`), and on a miss they are read from the cache entry (memory-mapped),
+    images are then never needed: with ``keep_images`` False this indexer does not consume the
+    viewframe level at all (not subscribed: no message of it is received), and on a miss the
+    images are read from the cache entry (memory-mapped),
     or back from the blackboard when the entry cannot be read here. With
     ``keep_images`` True each image is kept (zlib-compressed) as its message arrives, the
     cheaper path without a cache. The default is False when a viewframe cache is on in this
@@ -101,19 +102,16 @@ class AssociativeIndexer(RouteRanker):
         self.keep_images = default_cache_root() is None if keep_images is None else bool(keep_images)
         #: the shard's index was loaded from a stored copy (set by build)
         self.loaded = False
+        if not self.keep_images:
+            # the viewframe level is not even subscribed to: each shard would otherwise receive
+            # (and check the tag of) every viewframe message of the route, its own or not
+            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""
         if self.block is not None:
             return min(index // self.block, self.shards - 1) == self.shard
         return index % self.shards == self.shard
-
-    def wants(self, level: str, hypothesis_id: str) -> bool:
-        """As :meth:`RouteRanker.wants`; and no viewframe at all when the images are not kept (the
-        map decides whether they are needed)."""
-        if level == levels.VIEWFRAME and not self.keep_images:
-            return False
-        return super().wants(level, hypothesis_id)
 
     def keep(self, viewframe: levels.Viewframe) -> None:
         if not self.keep_images:

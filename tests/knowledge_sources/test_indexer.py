@@ -163,8 +163,8 @@ def test_a_second_run_of_the_map_loads_the_stored_index_without_its_viewframes(
     entry = _entry_copy(small_rendered, tmp_path)
     first, want = _run_shards(small_rendered, entry, shards, viewframes=True)
     assert not any(ix.loaded for ix in first) and len(list((entry / INDEX_FOLDER).iterdir())) == shards
-    # a cache is on in the tests: the viewframe messages are not even decoded
-    assert not any(ix.keep_images or ix.wants(levels.VIEWFRAME, levels.viewframe_id(0)) for ix in first)
+    # a cache is on in the tests: the viewframe level is not even consumed
+    assert not any(ix.keep_images or levels.VIEWFRAME in ix.consumes for ix in first)
     second, got = _run_shards(small_rendered, entry, shards, viewframes=False)  # a stored index needs none
     assert all(ix.loaded for ix in second) and sorted(got) == sorted(want)
     for k, r in got.items():
@@ -201,8 +201,9 @@ def test_a_miss_reads_the_images_from_the_entry_or_else_back_from_the_board(
 @pytest.mark.parametrize("cache, keeps", [("off", True), ("OFF", True), ("some/folder", False)])
 def test_images_are_kept_as_they_come_only_without_a_viewframe_cache(monkeypatch, cache: str, keeps: bool) -> None:
     """Without a cache (``--no-cache``) no map names an entry: each image is kept as its message
-    comes; with one, the map decides, and the messages are not decoded."""
+    comes; with one, the map decides, and the viewframe level is not subscribed to."""
     monkeypatch.setenv("MAPINTERP_CACHE", cache)
     ix = AssociativeIndexer("indexer-0")
-    assert ix.keep_images is keeps and ix.wants(levels.VIEWFRAME, levels.viewframe_id(0)) is keeps
+    assert ix.keep_images is keeps and (levels.VIEWFRAME in ix.consumes) is keeps
+    assert AssociativeIndexer.consumes == (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
     assert AssociativeIndexer("indexer-0", keep_images=not keeps).keep_images is not keeps
