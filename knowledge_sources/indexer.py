@@ -46,12 +46,13 @@ class AssociativeIndexer(RouteRanker):
     the memory settings, of the shard's viewframes or of the code that builds it is a miss). The
     images are then never needed: with ``keep_images`` False this indexer does not consume the
     viewframe level at all (not subscribed: no message of it is received), and on a miss the
-    images are read from the cache entry (memory-mapped),
-    or back from the blackboard when the entry cannot be read here. With
+    images are read from the cache entry (memory-mapped), or back from the blackboard when the
+    entry cannot be read here. With
     ``keep_images`` True each image is kept (zlib-compressed) as its message arrives, the
     cheaper path without a cache. The default is False when a viewframe cache is on in this
     process (:func:`models.viewframe_cache.default_cache_root`; the map will most likely name an
     entry), True when it is off (``--no-cache``, ``MAPINTERP_CACHE=off``).
+
     Consecutive blocks keep a track window on one or two shards: the others post an empty
     ranking without preprocessing the frame, so a windowed frame's cost does not grow with the
     number of shards. Memory parameters (size, edge method, blur, bank
@@ -98,7 +99,8 @@ class AssociativeIndexer(RouteRanker):
         # images would otherwise be resident at once: about 57 KB each at 160 x 120)
         self._images: dict[int, tuple[bytes, tuple[int, ...], str]] = {}
         self._index: ViewframeIndex | None = None
-        #: the images are kept as their messages arrive (else read back from the board on a miss)
+        #: the images are kept as their messages arrive (else, on a miss, read from the map's cache
+        #: entry, or back from the board)
         self.keep_images = default_cache_root() is None if keep_images is None else bool(keep_images)
         #: the shard's index was loaded from a stored copy (set by build)
         self.loaded = False
