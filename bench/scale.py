@@ -157,7 +157,7 @@ def components(path: Path, cache_dir: Path) -> dict:
     t0 = time.perf_counter()
     cache.store(key, viewframes)
     out["cache_store_s"] = time.perf_counter() - t0
-    out["cache_bytes_per_viewframe"] = sum(f.stat().st_size for f in cache.path(key).iterdir()) / n
+    out["cache_bytes_per_viewframe"] = sum(f.stat().st_size for f in cache.path(key).iterdir() if f.is_file()) / n
     del viewframes
     gc.collect()
     t0 = time.perf_counter()

@@ -33,11 +33,12 @@ from typing import Any
 import zenoh
 
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
-from blackboard.config import ZenohOptions, open_session, zenoh_config
+from blackboard.config import ZenohOptions, zenoh_config
 from blackboard.errors import AgentError, BlackboardError, CodecError, TransportError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
 from blackboard.knowledge_source import Event, EventKind, KnowledgeSource
+from blackboard.sessions import SESSIONS, SharedSession
 from blackboard.trust import TAG_BYTES, attachment_bytes, join_key, proof, unseal, verify
 from blackboard.zenoh_board import ZenohBoard
 
@@ -74,8 +75,10 @@ class AgentRunner:
     """One knowledge source connected to the blackboard of run ``run_id``.
 
     ``connect`` are the endpoints of the blackboard node (a zenoh router); the session is a
-    zenoh client of it. :meth:`start` joins (raises :class:`DeclarationError` if refused) and
-    runs ``setup``; :meth:`stop` shuts down cleanly; :meth:`kill` drops the session abruptly.
+    zenoh client of it, shared with the other agents of this process that have the same zenoh
+    configuration (:mod:`blackboard.sessions`; the subscribers and the liveliness token are the
+    agent's own). :meth:`start` joins (raises :class:`DeclarationError` if refused) and
+    runs ``setup``; :meth:`stop` shuts down cleanly; :meth:`kill` drops the agent abruptly.
     :attr:`ended` is set when the node announces the end of the run, or is lost
     (:attr:`node_lost`).
     """
@@ -110,6 +113,7 @@ class AgentRunner:
         self._status_seq = 0
         self._dead: str | None = None
         self._session: zenoh.Session | None = None
+        self._hold: SharedSession | None = None  # this agent's hold on the shared session
         self._thread: threading.Thread | None = None
         self._entities: list[Any] = []
         self.board: ZenohBoard | None = None
@@ -212,10 +216,12 @@ class AgentRunner:
         board.agent_key, board.run_key = keys[:32], keys[32:]
 
     def _open(self, wait_s: float, deadline: float) -> zenoh.Session:
-        """The client session; retried until ``deadline`` when ``wait_s`` > 0."""
+        """The client session (shared, :mod:`blackboard.sessions`); retried until ``deadline``
+        when ``wait_s`` > 0."""
         while True:
             try:
-                return open_session(self._config)
+                self._hold = SESSIONS.acquire(self._config)
+                return self._hold.session
             except TransportError:
                 if time.monotonic() + _RETRY_S > deadline:
                     if wait_s <= 0:
@@ -256,7 +262,7 @@ class AgentRunner:
             self._inbox.put(("stop", None))
             self._thread.join(timeout_s)
             self._thread = None
-        if self._session is not None and not self._session.is_closed():
+        if self._session_open():
             try:
                 self.source.shutdown()
             except Exception:  # the agent's own code
@@ -287,7 +293,8 @@ class AgentRunner:
             logger.warning("agent %s: could not say goodbye to the node: %s", self.name, err)
 
     def kill(self) -> None:
-        """Drop the session abruptly (tests: an agent that dies); no shutdown, no goodbye."""
+        """Drop the agent abruptly (tests: an agent that dies): its subscribers and liveliness
+        token go, as with a session of its own closed; no shutdown, no goodbye."""
         self._inbox.put(("kill", None))
         if self._thread is not None:
             self._thread.join(10.0)
@@ -295,9 +302,13 @@ class AgentRunner:
         self._close_session()
         self.done.set()
 
+    def _session_open(self) -> bool:
+        return self._hold is not None and self._hold.open
+
     def _close_session(self) -> None:
-        if self._session is not None and not self._session.is_closed():
-            self._session.close()
+        """Undeclare this agent's subscribers and token (newest first) and give the shared session back."""
+        if self._hold is not None:
+            self._hold.release(reversed(self._entities))
         self._entities.clear()
 
     # -- worker ------------------------------------------------------------------------------------
@@ -488,7 +499,7 @@ class AgentRunner:
 
     def _flush(self, *, state: str, reason: str | None = None, input_error: str | None = None) -> None:
         """Send the activity records and the counters to the node (status key)."""
-        if self._session is None or self._session.is_closed() or self.board is None:
+        if self._session is None or not self._session_open() or self.board is None:
             return
         message = {
             "agent": self.name,

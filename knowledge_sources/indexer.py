@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import zlib
+from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -21,6 +22,9 @@ __all__ = ["AssociativeIndexer"]
 
 log = logging.getLogger(__name__)
 
+#: images read from a cache entry between two returns of their memory-mapped pages
+RELEASE_EVERY = 64
+
 
 class AssociativeIndexer(RouteRanker):
     """Stores the viewframes of its shard (``index // block == shard``, consecutive route points,
@@ -33,7 +37,22 @@ class AssociativeIndexer(RouteRanker):
 
     Options: ``shard`` (this shard, default 0), ``shards`` (number of shards, default 1),
     ``block`` (route points per shard, consecutive; a mission gives ``memory.shard_size``;
-    default None: every ``shards``-th point), ``tracked`` (a tracker runs; default False).
+    default None: every ``shards``-th point), ``tracked`` (a tracker runs; default False),
+    ``keep_images`` (see below; default None: decided from this process's viewframe cache).
+
+    A stored index: when the ``map`` names the viewframe cache entry its viewframes came from
+    (``entry``), the shard's index is stored beside it and a later run of the same map loads it,
+    memory-mapped, instead of indexing (:func:`models.index_store.cached_index`; any change of
+    the memory settings, of the shard's viewframes or of the code that builds it is a miss). The
+    images are then never needed: with ``keep_images`` False this indexer does not consume the
+    viewframe level at all (not subscribed: no message of it is received), and on a miss the
+    images are read from the cache entry (memory-mapped), or back from the blackboard when the
+    entry cannot be read here. With
+    ``keep_images`` True each image is kept (zlib-compressed) as its message arrives, the
+    cheaper path without a cache. The default is False when a viewframe cache is on in this
+    process (:func:`models.viewframe_cache.default_cache_root`; the map will most likely name an
+    entry), True when it is off (``--no-cache``, ``MAPINTERP_CACHE=off``).
+
     Consecutive blocks keep a track window on one or two shards: the others post an empty
     ranking without preprocessing the frame, so a windowed frame's cost does not grow with the
     number of shards. Memory parameters (size, edge method, blur, bank
@@ -63,8 +82,11 @@ class AssociativeIndexer(RouteRanker):
         shards: int = 1,
         block: int | None = None,
         tracked: bool = False,
+        keep_images: bool | None = None,
         **options: Any,
     ) -> None:
+        from models.viewframe_cache import default_cache_root
+
         super().__init__(name, tracked=tracked, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
@@ -78,6 +100,15 @@ class AssociativeIndexer(RouteRanker):
         # by reference where they are (read from the cache entry as they are indexed)
         self._images: dict[int, tuple[bytes, tuple[int, ...], str] | levels.PixelsRef] = {}
         self._index: ViewframeIndex | None = None
+        #: the images are kept as their messages arrive (else, on a miss, read from the map's cache
+        #: entry, or back from the board)
+        self.keep_images = default_cache_root() is None if keep_images is None else bool(keep_images)
+        #: the shard's index was loaded from a stored copy (set by build)
+        self.loaded = False
+        if not self.keep_images:
+            # the viewframe level is not even subscribed to: each shard would otherwise receive
+            # (and check the tag of) every viewframe message of the route, its own or not
+            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""
@@ -86,8 +117,10 @@ class AssociativeIndexer(RouteRanker):
         return index % self.shards == self.shard
 
     def keep(self, viewframe: levels.Viewframe) -> None:
+        if not self.keep_images:
+            return  # decided on the map: a stored index needs none, a miss reads them from the entry
         ref = viewframe.reference()
-        if ref is not None:
+        if ref is not None:  # by reference to a cache entry: where its pixels are, read as they are indexed
             self._images[viewframe.index] = ref
             return
         image = np.ascontiguousarray(viewframe.pixels(agent=self.name).image)
@@ -101,16 +134,33 @@ class AssociativeIndexer(RouteRanker):
         return np.frombuffer(zlib.decompress(data), dtype=dtype).reshape(shape)
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
-        from models.index import ViewframeIndex
+        from models.index_store import cached_index
+        from models.viewframe_cache import entry_field, release_pages
 
         mine = [k for k in range(mp.viewframes) if self.mine(k)]
-        for k in mine:
-            if k not in self._images:
-                self.keep(levels.Viewframe.read(board, k))
-        index = ViewframeIndex(mp.memory, seed=self.shard)
-        # each image is decompressed as it is made into a pattern and dropped: the images and
-        # the banks are never all resident at once
-        index.add((self._image(k) for k in mine), mine)
+
+        def images() -> Iterator[np.ndarray]:
+            # a miss: each image is decompressed (or read) as it is made into a pattern and
+            # dropped: the images and the banks are never all resident at once
+            if self.keep_images:  # the images missed as events, read back first (a missing one fails early)
+                for k in mine:
+                    if k not in self._images:
+                        self.keep(levels.Viewframe.read(board, k))
+                for k in mine:
+                    yield self._image(k)
+                return
+            # not kept: from the map's cache entry (memory-mapped, its pages given back batch by
+            # batch), else read back from the board
+            stacked = None if mp.entry is None else entry_field(mp.entry, "image", count=mp.viewframes)
+            for i, k in enumerate(mine):
+                if stacked is None:  # by reference too, it names the entry this host cannot read: the error says so
+                    yield levels.Viewframe.read(board, k).pixels(agent=self.name).image
+                    continue
+                yield np.asarray(stacked[k])
+                if (i + 1) % RELEASE_EVERY == 0 or i + 1 == len(mine):
+                    release_pages(stacked[j] for j in mine[max(0, i + 1 - 2 * RELEASE_EVERY) : i + 1])
+
+        index, self.loaded = cached_index(mp.entry, mp.memory, mine, seed=self.shard, images=images)
         self._index = index
         self._images.clear()
         stored = len(mine) - len(index.featureless)
@@ -119,7 +169,14 @@ class AssociativeIndexer(RouteRanker):
             levels.Index(shard=self.shard, shards=self.shards, viewframes=stored, featureless=list(index.featureless)),
             links=(levels.map_id(),),
         )
-        log.info("%s: shard %d/%d holds %d viewframes", self.name, self.shard, self.shards, stored)
+        log.info(
+            "%s: shard %d/%d holds %d viewframes (%s)",
+            self.name,
+            self.shard,
+            self.shards,
+            stored,
+            "a stored index" if self.loaded else "indexed",
+        )
         if index.featureless:
             log.warning(
                 "%s: %d featureless viewframes not stored (never ranked by the memory): %s",

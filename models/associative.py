@@ -74,7 +74,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections.abc import Iterable, Sequence, Sized
+from collections.abc import Iterable, Mapping, Sequence, Sized
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -731,6 +731,80 @@ class BankedMemory:
         scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
         c = _search(matrix, key, self.max_shift, scale[row_bank])
         return _ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
+
+    def compact_arrays(self) -> dict[str, NDArray[Any]]:
+        """Compact: everything a ranking reads, as four arrays (what :mod:`models.index_store`
+        writes to disk; :meth:`from_compact_arrays` is the inverse). The last, partial bank is
+        finalized first. ``rows`` (H, D) float32: the packed ranking rows (a view, not a copy);
+        ``viewframes`` (H,) int64 in storage order; ``bank_rows`` (B,) int64: the rows of each
+        bank, in order; ``bank_energy_sq`` (B,) float64: each bank's ``sum w |FM|^2``."""
+        if not self.compact:
+            raise AssociativeMemoryError("compact_arrays: only a compact memory (compact=True) gives them")
+        rows = self.ranking_matrix
+        done = self.banks[: len(self._row0)]
+        return {
+            "rows": rows,
+            "viewframes": np.concatenate([b.viewframes for b in done]) if done else np.zeros(0, np.int64),
+            "bank_rows": np.array([len(b) for b in done], dtype=np.int64),
+            "bank_energy_sq": np.array([b._energy_sq for b in done], dtype=np.float64),
+        }
+
+    @classmethod
+    def from_compact_arrays(
+        cls,
+        arrays: Mapping[str, ArrayLike],
+        *,
+        size: int = _DEFAULTS.size,
+        bank_size: int = _DEFAULTS.bank_size,
+        seed: int = 0,
+        key_method: str = _DEFAULTS.key,
+        max_shift: int | tuple[int, int] = _DEFAULTS.max_shift,
+    ) -> BankedMemory:
+        """A compact memory from :meth:`compact_arrays` (with the configuration it was built
+        with). ``rows`` is used as given, not copied: a read-only memory map of a stored index
+        stays one (its pages are read as a ranking needs them; a later write copies the rows into
+        memory first). It ranks exactly as the memory the arrays came from. Raises
+        :class:`AssociativeMemoryError` naming what is malformed."""
+        mem = cls(size, bank_size=bank_size, seed=seed, key_method=key_method, max_shift=max_shift, compact=True)
+        d = 2 * mem.size * (mem.size // 2 + 1)
+        try:
+            rows = arrays["rows"]
+            viewframes = np.asarray(arrays["viewframes"])
+            bank_rows = np.asarray(arrays["bank_rows"])
+            energy_sq = np.asarray(arrays["bank_energy_sq"])
+        except KeyError as err:
+            raise AssociativeMemoryError(f"compact memory: no {err.args[0]!r} array") from None
+        if not isinstance(rows, np.ndarray) or rows.dtype != np.float32 or rows.ndim != 2 or rows.shape[1] != d:
+            what = f"{rows.dtype} {rows.shape}" if isinstance(rows, np.ndarray) else type(rows).__name__
+            raise AssociativeMemoryError(f"compact memory: rows must be float32 of shape (H, {d}), got {what}")
+        if not rows.flags.c_contiguous:
+            raise AssociativeMemoryError("compact memory: rows must be C-contiguous")
+        h = rows.shape[0]
+        if viewframes.dtype != np.int64 or viewframes.shape != (h,):
+            raise AssociativeMemoryError(f"compact memory: viewframes must be int64 of shape ({h},)")
+        if bank_rows.dtype != np.int64 or bank_rows.ndim != 1 or energy_sq.shape != bank_rows.shape:
+            raise AssociativeMemoryError("compact memory: bank_rows (int64) and bank_energy_sq differ in shape")
+        if int(bank_rows.sum()) != h or np.any(bank_rows < 1) or np.any(bank_rows > mem.bank_size):
+            raise AssociativeMemoryError(f"compact memory: bank_rows must be in 1..{mem.bank_size} and sum to {h}")
+        if energy_sq.dtype != np.float64 or not np.all(np.isfinite(energy_sq)) or np.any(energy_sq < 0):
+            raise AssociativeMemoryError("compact memory: bank_energy_sq must be finite float64 >= 0")
+        if np.unique(viewframes).size != h:
+            raise AssociativeMemoryError("compact memory: duplicate viewframes")
+        r0 = 0
+        for count, e2 in zip(bank_rows.tolist(), energy_sq.tolist()):
+            bank = mem._new_bank()
+            bank._spectrum = np.zeros((0, 0), dtype=SPECTRUM_DTYPE)  # finalized: only the rows and energy
+            bank._viewframes = viewframes[r0 : r0 + count].copy()
+            bank._count = count
+            bank._match = rows[r0 : r0 + count]
+            bank._energy_sq = float(e2)
+            bank.final = True
+            mem.banks.append(bank)
+            mem._row0.append(r0)
+            r0 += count
+        mem._rows, mem._nrows = rows, h
+        mem._viewframes.update(viewframes.tolist())
+        return mem
 
     def state(self) -> dict[str, Any]:
         """Plain data: the configuration and each bank's :meth:`HolographicMemory.state`."""

@@ -65,6 +65,7 @@ __all__ = [
     "ViewframeCache",
     "cache_key",
     "default_cache_root",
+    "entry_field",
     "release_pages",
 ]
 
@@ -623,3 +624,22 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
     if not 0 <= row < count:
         raise CacheEntryError(folder, f"row {row} out of range [0, {count})")
     return opened.pixels(row)
+
+
+def entry_field(entry: str | Path, name: str, *, count: int | None = None) -> np.ndarray | None:
+    """The stacked array field ``name`` (e.g. ``"image"``) of every viewframe of the cache entry
+    folder ``entry``, shape (V, ...), memory-mapped read-only (row k is viewframe k; nothing is
+    read until used: give the pages back with :func:`release_pages`); None, logged, when the
+    entry does not hold it stacked (absent, ragged, unreadable) or holds another ``count`` of
+    viewframes."""
+    path = Path(entry) / f"{name}.npy"
+    try:
+        if not (Path(entry) / "meta.json").is_file():
+            raise OSError("not a cache entry (no meta.json)")
+        stacked = np.load(path, mmap_mode="r", allow_pickle=False)
+        if count is not None and stacked.shape[0] != count:
+            raise ValueError(f"holds {stacked.shape[0]} viewframes, expected {count}")
+    except (OSError, ValueError) as err:
+        log.warning("viewframe cache %s: cannot read %s: %s", entry, path.name, err)
+        return None
+    return stacked

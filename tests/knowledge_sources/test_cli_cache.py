@@ -71,3 +71,36 @@ def test_a_mission_with_viewframes_by_reference_gives_the_results_of_one_without
     for name in RUNS:
         assert got[name] == got["no-cache"], name
     capsys.readouterr()
+
+
+def test_a_second_run_loads_each_shards_stored_index_and_answers_alike(small_data, tmp_path, caplog, capsys):
+    """The second run of a map with the cache indexes nothing: every shard (two here) loads the
+    index the first run stored beside the viewframe cache entry, and the run gives the same answers."""
+    import logging
+
+    import yaml
+
+    small = tmp_path / "small.yaml"
+    small.write_text(yaml.safe_dump({**small_data, "memory": {"shard_size": 4}}))
+    cache = tmp_path / "cache"
+    first, second = tmp_path / "first.json", tmp_path / "second.json"
+    args = ["run", str(small), "--cache-dir", str(cache), "--no-progress"]
+    with caplog.at_level(logging.INFO, logger="knowledge_sources.indexer"):
+        assert main([*args, "--out", str(first)]) == 0
+    built = [r.getMessage() for r in caplog.records if "holds" in r.getMessage()]
+    (entry,) = [p for p in cache.iterdir()]
+    stored = sorted((entry / "index").iterdir())
+    assert len(built) == 2 and all("(indexed)" in m for m in built) and len(stored) == len(built)
+    stamps = [(p / "rows.npy").stat().st_mtime_ns for p in stored]
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="knowledge_sources.indexer"):
+        assert main([*args, "--out", str(second)]) == 0
+    loaded = [r.getMessage() for r in caplog.records if "holds" in r.getMessage()]
+    assert len(loaded) == len(built) and all("(a stored index)" in m for m in loaded)
+    assert (
+        sorted((entry / "index").iterdir()) == stored
+        and [(p / "rows.npy").stat().st_mtime_ns for p in stored] == stamps
+    )
+    a, b = json.loads(first.read_text()), json.loads(second.read_text())
+    assert [f["viewframe"] for f in a["frames"]] == [f["viewframe"] for f in b["frames"]]
+    capsys.readouterr()

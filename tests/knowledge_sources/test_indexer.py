@@ -3,12 +3,16 @@ skyline ranker is tested in test_ranker.py)."""
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
 from knowledge_sources.indexer import AssociativeIndexer
+from models.index_store import INDEX_FOLDER
 from tests.knowledge_sources.rankers import frames_from_viewframes, post_map, repost, track
 
 
@@ -37,12 +41,19 @@ def test_each_shard_stores_its_viewframes_and_ranks_every_frame(small_rendered: 
         assert h is not None and h.links == (levels.frame_id(r.frame),) and 0.0 <= h.credibility <= 1.0
 
 
-def test_a_missing_viewframe_is_an_error(small_rendered: dict) -> None:
+def _map_without_entry(bb: MemoryBlackboard, small_rendered: dict) -> None:
+    """The map, saying its viewframes were rendered without a cache (a test that changes or drops
+    viewframe messages: they are no longer those of the map's cache entry)."""
+    bb.post(levels.MAP, {**small_rendered["map"].body, "entry": None}, id=levels.map_id())
+
+
+@pytest.mark.parametrize("keep_images", [True, False])
+def test_a_missing_viewframe_is_an_error(small_rendered: dict, keep_images: bool) -> None:
     bb = MemoryBlackboard()
-    bb.add(AssociativeIndexer("indexer-0"))
+    bb.add(AssociativeIndexer("indexer-0", keep_images=keep_images))
     for h in small_rendered["viewframes"][:-1]:
         repost(bb, h)
-    repost(bb, small_rendered["map"])
+    _map_without_entry(bb, small_rendered)
     with pytest.raises(RuntimeError, match="viewframe 7 is on neither"):
         bb.run()
 
@@ -57,14 +68,16 @@ def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small
     shards the window covers; the others post an empty ranking; together the full order within it."""
     bb = MemoryBlackboard()
     n = len(small_rendered["viewframes"])
-    indexers = [AssociativeIndexer(f"indexer-{b}", shard=b, shards=3, block=3, tracked=True) for b in range(3)]
+    indexers = [
+        AssociativeIndexer(f"indexer-{b}", shard=b, shards=3, block=3, tracked=True, keep_images=True) for b in range(3)
+    ]
     for ix in indexers:
         bb.add(ix)
     post_map(bb, small_rendered, window_route_points=n, window_margin=0, window_full_every=10)
     bb.run()
     stored = {i.shard: i.viewframes for i in (levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX))}
     assert stored == {0: 3, 1: 3, 2: 2}
-    # each shard decodes only its own viewframes' messages (told by their id)
+    # each shard keeping images decodes only its own viewframes' messages (told by their id)
     assert [ix.wants(levels.VIEWFRAME, levels.viewframe_id(4)) for ix in indexers] == [False, True, False]
     assert all(ix.wants(levels.SENSOR_FRAME, levels.frame_id(4)) for ix in indexers)
     frames_from_viewframes(bb, small_rendered, [0])
@@ -85,13 +98,16 @@ def test_bad_block_option() -> None:
         AssociativeIndexer("indexer", block=0)
 
 
-def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_others(small_rendered: dict) -> None:
+@pytest.mark.parametrize("keep_images", [True, False])
+def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_others(
+    small_rendered: dict, keep_images: bool
+) -> None:
     """A viewframe whose image is constant (a camera inside a landmark) used to fail the shard's
     whole index, so the camera waited for it forever; now it is left out and named."""
     import dataclasses
 
     bb = MemoryBlackboard()
-    bb.add(AssociativeIndexer("indexer-0"))
+    bb.add(AssociativeIndexer("indexer-0", keep_images=keep_images))
     n = len(small_rendered["viewframes"])
     for h in small_rendered["viewframes"]:
         vf = levels.Viewframe.from_hypothesis(h)
@@ -106,7 +122,7 @@ def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_o
                 entry_count=None,
             )
         levels.post(bb.user, vf)
-    repost(bb, small_rendered["map"])
+    _map_without_entry(bb, small_rendered)
     bb.run()
     (index,) = [levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX)]
     assert index.featureless == [4] and index.viewframes == n - 1
@@ -115,3 +131,87 @@ def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_o
     for f in (2, 6):
         r = levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(f, 0)))
         assert sorted(r.viewframes) == [k for k in range(n) if k != 4] and r.viewframes[0] == f
+
+
+def _entry_copy(small_rendered: dict, tmp_path: Path) -> Path:
+    """A copy of the small map's viewframe cache entry without its stored indices (the same name
+    and files: the same identity, so what is stored in the copy is what a second run would find)."""
+    entry = Path(small_rendered["map"].body["entry"])
+    copy = tmp_path / "cache" / entry.name
+    shutil.copytree(entry, copy, ignore=shutil.ignore_patterns(INDEX_FOLDER))
+    return copy
+
+
+def _run_shards(small_rendered: dict, entry: Path, shards: int, *, viewframes: bool, **memory: object) -> tuple:
+    """The shards on a fresh board with the map naming ``entry`` (and the viewframe messages when
+    ``viewframes``), then every viewframe as a camera frame: ``(indexers, {(frame, shard): ranking})``."""
+    bb = MemoryBlackboard()
+    indexers = [AssociativeIndexer(f"indexer-{b}", shard=b, shards=shards) for b in range(shards)]
+    for ix in indexers:
+        bb.add(ix)
+    if viewframes:
+        for h in small_rendered["viewframes"]:
+            repost(bb, h)
+    body = dict(small_rendered["map"].body)
+    bb.post(levels.MAP, {**body, "entry": str(entry), "memory": {**body["memory"], **memory}}, id=levels.map_id())
+    bb.run()
+    n = len(small_rendered["viewframes"])
+    frames_from_viewframes(bb, small_rendered, list(range(n)))
+    bb.run()
+    rankings = {
+        (r.frame, r.shard): r for r in (levels.Ranking.from_hypothesis(h) for h in bb.hypotheses(levels.RANKING))
+    }
+    return indexers, rankings
+
+
+@pytest.mark.parametrize("shards", [1, 2])
+def test_a_second_run_of_the_map_loads_the_stored_index_without_its_viewframes(
+    small_rendered: dict, tmp_path: Path, shards: int
+) -> None:
+    entry = _entry_copy(small_rendered, tmp_path)
+    first, want = _run_shards(small_rendered, entry, shards, viewframes=True)
+    assert not any(ix.loaded for ix in first) and len(list((entry / INDEX_FOLDER).iterdir())) == shards
+    # a cache is on in the tests: the viewframe level is not even consumed
+    assert not any(ix.keep_images or levels.VIEWFRAME in ix.consumes for ix in first)
+    second, got = _run_shards(small_rendered, entry, shards, viewframes=False)  # a stored index needs none
+    assert all(ix.loaded for ix in second) and sorted(got) == sorted(want)
+    for k, r in got.items():
+        assert r.viewframes == want[k].viewframes  # the same order
+        np.testing.assert_allclose(r.variances, want[k].variances, rtol=1e-5, atol=1e-9)
+    n = len(small_rendered["viewframes"])
+    assert all(got[(f, f % shards)].viewframes[0] == f for f in range(n))
+
+
+def test_a_changed_memory_setting_indexes_again(small_rendered: dict, tmp_path: Path) -> None:
+    entry = _entry_copy(small_rendered, tmp_path)
+    _run_shards(small_rendered, entry, 1, viewframes=True)
+    (ix,), _ = _run_shards(small_rendered, entry, 1, viewframes=True, blur_sigma=2.0)
+    assert not ix.loaded and len(list((entry / INDEX_FOLDER).iterdir())) == 2
+    (ix,), _ = _run_shards(small_rendered, entry, 1, viewframes=False, window_margin=3)  # ranking only: a hit
+    assert ix.loaded
+
+
+def test_a_miss_reads_the_images_from_the_entry_or_else_back_from_the_board(
+    small_rendered: dict, tmp_path: Path, caplog
+) -> None:
+    entry = _entry_copy(small_rendered, tmp_path)
+    _, want = _run_shards(small_rendered, entry, 1, viewframes=False)  # from the entry: no message needed
+    other = _entry_copy(small_rendered, tmp_path / "other")
+    (other / "image.npy").unlink()  # an entry whose images cannot be read here
+    with caplog.at_level("WARNING", logger="models.viewframe_cache"):
+        (ix,), got = _run_shards(small_rendered, other, 1, viewframes=True)
+    assert not ix.loaded and "cannot read image.npy" in caplog.text
+    for k, r in got.items():
+        assert r.viewframes == want[k].viewframes
+        np.testing.assert_allclose(r.variances, want[k].variances, rtol=1e-5, atol=1e-9)
+
+
+@pytest.mark.parametrize("cache, keeps", [("off", True), ("OFF", True), ("some/folder", False)])
+def test_images_are_kept_as_they_come_only_without_a_viewframe_cache(monkeypatch, cache: str, keeps: bool) -> None:
+    """Without a cache (``--no-cache``) no map names an entry: each image is kept as its message
+    comes; with one, the map decides, and the viewframe level is not subscribed to."""
+    monkeypatch.setenv("MAPINTERP_CACHE", cache)
+    ix = AssociativeIndexer("indexer-0")
+    assert ix.keep_images is keeps and (levels.VIEWFRAME in ix.consumes) is keeps
+    assert AssociativeIndexer.consumes == (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
+    assert AssociativeIndexer("indexer-0", keep_images=not keeps).keep_images is not keeps

@@ -250,14 +250,25 @@ def test_an_input_error_met_during_a_run_exits_2_with_one_line(small_data, tmp_p
 UNREADABLE = {"entry-missing": "no such viewframe cache entry", "other-count": "the reference says 99 (stale)"}
 
 
-@pytest.mark.parametrize("agent", ["indexer-0", "detector-house"])
-@pytest.mark.parametrize("change", UNREADABLE, ids=UNREADABLE)
+#: (agent, its options, the change): an indexer reading its images from the map's entry (the
+#: default with a cache) meets a missing one; one keeping each message's reference (as without a
+#: cache in its own process) and a detector meet either
+CANNOT_READ = {
+    "indexer-entry-missing": ("indexer-0", {}, "entry-missing"),
+    "indexer-keeping-entry-missing": ("indexer-0", {"keep_images": True}, "entry-missing"),
+    "indexer-keeping-other-count": ("indexer-0", {"keep_images": True}, "other-count"),
+    "detector-entry-missing": ("detector-house", {}, "entry-missing"),
+    "detector-other-count": ("detector-house", {}, "other-count"),
+}
+
+
+@pytest.mark.parametrize(("agent", "options", "change"), CANNOT_READ.values(), ids=CANNOT_READ.keys())
 def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
-    small_rendered, tmp_path, agent: str, change: str
+    small_rendered, tmp_path, agent: str, options: dict, change: str
 ) -> None:
-    """The viewframes are posted by reference to a cache entry the agent cannot read: the agent
-    dies of it at once (no retry helps) and the run reports the entry, the viewframe and the
-    agent; the run does not hang, nothing crashes."""
+    """The viewframes are posted by reference to a cache entry the agent cannot read (the map names
+    it too, as a host without the folder would see it): the agent dies of it at once (no retry
+    helps) and the run reports the entry, the viewframe and the agent; nothing hangs or crashes."""
     from models.viewframe_cache import ViewframeCache
     from models.world import World
     from tests.knowledge_sources.conftest import inline_viewframe
@@ -265,23 +276,23 @@ def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
     vfs = [levels.Viewframe.from_hypothesis(h) for h in small_rendered["viewframes"]]
     if change == "entry-missing":
         entry, count = str(tmp_path / "elsewhere"), len(vfs)
-    else:  # a real entry of this route, named with another count
+    else:  # a real entry of this route (fresh: no stored index beside it), named with another count
         with World(load_scenario(small_rendered["path"]), cache=ViewframeCache(tmp_path / "cache")) as world:
             _ = world.viewframes
             assert world.entry is not None
             entry, count = str(world.entry.resolve()), 99
     with Runtime() as rt:
         if agent == "indexer-0":
-            rt.add("knowledge_sources.indexer:AssociativeIndexer", name=agent)
+            rt.add("knowledge_sources.indexer:AssociativeIndexer", name=agent, options=options)
         else:
-            rt.add("knowledge_sources.detector:LandmarkDetectorAgent", name=agent)
+            rt.add("knowledge_sources.detector:LandmarkDetectorAgent", name=agent, options=options)
         for v in vfs:
             forged = levels.Viewframe(
                 index=v.index, pose=v.pose, description=v.description, skyline=v.skyline, entry=entry, entry_count=count
             )
             rt.post(levels.VIEWFRAME, forged.to_body(), id=forged.id())
         if agent == "indexer-0":
-            rt.post(levels.MAP, dict(small_rendered["map"].body), id=levels.map_id())
+            rt.post(levels.MAP, {**small_rendered["map"].body, "entry": entry}, id=levels.map_id())
             first = 0
         else:
             mp = levels.Map.from_hypothesis(small_rendered["map"])

@@ -427,3 +427,24 @@ def test_reading_pixels_leaves_none_of_the_entry_resident(entry) -> None:
     assert _resident_kb(address) == 0
     _ = np.array(stacked[1])  # read without read_pixels: resident (the test can see it)
     assert _resident_kb(address) > 0
+
+
+def test_an_entrys_stacked_field_is_read_memory_mapped_or_none_with_a_warning(tmp_path, caplog):
+    import dataclasses
+
+    from models.viewframe_cache import entry_field
+
+    heap = World(scenario_from_dict(_data()), cache=None).viewframes
+    cache = ViewframeCache(tmp_path)
+    cache.store("a" * 64, heap)
+    images = entry_field(cache.path("a" * 64), "image", count=len(heap))
+    assert isinstance(images, np.memmap) and not images.flags.writeable
+    assert all(np.array_equal(images[k], vf.image) for k, vf in enumerate(heap))  # row k is viewframe k
+    # ragged (one file per row), another count, no entry: None, each with a warning naming the entry
+    varied = heap[:-1] + [dataclasses.replace(heap[-1], image=np.ascontiguousarray(heap[-1].image[::2]))]
+    cache.store("r" * 64, varied)
+    with caplog.at_level("WARNING", logger="models.viewframe_cache"):
+        assert entry_field(cache.path("r" * 64), "image") is None
+        assert entry_field(cache.path("a" * 64), "image", count=len(heap) + 1) is None
+        assert entry_field(tmp_path / "nowhere", "image") is None
+    assert caplog.text.count("cannot read image.npy") == 3 and str(cache.path("r" * 64)) in caplog.text
