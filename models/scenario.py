@@ -495,6 +495,9 @@ class SkylineSpec(_Spec):
     :func:`models.skyline.match_skylines`), chosen on the evaluation set's tuning split;
     ``roll_candidates`` (null: all) is how many viewframes, the best of a roll-free first pass,
     the roll is fitted for (the roll fit is most of a match's cost; BENCHMARKS.md, "Scale").
+    ``coarse_candidates`` (null: none, every viewframe ranked is matched in full) is how many
+    viewframes, the best of a coarse first comparison with every one (:mod:`models.skyline_coarse`),
+    the full match ranks; the others are left out of the ranking, as outside a track window.
     ``weight`` is the skyline's weight in the fusion of ranking sources, in nats per degree of
     matching error (:mod:`knowledge_sources.fusion`; the memory's is ``memory.weight``),
     calibrated with the memory's on the tuning split (``bench/fusion_sweep.py --fit``;
@@ -508,6 +511,7 @@ class SkylineSpec(_Spec):
     truncate_deg: float = Field(default=2.0, gt=0, le=90)
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
     roll_candidates: int | None = Field(default=64, ge=1, le=MAX_ROUTE_POINTS)
+    coarse_candidates: int | None = Field(default=None, ge=1, le=MAX_ROUTE_POINTS)
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
     def match_options(self) -> dict[str, float | int | None]:
