@@ -71,7 +71,13 @@ import numpy as np  # noqa: E402
 
 from models.scenario import load_scenario  # noqa: E402
 from models.skyline import match_skylines, skyline_from_depth, skyline_from_image  # noqa: E402
-from models.skyline_coarse import COARSE_FACTOR, CoarseSkylines, coarse_errors, ranked_references  # noqa: E402
+from models.skyline_coarse import (  # noqa: E402
+    COARSE_FACTOR,
+    CoarseSkylines,
+    coarse_errors,
+    coarse_options,
+    ranked_references,
+)
 
 
 def _walk(terrain, count: int, spacing: float, rng: np.random.Generator) -> list[tuple[float, float, float]]:
@@ -222,7 +228,7 @@ def recall(data: dict, ms: list[int], *, check: list[int], factor: int) -> dict:
         full = match_skylines(q, refs, roll_candidates=roll, **match)
         order_full = np.lexsort((labels, full.error))
         best = int(order_full[0])
-        order = np.argsort(coarse_errors(q, coarse, **match), kind="stable")
+        order = np.argsort(coarse_errors(q, coarse, **coarse_options(match)), kind="stable")
         rank_best.append(_position(order, best))
         rank_truth.append(_position(order, int(t)))
         rank_truth_full.append(_position(order_full, int(t)))
@@ -274,7 +280,7 @@ def timing(data: dict, sizes: list[int], *, frames: int, m: int, factor: int) ->
                     t_two.append(time.process_time() - t0)
         t0 = time.process_time()
         for q in data["queries"][:frames]:
-            coarse_errors(q, coarse, **match)
+            coarse_errors(q, coarse, **coarse_options(match))
         t_coarse = (time.process_time() - t0) / max(1, frames)
         out[str(size)] = {
             "frames": frames,

@@ -511,7 +511,7 @@ class SkylineSpec(_Spec):
     truncate_deg: float = Field(default=2.0, gt=0, le=90)
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
     roll_candidates: int | None = Field(default=64, ge=1, le=MAX_ROUTE_POINTS)
-    coarse_candidates: int | None = Field(default=None, ge=1, le=MAX_ROUTE_POINTS)
+    coarse_candidates: int | None = Field(default=200, ge=1, le=MAX_ROUTE_POINTS)
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
     def match_options(self) -> dict[str, float | int | None]:

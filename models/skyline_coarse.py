@@ -3,9 +3,9 @@ picks the candidates the full (robust, shift-searched) match ranks.
 
 The full match (:func:`models.skyline.match_skylines`) costs a median per reference and heading
 shift over every bin: at 10,000 viewframes it is most of the skyline ranker's time. This stage
-compares the camera profile with every reference in the same model on profiles a quarter the
-length and at half the shifts, vectorised over all references, and keeps the ``count`` best;
-only those are matched in full (:func:`ranked_references`).
+compares the camera profile with every reference in the same robust model on profiles a quarter
+the length and at half the shifts, vectorised over all references, and keeps the
+``count`` best; only those are matched in full (:func:`ranked_references`).
 
 The comparison (the full match's model, :mod:`models.skyline`, on a coarser grid):
 
@@ -13,31 +13,34 @@ The comparison (the full match's model, :mod:`models.skyline`, on a coarser grid
   bins (:data:`COARSE_FACTOR`; blocks centred on the profile), a block valid when all its bins
   are. The references' blocks are fixed (:class:`CoarseSkylines`, prepared once); the camera
   profile's are taken at every ``stride``-th whole-bin heading shift (:data:`COARSE_STRIDE`) up
-  to the full match's ``max_heading_deg``, so its heading resolution is ``stride * step_deg``.
+  to the full match's ``max_heading_deg``, so its heading resolution is ``stride * step_deg``
+  (1 degree at the defaults, half a block).
 * For each reference and shift, ``d_j = r_j - q_j`` over the blocks ``j`` valid in both: the
-  tilt (the roll) is the line through the medians of the left and the right half of the blocks
-  at the halves' mean azimuths, clipped to ``tan(max_roll_deg)``; the pitch offset the median of
-  the detilted ``d``, clipped to ``max_pitch_deg``; the error the mean over the camera
-  profile's valid blocks of the residuals truncated at ``truncate_deg`` (a block the reference
-  does not cover counts ``truncate_deg``; an overlap under ``min_overlap`` scores
+  pitch offset is the median of ``d``, clipped to ``max_pitch_deg``, and the error the mean over
+  the camera profile's valid blocks of the residuals truncated at ``truncate_deg`` (a block the
+  reference does not cover counts ``truncate_deg``; an overlap under ``min_overlap`` scores
   ``truncate_deg``), as in the full match. The best shift's error is the reference's coarse
-  error. (The medians ignore invalid blocks by filling them alternately with +-inf: exact for
+  error. (The median ignores invalid blocks by filling them alternately with +-inf: exact for
   an even number of invalid blocks, half a rank off for an odd one.)
+* No roll: the stage does not fit the tilt the full match fits (``max_roll_deg``).
 
-The work per frame is O(V * S / stride * n / factor) elementwise and partition operations in
-numpy (blocks of :data:`_BLOCK` references whose temporaries stay in the CPU cache), against the
-full match's O(V * S * n) with a median per shift.
+The work per frame is O(V * (S / stride) * (n / factor)) elementwise and partition operations
+in numpy (blocks of :data:`_BLOCK` references whose temporaries stay in the CPU cache), against
+the full match's O(V * S * n) with a median per shift.
 
-A first version compared in least squares (the pitch and tilt fitted in closed form, every sum
-of every reference and shift from three BLAS products: a few milliseconds at 10,000 references);
-on the evaluation set's tuning split it lost the full ranking's first where a third of the
-camera horizon's columns were wrong (a squared error lets them decide), so the comparison is the
-full match's robust one (``bench/skyline_coarse.py``, BENCHMARKS.md).
+Chosen on the evaluation set's tuning split padded to 10,000 references (``bench/skyline_coarse.py``;
+BENCHMARKS.md, "Skyline coarse stage"): a least-squares comparison (pitch and tilt fitted in
+closed form, every sum from three BLAS products, 22 ms a frame) lost the full ranking's first
+on 6.5 % of the frames at 300 candidates, where a stretch of the camera horizon's columns was
+wrong (squared errors let them decide); the robust one with the tilt fitted from the medians of
+the two halves kept it within the first 222, without the tilt within the first 86 (stride 2)
+and 95 (stride 4, 40 % cheaper; but on rough synthetic profiles, tests/models/test_skyline.py,
+a heading error of half a block cost up to 100 ranks); blocks of 8 bins lost it on one frame.
 """
 
 from __future__ import annotations
 
-import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,6 +67,7 @@ COARSE_STRIDE = 2
 _DEFAULTS = SkylineSpec()
 _MIN_OVERLAP = 0.5  # the full match's (models.skyline)
 _BLOCK = 1024  # references compared at once (their (block, shifts, blocks) temporaries: about 3 MB)
+_SHARED = ("step_deg", "max_heading_deg", "max_pitch_deg", "truncate_deg", "min_overlap")  # with the full match
 _FILL = np.float32(1e9)  # invalid blocks in a median: alternately +_FILL and -_FILL
 
 
@@ -112,15 +116,15 @@ class CoarseSkylines:
 
 
 def _query_blocks(
-    q: NDArray[np.float64], coarse: CoarseSkylines, shifts: NDArray[np.int64], step_deg: float
-) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
-    """The camera profile's block means (S, B) facing the references' blocks at each shift,
-    their validity (S, B) and azimuths (S, B), degrees.
+    q: NDArray[np.float64], coarse: CoarseSkylines, shifts: NDArray[np.int64]
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """The camera profile's block means (S, B) facing the references' blocks at each shift and
+    their validity (S, B).
 
     At shift ``s`` the camera bin ``i`` faces the reference bin ``i - s`` (the full match's
     convention), so the reference block starting at bin ``o`` faces the camera bins ``o + s``
     onwards; bins outside the profile are invalid."""
-    n, k = coarse.bins, coarse.factor
+    k = coarse.factor
     nb = coarse.values.shape[1]
     ok = np.isfinite(q)
     pad = int(np.abs(shifts).max(initial=0)) + 2 * k
@@ -131,8 +135,7 @@ def _query_blocks(
     start = coarse.offset + k * np.arange(nb)[None, :] + shifts[:, None] + pad  # (S, B), in padded bins
     valid = (cnt[start + k] - cnt[start]) == k
     values = np.where(valid, (csum[start + k] - csum[start]) / k, 0.0)
-    az = (start - pad + (k - 1) / 2 - (n - 1) / 2) * step_deg
-    return values.astype(np.float32), valid, az.astype(np.float32)
+    return values.astype(np.float32), valid
 
 
 def _median(d: NDArray[np.float32], both: NDArray[np.bool_]) -> NDArray[np.float32]:
@@ -152,7 +155,6 @@ def coarse_errors(
     max_heading_deg: float = _DEFAULTS.max_heading_deg,
     max_pitch_deg: float = _DEFAULTS.max_pitch_deg,
     truncate_deg: float = _DEFAULTS.truncate_deg,
-    max_roll_deg: float = _DEFAULTS.max_roll_deg,
     min_overlap: float = _MIN_OVERLAP,
     stride: int = COARSE_STRIDE,
 ) -> NDArray[np.float64]:
@@ -161,8 +163,8 @@ def coarse_errors(
     q = np.asarray(query, dtype=np.float64).ravel()
     if q.size != coarse.bins:
         raise ValueError(f"query has {q.size} bins, the references {coarse.bins}")
-    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0 or not 0 <= max_roll_deg < 45:
-        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0, max_roll_deg in [0, 45)")
+    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0:
+        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0")
     if int(stride) < 1:
         raise ValueError(f"stride must be >= 1, got {stride}")
     v = len(coarse)
@@ -174,20 +176,12 @@ def coarse_errors(
     smax = min(int(round(max_heading_deg / step_deg)), coarse.bins - 1)
     shifts = np.arange(-smax, smax + 1)
     shifts = shifts[shifts % int(stride) == 0]
-    qb, qok, az = _query_blocks(q, coarse, shifts, step_deg)
-    nb = qb.shape[1]
-    half = nb // 2
-    inv = (1.0 / (az[:, half:].mean(axis=1) - az[:, :half].mean(axis=1))).astype(np.float32)  # (S,)
-    tmax = np.float32(math.tan(math.radians(max_roll_deg)))
+    qb, qok = _query_blocks(q, coarse, shifts)
     need = max(2.0, min_overlap * qn)
     for i in range(0, v, _BLOCK):
         d = coarse.values[i : i + _BLOCK, None, :] - qb[None]  # (R, S, B)
         both = coarse.valid[i : i + _BLOCK, None, :] & qok[None]
         m = both.sum(axis=2)
-        if tmax > 0:
-            slope = (_median(d[..., half:], both[..., half:]) - _median(d[..., :half], both[..., :half])) * inv
-            slope = np.clip(np.nan_to_num(slope, nan=0.0, posinf=0.0, neginf=0.0), -tmax, tmax)
-            d -= slope[..., None] * az[None]
         d -= np.clip(_median(d, both), -max_pitch_deg, max_pitch_deg)[..., None]
         np.abs(d, out=d)
         np.minimum(d, trunc, out=d)
@@ -210,6 +204,12 @@ def coarse_candidates(query: NDArray, coarse: CoarseSkylines, count: int, **matc
     e = coarse_errors(query, coarse, **match)
     best = np.argsort(e, kind="stable")[: int(count)]
     return np.sort(best).astype(np.int64)
+
+
+def coarse_options(match: Mapping[str, Any]) -> dict[str, Any]:
+    """The keywords of :func:`coarse_errors` among the full match's ``match`` (the scenario's
+    :meth:`models.scenario.SkylineSpec.match_options`): all but the roll's."""
+    return {k: v for k, v in match.items() if k in _SHARED}
 
 
 def ranked_references(
@@ -235,5 +235,5 @@ def ranked_references(
         return np.arange(len(r), dtype=np.int64), match_skylines(query, r, roll_candidates=roll_candidates, **match)
     if len(coarse) != len(r):
         raise ValueError(f"coarse holds {len(coarse)} references, not the {len(r)} given")
-    idx = coarse_candidates(query, coarse, candidates, **match)
+    idx = coarse_candidates(query, coarse, candidates, **coarse_options(match))
     return idx, match_skylines(query, r[idx], roll_candidates=roll_candidates, **match)

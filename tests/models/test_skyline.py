@@ -277,7 +277,7 @@ def _camera_profile(refs: np.ndarray, j: int, rng: np.random.Generator, *, outli
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_the_coarse_candidates_contain_the_full_rankings_best(seed, outliers):
     """On a seeded route of 1,500 references (115 bins, the scenario camera's), the coarse stage's
-    best 64 hold the full ranking's first, also with a fifth of the camera's horizon wrong; the
+    best 100 hold the full ranking's first, also with a fifth of the camera's horizon wrong; the
     fine stage gives the candidates the full match's results (roll fitted for every one, so the
     results do not depend on the other references) and so the same first."""
     from models.skyline_coarse import CoarseSkylines, coarse_candidates, ranked_references
@@ -291,9 +291,9 @@ def test_the_coarse_candidates_contain_the_full_rankings_best(seed, outliers):
     full = match_skylines(q, refs, roll_candidates=None)
     best = int(np.lexsort((np.arange(len(refs)), full.error))[0])
     assert best == j
-    cand = coarse_candidates(q, coarse, 64)
-    assert len(cand) == 64 and np.all(np.diff(cand) > 0) and best in cand
-    idx, sub = ranked_references(q, refs, coarse, candidates=64, roll_candidates=None)
+    cand = coarse_candidates(q, coarse, 100)
+    assert len(cand) == 100 and np.all(np.diff(cand) > 0) and best in cand
+    idx, sub = ranked_references(q, refs, coarse, candidates=100, roll_candidates=None)
     assert np.array_equal(idx, cand)
     for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
         assert np.array_equal(getattr(sub, f), getattr(full, f)[idx]), f
