@@ -6,8 +6,11 @@ query with every reference in full (:func:`models.skyline.match_skylines`, the s
 reports, for each candidate count M:
 
 * ``best``: how often the full ranking's first (ties: the lowest label) is among the coarse
-  stage's M best (then the coarse + fine ranking's first is the full ranking's: checked, as
-  ``same_top1``, for the Ms of ``--check``);
+  stage's M best; for the Ms of ``--check``, how often the coarse + fine ranking's first is the
+  full ranking's (``same_top1``: not always when it is among the candidates, since the roll is
+  fitted for the ``skyline.roll_candidates`` best of the roll-free pass over the references
+  matched, and a candidate may enter that set) and is the truth (``top1``, next to
+  ``full_top1``);
 * ``truth``: how often the true viewframe is among the coarse M best, next to ``truth_full``,
   how often it is among the full ranking's M best (the coarse stage cannot do better than the
   full ranking's own recall);
@@ -223,7 +226,9 @@ def recall(data: dict, ms: list[int], *, check: list[int], factor: int) -> dict:
     roll = match.pop("roll_candidates")
     coarse = CoarseSkylines.prepare(refs, factor=factor)
     labels = np.arange(len(refs))
-    rank_best, rank_truth, rank_truth_full, same = [], [], [], {m: [] for m in check}
+    rank_best, rank_truth, rank_truth_full = [], [], []
+    same: dict[int, list[bool]] = {m: [] for m in check}
+    top1: dict[int, list[bool]] = {m: [] for m in check}
     for q, t in zip(queries, truth):
         full = match_skylines(q, refs, roll_candidates=roll, **match)
         order_full = np.lexsort((labels, full.error))
@@ -234,7 +239,9 @@ def recall(data: dict, ms: list[int], *, check: list[int], factor: int) -> dict:
         rank_truth_full.append(_position(order_full, int(t)))
         for m in check:
             idx, sub = ranked_references(q, refs, coarse, candidates=m, roll_candidates=roll, **match)
-            same[m].append(int(idx[np.lexsort((idx, sub.error))[0]]) == best)
+            first = int(idx[np.lexsort((idx, sub.error))[0]])
+            same[m].append(first == best)
+            top1[m].append(first == int(t))
     rb, rt, rf = np.asarray(rank_best), np.asarray(rank_truth), np.asarray(rank_truth_full)
     return {
         "frames": len(queries),
@@ -250,6 +257,7 @@ def recall(data: dict, ms: list[int], *, check: list[int], factor: int) -> dict:
             for m in ms
         },
         "same_top1": {str(m): float(np.mean(v)) for m, v in same.items()},
+        "top1": {str(m): float(np.mean(v)) for m, v in top1.items()},
         "full_top1": float(np.mean(rf == 0)),
         "coarse_rank_of_best": {
             "max": int(rb.max()),
@@ -358,6 +366,11 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"  {name:<9}{res['frames']:>7}{res['references']:>7}{m:>6}{r['best']:>9.4f}{r['truth']:>9.4f}"
                 f"{r['truth_full']:>12.4f}{r['best_missed']:>8}"
+            )
+        for m, v in res["top1"].items():
+            print(
+                f"  {name}: truth first, full {res['full_top1']:.4f}, coarse+fine (M={m}) {v:.4f}; "
+                f"same first as the full ranking {res['same_top1'][m]:.4f}"
             )
         for size, t in res.get("timing", {}).items():
             print(
