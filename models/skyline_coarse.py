@@ -20,12 +20,14 @@ The comparison (the full match's model, :mod:`models.skyline`, on a coarser grid
   the camera profile's valid blocks of the residuals truncated at ``truncate_deg`` (a block the
   reference does not cover counts ``truncate_deg``; an overlap under ``min_overlap`` scores
   ``truncate_deg``), as in the full match. The best shift's error is the reference's coarse
-  error. (The median ignores invalid blocks by filling them alternately with +-inf: exact for
-  an even number of invalid blocks, half a rank off for an odd one.)
+  error. (The median is the upper median of the blocks valid in both, taken over all ``B`` with
+  the invalid ones filled with +inf at even and -inf at odd block positions: exact when as many
+  invalid blocks sit at even as at odd positions, as for a contiguous run of even length, and
+  off by half the difference in ranks otherwise.)
 * No roll: the stage does not fit the tilt the full match fits (``max_roll_deg``).
 
 The work per frame is O(V * (S / stride) * (n / factor)) elementwise and partition operations
-in numpy (blocks of :data:`_BLOCK` references whose temporaries stay in the CPU cache), against
+in numpy (blocks of :data:`_BLOCK` references at a time, so the temporaries stay bounded), against
 the full match's O(V * S * n) with a median per shift.
 
 Chosen on the evaluation set's tuning split padded to 10,000 references (``bench/skyline_coarse.py``;
@@ -66,7 +68,7 @@ COARSE_STRIDE = 2
 
 _DEFAULTS = SkylineSpec()
 _MIN_OVERLAP = 0.5  # the full match's (models.skyline)
-_BLOCK = 1024  # references compared at once (their (block, shifts, blocks) temporaries: about 3 MB)
+_BLOCK = 1024  # references compared at once: each (block, shifts, blocks) temporary about 3 MB
 _SHARED = ("step_deg", "max_heading_deg", "max_pitch_deg", "truncate_deg", "min_overlap")  # with the full match
 _FILL = np.float32(1e9)  # invalid blocks in a median: alternately +_FILL and -_FILL
 
