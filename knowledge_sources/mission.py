@@ -95,7 +95,12 @@ def agent_plan(
             (
                 "knowledge_sources.skyline:SkylineRanker",
                 "skyline",
-                {"fov_y_deg": scenario.camera.fov_y_deg, **match, "tracked": tracked},
+                {
+                    "fov_y_deg": scenario.camera.fov_y_deg,
+                    **match,
+                    "coarse_candidates": sky.coarse_candidates,
+                    "tracked": tracked,
+                },
             )
         )
         sources["skyline"] = sky.weight

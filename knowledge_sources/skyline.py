@@ -11,10 +11,12 @@ from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board
 from knowledge_sources import levels
 from knowledge_sources.ranker import RouteRanker
+from models.scenario import SkylineSpec
 from models.skyline import DEFAULT_MAX_ROLL_DEG, DEFAULT_ROLL_CANDIDATES
 
 if TYPE_CHECKING:
     from models.scenario import MemorySpec
+    from models.skyline_coarse import CoarseSkylines
 
 __all__ = ["SkylineRanker", "SKYLINE_SOURCE"]
 
@@ -34,13 +36,19 @@ class SkylineRanker(RouteRanker):
     (:mod:`knowledge_sources.fusion`).
 
     Options (from the scenario's ``skyline`` block and camera): ``fov_y_deg``, ``step_deg``,
-    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``roll_candidates``;
-    ``tracked`` (a tracker runs; default False). Camera frames that arrive before the
-    map is complete wait; viewframes missed as events are read back from the blackboard.
+    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``roll_candidates``,
+    ``coarse_candidates``; ``tracked`` (a tracker runs; default False). Camera frames that arrive
+    before the map is complete wait; viewframes missed as events are read back from the blackboard.
 
     The track's neighbourhood: when ``tracked``, the ranking of a frame holds the viewframes of
     the associative indexers' track window (the same rule, :class:`models.index.TrackWindows`,
     with the map's ``memory`` settings), so the two sources rank the same route points.
+
+    The coarse stage: with ``coarse_candidates`` M (not None), the viewframes to rank (all, or
+    the window's) are first compared coarsely (:mod:`models.skyline_coarse`) and only the M best
+    are matched in full; the ranking holds those M, as a window's ranking holds the window's
+    viewframes, and the fusion gives the others the skyline's largest evidence
+    (:mod:`knowledge_sources.fusion`). Fewer viewframes than M, or None: all are matched in full.
     """
 
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING,)
@@ -56,6 +64,7 @@ class SkylineRanker(RouteRanker):
         truncate_deg: float,
         max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
         roll_candidates: int | None = DEFAULT_ROLL_CANDIDATES,
+        coarse_candidates: int | None = SkylineSpec().coarse_candidates,
         tracked: bool = False,
         **options: Any,
     ) -> None:
@@ -75,9 +84,13 @@ class SkylineRanker(RouteRanker):
         if roll_candidates is not None and int(roll_candidates) < 1:
             raise ValueError(f"roll_candidates must be >= 1 or None, got {roll_candidates}")
         self.roll_candidates = None if roll_candidates is None else int(roll_candidates)
+        if coarse_candidates is not None and int(coarse_candidates) < 1:
+            raise ValueError(f"coarse_candidates must be >= 1 or None, got {coarse_candidates}")
+        self.coarse_candidates = None if coarse_candidates is None else int(coarse_candidates)
         self._profiles: dict[int, np.ndarray] = {}
         self._refs: np.ndarray | None = None
         self._labels: np.ndarray | None = None
+        self._coarse: CoarseSkylines | None = None
 
     def keep(self, viewframe: levels.Viewframe) -> None:
         self._profiles[viewframe.index] = np.asarray(viewframe.skyline, dtype=np.float32)
@@ -95,12 +108,17 @@ class SkylineRanker(RouteRanker):
         self._labels = np.asarray(labels, dtype=np.int64)
         self._refs = np.stack([self._profiles[k] for k in labels])
         self._profiles.clear()
+        if self.coarse_candidates is not None and self.coarse_candidates < len(labels):
+            from models.skyline_coarse import CoarseSkylines
+
+            self._coarse = CoarseSkylines.prepare(self._refs)
         log.info("%s: %d viewframe skylines of %d bins", self.name, len(labels), self._refs.shape[1])
         return memory_settings(mp.memory)
 
     def rank(self, hypothesis: Hypothesis, board: Board) -> None:
         from models.associative import reliability
-        from models.skyline import match_skylines, skyline_from_image
+        from models.skyline import skyline_from_image
+        from models.skyline_coarse import ranked_references
 
         assert self._refs is not None and self._labels is not None
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
@@ -111,11 +129,15 @@ class SkylineRanker(RouteRanker):
                 f"viewframes {self._refs.shape[1]} (another field of view?)"
             )
         window = self.window(frame.frame)
-        refs, labels = self._refs, self._labels
+        refs, labels, coarse = self._refs, self._labels, self._coarse
         if window is not None:
             lo, hi = np.searchsorted(labels, window[0], side="left"), np.searchsorted(labels, window[1], side="right")
             refs, labels = refs[lo:hi], labels[lo:hi]
-        m = match_skylines(query, refs, roll_candidates=self.roll_candidates, **self.match)
+            coarse = None if coarse is None else coarse.rows(int(lo), int(hi))
+        ranked, m = ranked_references(
+            query, refs, coarse, candidates=self.coarse_candidates, roll_candidates=self.roll_candidates, **self.match
+        )
+        labels = labels[ranked]
         order = np.lexsort((labels, m.error))
         rel = reliability(m.error)
         levels.post(

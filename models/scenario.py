@@ -490,11 +490,18 @@ class SchedulerSpec(_Spec):
 class SkylineSpec(_Spec):
     """The skyline ranking source (:mod:`models.skyline`, :mod:`knowledge_sources.skyline`):
     ``{enabled: true, step_deg: 0.5, max_heading_deg: 12, max_pitch_deg: 4, truncate_deg: 2,
-    max_roll_deg: 3, weight: 3.8}``. ``max_roll_deg`` bounds the tilt of the camera's profile
-    against a viewframe's that the matching fits (the camera's roll;
+    max_roll_deg: 3, roll_candidates: 64, coarse_candidates: 200, weight: 3.8}``.
+    ``max_roll_deg`` bounds the tilt of the camera's profile against a viewframe's that the
+    matching fits (the camera's roll;
     :func:`models.skyline.match_skylines`), chosen on the evaluation set's tuning split;
     ``roll_candidates`` (null: all) is how many viewframes, the best of a roll-free first pass,
     the roll is fitted for (the roll fit is most of a match's cost; BENCHMARKS.md, "Scale").
+    ``coarse_candidates`` (null: none, every viewframe ranked is matched in full) is how many
+    viewframes, the best of a coarse first comparison with every one (:mod:`models.skyline_coarse`),
+    the full match ranks; the others are left out of the ranking, as outside a track window.
+    200 was chosen on the evaluation set's tuning split padded to 10,000 references, where the
+    full ranking's first was always among the coarse first 86 (``bench/skyline_coarse.py``;
+    BENCHMARKS.md, "Skyline coarse stage").
     ``weight`` is the skyline's weight in the fusion of ranking sources, in nats per degree of
     matching error (:mod:`knowledge_sources.fusion`; the memory's is ``memory.weight``),
     calibrated with the memory's on the tuning split (``bench/fusion_sweep.py --fit``;
@@ -508,6 +515,7 @@ class SkylineSpec(_Spec):
     truncate_deg: float = Field(default=2.0, gt=0, le=90)
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
     roll_candidates: int | None = Field(default=64, ge=1, le=MAX_ROUTE_POINTS)
+    coarse_candidates: int | None = Field(default=200, ge=1, le=MAX_ROUTE_POINTS)
     weight: float = Field(default=3.8, ge=0, le=1e3)
 
     def match_options(self) -> dict[str, float | int | None]:

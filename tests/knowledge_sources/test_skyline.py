@@ -4,6 +4,7 @@ of the full match (the lifecycle it shares with the indexer is tested in test_ra
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
@@ -13,8 +14,8 @@ from models.scenario import SkylineSpec
 from tests.knowledge_sources.rankers import frames_from_viewframes, post_map, repost, track
 
 
-def _ranker(tracked: bool) -> SkylineRanker:
-    return SkylineRanker("skyline", fov_y_deg=45.0, tracked=tracked, **SkylineSpec().match_options())
+def _ranker(tracked: bool, **options: object) -> SkylineRanker:
+    return SkylineRanker("skyline", fov_y_deg=45.0, tracked=tracked, **{**SkylineSpec().match_options(), **options})
 
 
 def _ranking(bb: MemoryBlackboard, frame: int) -> levels.Ranking:
@@ -54,3 +55,65 @@ def test_while_tracking_the_skyline_ranks_the_indexers_window_with_the_full_matc
     win = _ranking(bb, 1)
     assert sorted(win.viewframes) == [1, 2, 3]
     assert np.allclose(win.variances, [errors[k] for k in win.viewframes])
+
+
+@pytest.mark.parametrize("candidates", [3, 8])
+def test_with_the_coarse_stage_the_skyline_ranks_its_candidates_with_the_full_matchs_errors(
+    small_rendered: dict, candidates: int
+) -> None:
+    """``coarse_candidates`` M: the ranking holds the coarse stage's M best viewframes (all 8 for
+    M = 8: the full ranking), with the errors of the full match of every viewframe."""
+    from models.skyline import skyline_from_image
+    from models.skyline_coarse import CoarseSkylines, coarse_candidates
+
+    every, coarse = _ranker(False), _ranker(False, coarse_candidates=candidates)
+    got = {}
+    for sky in (every, coarse):
+        bb = MemoryBlackboard()
+        bb.add(sky)
+        post_map(bb, small_rendered)
+        frames_from_viewframes(bb, small_rendered, [2, 5])
+        bb.run()
+        got[sky] = {k: _ranking(bb, k) for k in (2, 5)}
+    refs = np.stack([levels.Viewframe.from_hypothesis(h).skyline for h in small_rendered["viewframes"]])
+    for k in (2, 5):
+        full, part = got[every][k], got[coarse][k]
+        errors = dict(zip(full.viewframes, full.variances))
+        image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][k]).image
+        q = skyline_from_image(image, fov_y_deg=45.0)
+        want = coarse_candidates(q, CoarseSkylines.prepare(refs), candidates)
+        assert sorted(part.viewframes) == want.tolist() and len(part.viewframes) == candidates
+        assert np.allclose(part.variances, [errors[v] for v in part.viewframes])
+        assert part.viewframes[0] == full.viewframes[0] == k
+        if candidates >= len(refs):
+            assert part.viewframes == full.viewframes and part.variances == full.variances
+
+
+def test_a_bad_coarse_candidates_is_refused_naming_the_option() -> None:
+    with pytest.raises(ValueError, match="coarse_candidates must be >= 1 or None, got 0"):
+        _ranker(False, coarse_candidates=0)
+
+
+def test_the_scheduler_fuses_the_coarse_stages_ranking_in_a_mission(tmp_path, small_data: dict) -> None:
+    """A whole mission (every agent in one process) with ``skyline.coarse_candidates: 3`` on the
+    8-viewframe route: every skyline ranking holds 3 viewframes, the scheduler fuses them with the
+    associative rankings of all 8 and localizes every frame."""
+    import yaml
+
+    from knowledge_sources.mission import run_mission
+
+    small_data["skyline"] = {"coarse_candidates": 3}
+    path = tmp_path / "coarse.yaml"
+    path.write_text(yaml.safe_dump(small_data))
+    sizes: dict[str, list[int]] = {"skyline": [], "associative": []}
+
+    def seen(level: str, body, stamp: float) -> None:
+        if level == levels.RANKING:
+            sizes[str(body["source"])].append(len(body["viewframes"]))
+
+    results = run_mission(path, track=False, on_hypothesis=seen)
+    n = len(small_data["route"])
+    assert results["summary"]["posted"] == n and results["summary"]["localized"] == n
+    assert sizes["skyline"] == [3] * n
+    assert sizes["associative"] and all(s == n for s in sizes["associative"])
+    assert results["summary"]["top1"] >= 0.75

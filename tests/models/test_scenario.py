@@ -123,6 +123,8 @@ MALFORMED = [
     ("scheduler", {"position_dof": 0}, "scheduler.position_dof: must be > 0"),
     ("scheduler", {"max_position_llr": 50}, "scheduler.max_position_llr: must be <= 20"),
     ("scheduler", {"position_evidence": "maybe"}, "scheduler.position_evidence"),
+    ("skyline", {"coarse_candidates": 0}, "skyline.coarse_candidates: must be >= 1"),
+    ("skyline", {"coarse_candidates": 2.5}, "skyline.coarse_candidates: must be an integer"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
     ("expect", {"top1_frame_only_min": 1.5}, "expect.top1_frame_only_min: must be <= 1"),
     ("tracking", {"cell_m": 1e9}, "tracking.cell_m: must be <= 10000"),

@@ -258,3 +258,97 @@ def test_matching_in_blocks_of_references_gives_the_same_match(monkeypatch, max_
     for field in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
         assert np.array_equal(getattr(whole, field), getattr(blocks, field)), field
     assert int(np.argmin(blocks.error)) == 31
+
+
+def _camera_profile(refs: np.ndarray, j: int, rng: np.random.Generator, *, outliers: bool) -> np.ndarray:
+    """Reference ``j`` as a camera would see it: turned by 3 bins, pitched, rolled, noisy, its
+    first bins missing, and (``outliers``) a run of wrong columns (a failed stretch of horizon)."""
+    n = refs.shape[1]
+    az = profile_azimuths(n)
+    q = np.roll(refs[j], 3) - 0.4 - math.tan(math.radians(1.5)) * az + rng.normal(0, 0.1, n)
+    q[:3] = np.nan
+    if outliers:
+        start = int(rng.integers(5, n - 30))
+        q[start : start + 25] += rng.uniform(4.0, 8.0)
+    return q
+
+
+@pytest.mark.parametrize("outliers", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_coarse_candidates_contain_the_full_rankings_best(seed, outliers):
+    """On a seeded route of 1,500 references (115 bins, the scenario camera's), the coarse stage's
+    best 100 hold the full ranking's first, also with a fifth of the camera's horizon wrong; the
+    fine stage gives the candidates the full match's results (roll fitted for every one, so the
+    results do not depend on the other references) and so the same first."""
+    from models.skyline_coarse import CoarseSkylines, coarse_candidates, ranked_references
+
+    rng = np.random.default_rng(200 + seed)
+    refs = _route_of_profiles(1500, 115, seed)
+    refs[rng.random(refs.shape) < 0.01] = np.nan  # a few invalid bins
+    j = int(rng.integers(20, 1480))
+    q = _camera_profile(refs, j, rng, outliers=outliers)
+    coarse = CoarseSkylines.prepare(refs)
+    full = match_skylines(q, refs, roll_candidates=None)
+    best = int(np.lexsort((np.arange(len(refs)), full.error))[0])
+    assert best == j
+    cand = coarse_candidates(q, coarse, 100)
+    assert len(cand) == 100 and np.all(np.diff(cand) > 0) and best in cand
+    idx, sub = ranked_references(q, refs, coarse, candidates=100, roll_candidates=None)
+    assert np.array_equal(idx, cand)
+    for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
+        assert np.array_equal(getattr(sub, f), getattr(full, f)[idx]), f
+    assert int(idx[np.argmin(sub.error)]) == best
+
+
+@pytest.mark.parametrize("count", [40, 41, 1000])
+@pytest.mark.parametrize("roll_candidates", [None, 8])
+def test_with_as_many_candidates_as_references_the_ranking_is_the_full_one(count, roll_candidates):
+    """M >= N (or no coarse stage) is the full ranking, bit for bit, whatever the roll settings."""
+    from models.skyline_coarse import CoarseSkylines, ranked_references
+
+    rng = np.random.default_rng(31)
+    refs = _route_of_profiles(41, 115, 7)
+    q = _camera_profile(refs, 17, rng, outliers=True)
+    full = match_skylines(q, refs, roll_candidates=roll_candidates)
+    coarse = CoarseSkylines.prepare(refs)
+    runs = [ranked_references(q, refs, None, candidates=count, roll_candidates=roll_candidates)]
+    runs.append(ranked_references(q, refs, coarse, candidates=None, roll_candidates=roll_candidates))
+    if count >= len(refs):
+        runs.append(ranked_references(q, refs, coarse, candidates=count, roll_candidates=roll_candidates))
+    for idx, m in runs:
+        assert np.array_equal(idx, np.arange(len(refs)))
+        for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
+            assert np.array_equal(getattr(m, f), getattr(full, f)), f
+    idx, m = ranked_references(q, refs, coarse, candidates=count, roll_candidates=roll_candidates)
+    assert len(idx) == min(count, len(refs))
+
+
+def test_the_coarse_stage_rejects_bad_input():
+    from models.skyline_coarse import CoarseSkylines, coarse_candidates, coarse_errors, ranked_references
+
+    refs = _route_of_profiles(10, 115, 1)
+    coarse = CoarseSkylines.prepare(refs)
+    with pytest.raises(ValueError, match="count must be >= 1"):
+        coarse_candidates(refs[0], coarse, 0)
+    with pytest.raises(ValueError, match="query has 81 bins, the references 115"):
+        coarse_errors(np.zeros(81), coarse)
+    with pytest.raises(ValueError, match="factor must be in"):
+        CoarseSkylines.prepare(refs, factor=0)
+    with pytest.raises(ValueError, match="coarse holds 10 references, not the 9 given"):
+        ranked_references(refs[0], refs[:9], coarse, candidates=3)
+    # a camera profile without a valid bin: every reference scores the truncation, none is preferred
+    e = coarse_errors(np.full(115, np.nan), coarse)
+    assert np.array_equal(e, np.full(10, 2.0))
+
+
+def test_the_coarse_errors_of_a_window_are_the_whole_routes():
+    """The ranker compares a track window's references: ``rows`` gives the same errors."""
+    from models.skyline_coarse import CoarseSkylines, coarse_errors
+
+    refs = _route_of_profiles(300, 115, 3)
+    refs[40:60, :30] = np.nan
+    q = _camera_profile(refs, 50, np.random.default_rng(3), outliers=False)
+    coarse = CoarseSkylines.prepare(refs)
+    whole = coarse_errors(q, coarse)
+    assert np.array_equal(coarse_errors(q, coarse.rows(30, 90)), whole[30:90])
+    assert int(np.argmin(whole)) in (49, 50)  # neighbours, 3 bins apart on one panorama: the camera's 3-bin turn
