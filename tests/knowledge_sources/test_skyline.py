@@ -79,7 +79,7 @@ def test_with_the_coarse_stage_the_skyline_ranks_its_candidates_with_the_full_ma
     for k in (2, 5):
         full, part = got[every][k], got[coarse][k]
         errors = dict(zip(full.viewframes, full.variances))
-        image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][k]).image
+        image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][k]).pixels(agent="test").image
         q = skyline_from_image(image, fov_y_deg=45.0)
         want = coarse_candidates(q, CoarseSkylines.prepare(refs), candidates)
         assert sorted(part.viewframes) == want.tolist() and len(part.viewframes) == candidates
