@@ -220,7 +220,7 @@ class AgentRunner:
         when ``wait_s`` > 0."""
         while True:
             try:
-                self._hold = SESSIONS.acquire(self._config)
+                self._hold = SESSIONS.acquire(self._config, scope=self.keys.run_id)
                 return self._hold.session
             except TransportError:
                 if time.monotonic() + _RETRY_S > deadline:

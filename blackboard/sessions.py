@@ -6,8 +6,8 @@ as it cycles through it, and the router sends each post once to every session th
 to it. With ~50 agents in one process (20 indexer shards of a 10,000-viewframe route, detectors,
 skyline, ...) that was 50 pools (835 MB resident at 10,000 viewframes, 200 MB of a 594 MB
 ``hills`` run) and 20 copies of every 150 KB viewframe message on the loopback links. Agents
-with the same zenoh configuration (one run's agents: the same node endpoint, config file and
-password) now share one session: the router sends a post to the process once and the session
+of one run with the same zenoh configuration (the same node endpoint, config file and password)
+now share one session: the router sends a post to the process once and the session
 hands it to each agent's subscriber.
 
 An agent's subscribers, queryables and liveliness token stay its own: :meth:`SharedSession.release`
@@ -75,10 +75,12 @@ class SessionRegistry:
         self._lock = threading.Lock()
         self._open: dict[str, tuple[zenoh.Session, int]] = {}
 
-    def acquire(self, config: zenoh.Config) -> SharedSession:
-        """A hold on the session of ``config``: the open one, or a new one
-        (:class:`~blackboard.errors.TransportError` when it cannot be opened)."""
-        key = str(config)
+    def acquire(self, config: zenoh.Config, *, scope: str = "") -> SharedSession:
+        """A hold on the session of ``config`` within ``scope`` (the run id: agents of two runs
+        never share a session, even when a later run's node listens on a port an earlier one
+        used): the open one, or a new one (:class:`~blackboard.errors.TransportError` when it
+        cannot be opened)."""
+        key = _key(config, scope)
         with self._lock:
             held = self._open.get(key)
             if held is not None and not held[0].is_closed():
@@ -104,11 +106,15 @@ class SessionRegistry:
         if last and not session.is_closed():
             session.close()
 
-    def holders(self, config: zenoh.Config) -> int:
-        """How many agents hold the session of ``config`` (0: none open)."""
+    def holders(self, config: zenoh.Config, *, scope: str = "") -> int:
+        """How many agents hold the session of ``config`` within ``scope`` (0: none open)."""
         with self._lock:
-            held = self._open.get(str(config))
+            held = self._open.get(_key(config, scope))
             return 0 if held is None or held[0].is_closed() else held[1]
+
+
+def _key(config: zenoh.Config, scope: str) -> str:
+    return f"{scope}\n{config}"
 
 
 #: the registry of this process

@@ -20,11 +20,14 @@ def _peer_config():
 
 def test_a_registry_shares_one_session_per_config_and_closes_it_with_the_last_holder() -> None:
     registry = SessionRegistry()
-    config = _peer_config()
+    config = zenoh_config(mode="peer")  # an ephemeral port on 127.0.0.1: two sessions of it can be open
     first, second = registry.acquire(config), registry.acquire(config)
     assert first.session is second.session and registry.holders(config) == 2
     other = registry.acquire(_peer_config())  # another config (another port): another session
     assert other.session is not first.session
+    later = registry.acquire(config, scope="another-run")  # the same config in another run: not shared
+    assert later.session is not first.session and registry.holders(config, scope="another-run") == 1
+    later.release()
     sub = first.session.declare_subscriber("test/shared", lambda s: None)
     first.release([sub])
     first.release([sub])  # idempotent
