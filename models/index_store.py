@@ -46,6 +46,7 @@ from models.associative import BankedMemory
 from models.errors import AssociativeMemoryError
 from models.index import ViewframeIndex, memory_settings
 from models.scenario import MemorySpec
+from models.viewframe_cache import source_digest
 
 __all__ = [
     "INDEX_VERSION",
@@ -77,13 +78,7 @@ _ARRAYS = ("rows", "viewframes", "bank_rows", "bank_energy_sq")
 
 
 def _source_digest() -> str:
-    h = hashlib.sha256()
-    here = Path(__file__).resolve().parent
-    for name in INDEX_MODULES:
-        path = here / f"{name}.py"
-        h.update(name.encode())
-        h.update(path.read_bytes() if path.exists() else b"-")
-    return h.hexdigest()
+    return source_digest(INDEX_MODULES)
 
 
 def _entry_identity(entry: Path) -> dict[str, Any]:

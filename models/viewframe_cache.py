@@ -67,6 +67,7 @@ __all__ = [
     "default_cache_root",
     "entry_field",
     "release_pages",
+    "source_digest",
 ]
 
 log = logging.getLogger(__name__)
@@ -137,10 +138,12 @@ def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PA
     return done
 
 
-def _source_digest() -> str:
+def source_digest(modules: Sequence[str]) -> str:
+    """SHA-256 over the names and sources of the ``models`` modules ``modules`` (a missing one
+    counts as ``-``): what a stored product of that code is keyed by."""
     h = hashlib.sha256()
     here = Path(__file__).resolve().parent
-    for name in RENDERER_MODULES:
+    for name in modules:
         path = here / f"{name}.py"
         h.update(name.encode())
         h.update(path.read_bytes() if path.exists() else b"-")
@@ -171,7 +174,7 @@ def cache_key(
     }
     h.update(json.dumps(spec, sort_keys=True, default=repr).encode())
     h.update(np.ascontiguousarray(terrain.heights, dtype=np.float64).tobytes())
-    h.update(_source_digest().encode())
+    h.update(source_digest(RENDERER_MODULES).encode())
     return h.hexdigest()
 
 

@@ -7,8 +7,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +17,7 @@ from models.index import ViewframeIndex
 from models.index_store import INDEX_FOLDER, cached_index, index_key, load_index, store_index
 from models.scenario import MemorySpec
 from models.synthetic import scene
+from tests.models import children
 
 ROOT = Path(__file__).resolve().parents[2]
 COUNT = 11
@@ -315,23 +314,9 @@ def test_two_processes_store_the_same_index_at_once(tmp_path) -> None:
     entry = _entry(tmp_path, [scene(rng) for _ in range(40)])
     go = tmp_path / "go"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", _CHILD, str(entry), str(go)],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for _ in range(2)
-    ]
+    procs = children.start(_CHILD, [str(entry), str(go)], env=env)
     go.touch()  # both start indexing at once
-    outs = []
-    for p in procs:
-        out, err = p.communicate(timeout=300)
-        assert p.returncode == 0, err
-        outs.append(json.loads(out.strip().splitlines()[-1]))
+    outs = children.outputs(procs)
     assert outs[0]["best"] == outs[1]["best"] == 9
     np.testing.assert_allclose(outs[0]["variances"], outs[1]["variances"], rtol=1e-5, atol=1e-9)
     (folder,) = _stored(entry)  # one index, no temporary folder left

@@ -17,6 +17,7 @@ from models import viewframe_cache
 from models.scenario import scenario_from_dict
 from models.viewframe_cache import ViewframeCache, cache_key, default_cache_root
 from models.world import World
+from tests.models import children
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -200,22 +201,7 @@ def test_two_processes_share_a_cache_at_once(tmp_path):
     path.write_text(yaml.safe_dump(_data()))
     cache = tmp_path / "cache"
     env = {**os.environ, "MAPINTERP_CACHE": str(cache), "PYOPENGL_PLATFORM": "egl"}
-    procs = [
-        subprocess.Popen(
-            [sys.executable, "-c", _CHILD, str(path)],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
-        for _ in range(2)
-    ]
-    outs = []
-    for p in procs:
-        out, err = p.communicate(timeout=300)
-        assert p.returncode == 0, err
-        outs.append(json.loads(out.strip().splitlines()[-1]))
+    outs = children.outputs(children.start(_CHILD, [str(path)], env=env))
     assert outs[0]["digest"] == outs[1]["digest"] and outs[0]["n"] == 4
     entries = list(cache.iterdir())
     assert len(entries) == 1 and not entries[0].name.startswith(".")  # one entry, no temporary left
