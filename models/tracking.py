@@ -11,12 +11,15 @@ Prediction (motion model)
     more) and, with
     probability ``p_skip``, uniform on ``(0, max_skip_points]`` spacings (frames dropped, route
     points skipped, whatever the times say), a stop (``d = 0``) with probability ``p_stop``, a small reversal,
-    uniform on ``[-reverse_m, 0)``, with probability ``p_reverse``. Mass pushed past either end
-    of the grid stays on the end cell. Then a "kidnapped" mixture: with probability
+    uniform on ``[-reverse_m, 0)``, with probability ``p_reverse``. The route ends at its last
+    point: the forward moves from a cell are those that stay on the route, renormalised (the
+    vehicle's unknown speed, given that it does not drive past the end); at the last point and
+    beyond it (the grid's ``tail``, for a camera a little past it) a forward move is a stop, and
+    so is a reversal that would pass the first point. (Mass piled on the grid's last cell instead
+    drew a vehicle standing at the end of its route half a spacing past the last point.) Then a "kidnapped" mixture: with probability
     ``p_kidnap`` the vehicle may be anywhere (uniform), which is what lets the filter relocalize
     after a wrong start or a jump. The kernel is piecewise constant, so the convolution costs
-    O(cells) by cumulative sums (the offline backward pass correlates with the kernel directly,
-    or by FFT for long kernels).
+    O(cells) by cumulative sums (the offline backward pass, the transpose, too).
 
 Update (observation model)
     The frame's ranking gives a value ``v_k`` per route point ``k`` (lower is better): the
@@ -84,7 +87,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import fftconvolve
 
 from models.scenario import TrackingSpec
 
@@ -101,8 +103,6 @@ __all__ = [
     "SCORES",
 ]
 
-#: kernels longer than this are convolved by FFT
-_FFT_KERNEL = 96
 #: one frame's likelihood ratio between two cells is capped at exp(this)
 _LOG_RATIO_CAP = 200.0
 #: beliefs never fall below this (subnormal floats are slow)
@@ -344,6 +344,8 @@ class MotionModel:
     p_reverse: float
     reverse_m: float
     p_kidnap: float
+    #: the cell of the route's last point: forward moves that would pass it end there
+    end_cell: int
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
@@ -359,6 +361,7 @@ class MotionModel:
             spec.p_reverse,
             spec.reverse_m,
             spec.p_kidnap,
+            min(grid.cells - 1, int(grid.arc[-1] / grid.cell_m)),
         )
 
     def cruise_m(self, dt: float | None) -> float:
@@ -396,65 +399,79 @@ class MotionModel:
         self._cache[key] = (k, back, cruise)
         return k, back
 
+    def _boxes(self, dt: float | None) -> tuple[float, list[tuple[int, float]], int, float]:
+        """The kernel as boxes: ``(stop, [(width, weight per cell) of the forward boxes], back,
+        weight per cell of the reverse box)``."""
+        k, back = self.kernel(dt)
+        cruise = self._cache[None if dt is None else round(float(dt), 3)][2]
+        fwd = k.size - back - 1
+        a_skip = k[-1] if fwd > cruise else 0.0
+        boxes = [(w, float(a)) for w, a in ((fwd, a_skip), (cruise, k[back + 1] - a_skip)) if a > 0]
+        return float(k[back]), boxes, back, float(k[0]) if back else 0.0
+
+    def _ahead(self, n: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(reach, scale, stay, lo)`` of a forward box of ``width`` cells on ``n`` cells (cached): from
+        cell j the box's moves reach ``reach[j]`` cells ahead, up to the route's last point, each
+        of them ``scale[j] = width / reach[j]`` times as likely as on open route (0 where the box
+        has no move: at the last point and beyond, its moves are a stop, ``stay[j] = width``);
+        ``lo[i] = max(i - width, 0)`` for the cells up to the last point's."""
+        key = ("ahead", n, width)
+        got = self._cache.get(key)
+        if got is None:
+            e = min(self.end_cell, n - 1)
+            reach = np.clip(e - np.arange(n), 0, width)
+            scale = np.divide(float(width), reach, out=np.zeros(n), where=reach > 0)
+            lo = np.maximum(np.arange(e + 1) - width, 0)
+            got = (reach, scale, np.where(reach == 0, float(width), 0.0), lo)
+            self._cache[key] = got
+        return got
+
     def predict(self, belief: np.ndarray, dt: float | None) -> np.ndarray:
         """One prediction step of ``belief`` ``(C,)`` (sums to 1).
 
         The kernel is piecewise constant (stop, two forward boxes: cruise and skip, a reverse
         box), so the convolution is computed exactly from cumulative sums in O(cells), whatever
-        the kernel's length; :meth:`adjoint` computes the transpose by direct/FFT correlation
-        with the kernel itself, and the tests check one against the other.
+        the kernel's length. The route ends at its last point: a forward box's moves from a cell
+        are the ones that stay on the route, renormalised (the vehicle's speed, given that it
+        does not drive past the end); at the last point and beyond (the grid's tail) they are a
+        stop, and a reversal past the first point is a stop. :meth:`adjoint` computes the
+        transpose the same way, and the tests check one against the other.
         """
-        k, back = self.kernel(dt)
-        cruise = self._cache[None if dt is None else round(float(dt), 3)][2]
+        stop, boxes, back, a_back = self._boxes(dt)
         n = belief.size
-        fwd = k.size - back - 1
-        c = np.empty(n + 1)
-        c[0] = 0.0
-        np.cumsum(belief, out=c[1:])
-        out = k[back] * belief
-        # (element-wise products summed, not np.dot: a multithreaded BLAS dot of 10,000 numbers
-        # took 30 ms on a loaded machine)
-        a_skip = k[-1]
-        a_cruise = k[back + 1] - (a_skip if fwd > cruise else 0.0)
-        for width, weight in ((fwd, a_skip if fwd > cruise else 0.0), (cruise, a_cruise)):
-            if weight <= 0:
-                continue
-            plan = self._plan(n, width, "f")
-            # cells m - width .. m - 1 move to m; mass pushed past the end stays on the last cell
-            out += weight * (c[:n] - c[plan["lo"]])
-            tail = plan["pile"]
-            out[-1] += weight * float((tail * belief[n - tail.size :]).sum())
+        idx = np.arange(n)
+        out = stop * belief
+        c = np.zeros(n + 1)
+        for width, weight in boxes:
+            _, scale, stay, lo = self._ahead(n, width)
+            # a cell up to the last point's receives from cells i - width .. i - 1 (their moves all
+            # reach it); the cells beyond it from none
+            np.cumsum(belief * scale, out=c[1:])
+            out[: lo.size] += weight * (c[: lo.size] - c[lo])
+            out += weight * stay * belief
         if back:
-            plan = self._plan(n, back, "b")
-            out += k[0] * (c[plan["lo"]] - c[1:])
-            head = plan["pile"]
-            out[0] += k[0] * float((head * belief[: head.size]).sum())
+            np.cumsum(belief, out=c[1:])
+            out += a_back * (c[np.minimum(idx + back + 1, n)] - c[1:])  # from cells i + 1 .. i + back
+            out += a_back * np.maximum(back - idx, 0) * belief  # a reversal past the first point is a stop
         out *= (1.0 - self.p_kidnap) / max(out.sum(), 1e-300)
         out += self.p_kidnap / n
         return out
 
-    def _plan(self, n: int, width: int, way: str) -> dict[str, np.ndarray]:
-        """Index and pile-up weights of one box of :meth:`predict` (cached): forward (``"f"``,
-        displacements 1..width) or backward (``"b"``, -width..-1)."""
-        key = ("plan", n, width, way)
-        got = self._cache.get(key)
-        if got is None:
-            idx = np.arange(n)
-            w = min(n, width)
-            if way == "f":
-                pile = np.maximum(idx + width - (n - 1), 0).astype(np.float64)[n - w :]
-                got = {"lo": np.maximum(idx - width, 0), "pile": pile}
-            else:
-                pile = np.maximum(width - idx, 0).astype(np.float64)[:w]
-                got = {"lo": np.minimum(idx + width + 1, n), "pile": pile}
-            self._cache[key] = got
-        return got
-
     def adjoint(self, message: np.ndarray, dt: float | None) -> np.ndarray:
         """The transpose of :meth:`predict` applied to a backward message ``(C,)`` (not normalised)."""
-        k, back = self.kernel(dt)
-        ext = np.concatenate([np.full(back, message[0]), message, np.full(k.size - back - 1, message[-1])])
-        out = fftconvolve(ext, k[::-1], mode="valid") if k.size > _FFT_KERNEL else np.correlate(ext, k, mode="valid")
+        stop, boxes, back, a_back = self._boxes(dt)
+        n = message.size
+        idx = np.arange(n)
+        m = np.zeros(n + 1)
+        np.cumsum(message, out=m[1:])
+        out = stop * message
+        for width, weight in boxes:
+            reach, scale, stay, _ = self._ahead(n, width)
+            out += weight * scale * (m[idx + reach + 1] - m[idx + 1])  # cells j + 1 .. j + reach
+            out += weight * stay * message
+        if back:
+            out += a_back * (m[idx] - m[np.maximum(idx - back, 0)])  # cells j - back .. j - 1
+            out += a_back * np.maximum(back - idx, 0) * message
         return (1.0 - self.p_kidnap) * out + self.p_kidnap * message.mean()
 
 

@@ -120,6 +120,40 @@ def test_a_stop_holds_the_position():
         assert est.state == "tracking"
 
 
+@pytest.mark.parametrize("end", ["last", "first"])
+def test_a_stop_at_an_end_of_the_route_holds_the_position(end):
+    """A vehicle standing at the route's last (or first) point stays there: moves that would
+    leave the grid are stops, not mass piled on the end cell half a spacing past the point."""
+    rng = np.random.default_rng(7)
+    spec = TrackingSpec(p_reverse=0.2, reverse_m=30.0)  # reversals push mass past the first point too
+    f = RouteFilter(_route(), spec=spec)
+    true_s = float(f.grid.arc[-1] if end == "last" else f.grid.arc[0])
+    for _ in range(15):
+        est = f.step(_loglik(f, _variances(true_s, f.grid, rng)), dt=1.0)
+    assert est.route_point == (f.grid.points - 1 if end == "last" else 0)
+    assert abs(est.arc_m - true_s) < SPACING / 5
+
+
+def test_the_route_ends_at_its_last_point():
+    """Forward moves that would pass the last route point end on its cell; beyond it (the grid's
+    tail) a forward move is a stop; no mass is moved onto the grid's last cell."""
+    grid = RouteGrid.build(_route(8), cell_m=5.0, tail=0.5)
+    motion = MotionModel.from_spec(TrackingSpec(p_kidnap=0.0, p_reverse=0.0), grid)
+    n, e = grid.cells, motion.end_cell
+    assert grid.centres[e] - grid.cell_m / 2 <= grid.arc[-1] <= grid.centres[e] + grid.cell_m / 2 and e < n - 2
+    for cell in (e, n - 1):  # on the last point's cell, or beyond it: the belief stays
+        b = np.zeros(n)
+        b[cell] = 1.0
+        np.testing.assert_allclose(motion.predict(b, None), b, atol=1e-12)
+    b = np.zeros(n)
+    b[e - 1] = 1.0
+    out = motion.predict(b, None)
+    k, back = motion.kernel(None)
+    assert out[e - 1] == pytest.approx(k[back], rel=1e-9)  # the stop
+    assert out[e] == pytest.approx(1.0 - k[back], rel=1e-9)  # every move ends on the last point
+    assert out[e + 1 :].sum() == 0.0
+
+
 def test_a_frame_without_evidence_keeps_the_belief():
     rng = np.random.default_rng(5)
     spec = TrackingSpec()
