@@ -84,7 +84,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from models.errors import AssociativeMemoryError
 from models.memory_keys import KEY_METHODS, key_spectrum
-from models.scenario import MemorySpec
+from models.scenario import MAX_SHIFT, MemorySpec
 
 __all__ = [
     "SHIFT_SEARCH_TOP",
@@ -211,9 +211,11 @@ def _check_shift(max_shift: int | tuple[int, int]) -> tuple[int, int]:
     """``max_shift`` as a (rows, cols) pair of non-negative ints."""
     pair = (max_shift, max_shift) if isinstance(max_shift, (int, np.integer)) else tuple(max_shift)
     if len(pair) != 2 or any(
-        isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 or v > 16 for v in pair
+        isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0 or v > MAX_SHIFT for v in pair
     ):
-        raise AssociativeMemoryError(f"max_shift must be an int or (rows, cols) of ints in 0..16, got {max_shift!r}")
+        raise AssociativeMemoryError(
+            f"max_shift must be an int or (rows, cols) of ints in 0..{MAX_SHIFT}, got {max_shift!r}"
+        )
     return int(pair[0]), int(pair[1])
 
 

@@ -100,6 +100,9 @@ MAX_SIZE_M = 1e4
 MAX_SEED = 2**32 - 1
 #: at most this many route points and camera frames in one scenario
 MAX_ROUTE_POINTS = 1_000_000
+#: the memory's shift search reaches at most this many memory pixels (its lags are circular: a
+#: window of half the memory size or more covers every lag)
+MAX_SHIFT = 64
 MAX_FRAMES = 1_000_000
 MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
 MAX_SPEED_MPS = 1000.0
@@ -314,8 +317,12 @@ class MemorySpec(_Spec):
     *shard*), which holds them in as many banks as needed; ``max_shift`` is the (rows, cols)
     window in memory pixels over which the recall is matched against each prototype, absorbing
     pose errors (at N=128 with the 160x120 camera of 45 degrees vertical field of view, one
-    degree of pitch moves the horizon about 2.7 rows and one degree of heading about 2.0
-    columns); ``key`` the K-GEN method of :mod:`models.memory_keys`.
+    degree of pitch moves the horizon about 2.7 rows and one degree of heading about 2.2
+    columns; the default (8, 24) absorbs about 3 degrees of pitch and 11 of heading: the camera's
+    heading error plus the bend between the leg a camera just before route point k drives on
+    and the leg viewframe k looks along; chosen on the evaluation set's tuning split,
+    BENCHMARKS.md, "Associative ranking defaults"); ``key`` the K-GEN method of
+    :mod:`models.memory_keys`.
 
     The track's neighbourhood (:func:`models.index.track_window`): on routes of at least
     ``window_route_points`` points (null: never), while the tracker is tracking, the indexers
@@ -337,7 +344,7 @@ class MemorySpec(_Spec):
     (:mod:`knowledge_sources.fusion`), calibrated with the skyline's on the tuning split
     (``bench/fusion_sweep.py --fit``). Example::
 
-        memory: {size: 128, blur_sigma: 1.0, bank_size: 1, shard_size: 512, max_shift: [8, 16]}
+        memory: {size: 128, blur_sigma: 1.0, bank_size: 1, shard_size: 512, max_shift: [8, 24]}
     """
 
     size: int = 128
@@ -346,7 +353,7 @@ class MemorySpec(_Spec):
     whiten: bool = True
     bank_size: int = Field(default=1, ge=1, le=4096)
     shard_size: int = Field(default=512, ge=1, le=MAX_ROUTE_POINTS)
-    max_shift: tuple[int, int] = (8, 16)
+    max_shift: tuple[int, int] = (8, 24)
     key: Literal["phase", "quantized"] = "phase"
     weight: float = Field(default=0.64, ge=0, le=1e3)
     window_route_points: int | None = Field(default=2000, ge=1, le=MAX_ROUTE_POINTS)
@@ -356,8 +363,8 @@ class MemorySpec(_Spec):
     @field_validator("max_shift")
     @classmethod
     def _shift_range(cls, value: tuple[int, int]) -> tuple[int, int]:
-        if not all(0 <= v <= 16 for v in value):
-            raise ValueError("must be two integers in 0..16")
+        if not all(0 <= v <= MAX_SHIFT for v in value):
+            raise ValueError(f"must be two integers in 0..{MAX_SHIFT}")
         return value
 
     @field_validator("size")

@@ -255,7 +255,7 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ),
     # memory, scheduler, expect
     ("memory-size-100", _set("memory", {"size": 100}), "memory.size: must be a power of two"),
-    ("memory-shift-20", _set("memory", {"max_shift": [20, 1]}), "memory.max_shift: must be two integers in 0..16"),
+    ("memory-shift-65", _set("memory", {"max_shift": [65, 1]}), "memory.max_shift: must be two integers in 0..64"),
     ("memory-blur-inf", _set("memory", {"blur_sigma": float("inf")}), "memory.blur_sigma: must be a finite"),
     (
         "query-timeout-inf",

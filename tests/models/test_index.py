@@ -75,7 +75,7 @@ def test_ranking_equals_the_memory_built_by_hand() -> None:
     ("settings", "field"),
     [
         ({"size": 100}, "size"),
-        ({"max_shift": [2, 40]}, "max_shift"),
+        ({"max_shift": [2, 65]}, "max_shift"),
         ({"key": "linear"}, "key"),
         ({"bank_size": 0}, "bank_size"),
         ({"colour": True}, "colour"),
