@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -47,13 +48,17 @@ def with_drive(scenario: Scenario, drive: dict[str, Any], *, seed: int, path: Pa
     return load_scenario(path)
 
 
-def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
-    """Rank every camera frame of ``scenario`` against its viewframes (see the module docstring).
+def ranked_drive(
+    scenario: Scenario | str | Path, *, transform: Callable[[np.ndarray, int], np.ndarray] | None = None
+) -> dict[str, Any]:
+    """Rank every camera frame of ``scenario`` against its viewframes (see the module docstring);
+    ``transform(image, frame index)`` (optional) changes each camera image (H, W, 3) uint8 first
+    (bench/perturb.py).
 
     Returns ``{"name", "route" (N, 2), "variances" (T, N) associative error variances,
     "skyline" (T, N) skyline errors (degrees) or None when the scenario has no skyline,
     "skyline_weight", "truth" (T, 3) x, y, heading, "times" (T,) or NaN, "true_point" (T,),
-    "rank_ms" (T,)}``.
+    "rank_ms" (T,), "camera_hw" (the camera images' height and width)}``.
     """
     from knowledge_sources.results import nearest_viewframe
     from models.skyline import match_skylines, skyline_from_image
@@ -69,13 +74,14 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
     refs = np.stack([v.skyline for v in vfs]) if sky.enabled else None
     match = sky.match_options()
     variances, skyline, rank_ms = [], [], []
-    for f in frames:
+    for i, f in enumerate(frames):
+        image = f.image if transform is None else transform(f.image, i)
         t0 = time.perf_counter()
-        r = index.rank(f.image)
+        r = index.rank(image)
         rank_ms.append((time.perf_counter() - t0) * 1e3)
         variances.append(ranking_vector(r.viewframes, r.variances, n))
         if refs is not None:
-            q = skyline_from_image(f.image, fov_y_deg=sc.camera.fov_y_deg, step_deg=sky.step_deg)
+            q = skyline_from_image(image, fov_y_deg=sc.camera.fov_y_deg, step_deg=sky.step_deg)
             m = match_skylines(q, refs, **match)
             skyline.append(ranking_vector([v.index for v in vfs], m.error, n))
     route = np.asarray(sc.route, dtype=np.float64)
@@ -92,6 +98,7 @@ def ranked_drive(scenario: Scenario | str | Path) -> dict[str, Any]:
         "times": np.array([np.nan if f.time is None else f.time for f in frames], float),
         "true_point": true_point,
         "rank_ms": np.array(rank_ms),
+        "camera_hw": (int(sc.camera.height), int(sc.camera.width)),
     }
 
 

@@ -27,8 +27,20 @@ Evidence of a source
 
     A viewframe a source did not rank gets that source's largest evidence (the least likely).
 
+Trust of an absolute source
+    An absolute source's best error in a frame says how well it worked there: a skyline that
+    fits its best viewframe to 0.5 degrees or better is right first for 60-77 % of the tuning
+    frames, one whose best fit is worse than 0.7 degrees for 0-33 % (a horizon found wrongly:
+    JPEG blocks, a gray image, clouds; ``bench/perturb.py``), and its errors' differences are
+    then noise that the fixed scale does not damp enough. So its weight is scaled by
+    ``t_s = clip((hi - min_k e_s) / (hi - lo), 0, 1)``: full up to a best error of ``lo``, none
+    from ``hi`` (:data:`ABSOLUTE_TRUST`, degrees for the skyline: 0.5 and 1.0, chosen on the
+    tuning split, its frames as rendered and under the perturbations of ``bench/perturb.py``;
+    BENCHMARKS.md, "Perturbed camera images"). A frame whose skyline is not trusted at all is
+    ranked by the other sources alone.
+
 Likelihoods
-    ``p_s(obs | k) ∝ exp(-w_s * u_s(k))``, ``w_s`` in nats per unit of evidence (per robust z
+    ``p_s(obs | k) ∝ exp(-w_s * t_s * u_s(k))`` (``t_s = 1`` for a robust source), ``w_s`` in nats per unit of evidence (per robust z
     for the memory, per degree for the skyline): the scenario's ``memory.weight`` and
     ``skyline.weight``. The weights are calibrated, not tuned for top-1: they maximise the
     likelihood of the true viewframe (a conditional logit, ``bench/fusion_sweep.py --fit``) over
@@ -67,6 +79,8 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ABSOLUTE_SOURCES",
+    "ABSOLUTE_TRUST",
+    "trust",
     "standardise",
     "evidence",
     "fuse_rankings",
@@ -80,6 +94,9 @@ _MAD_TO_STD = 1.4826
 #: ranking sources whose errors have a fixed scale across frames (module docstring); the others
 #: are standardised per frame
 ABSOLUTE_SOURCES: frozenset[str] = frozenset({"skyline"})
+#: an absolute source's trust (module docstring): full up to a best error of ``lo``, none from
+#: ``hi``, in the source's units (the skyline's degrees)
+ABSOLUTE_TRUST: Mapping[str, tuple[float, float]] = {"skyline": (0.5, 1.0)}
 
 Rankings = Mapping[str, tuple[Sequence[int], Sequence[float]]]
 
@@ -110,6 +127,18 @@ def evidence(errors: Sequence[float] | np.ndarray, *, absolute: bool) -> np.ndar
     return e - e.min() if e.size else e
 
 
+def trust(errors: Sequence[float] | np.ndarray, bounds: tuple[float, float] | None) -> float:
+    """An absolute source's trust ``t_s`` in one frame from its errors (module docstring), in [0, 1];
+    1 without ``bounds`` ``(lo, hi)`` or errors."""
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    if bounds is None or e.size == 0:
+        return 1.0
+    lo, hi = bounds
+    if not hi > lo:
+        raise ValueError(f"trust bounds must be lo < hi, got {bounds!r}")
+    return float(np.clip((hi - float(e.min())) / (hi - lo), 0.0, 1.0))
+
+
 def _check(rankings: Rankings, weights: Mapping[str, float] | None) -> dict[str, float]:
     weights = dict(weights or {})
     for s, w in weights.items():
@@ -121,12 +150,21 @@ def _check(rankings: Rankings, weights: Mapping[str, float] | None) -> dict[str,
     return used
 
 
-def _fused(rankings: Rankings, used: Mapping[str, float], absolute: Collection[str]) -> tuple[np.ndarray, np.ndarray]:
+def _fused(
+    rankings: Rankings,
+    used: Mapping[str, float],
+    absolute: Collection[str],
+    trusts: Mapping[str, tuple[float, float]],
+) -> tuple[np.ndarray, np.ndarray]:
     """(labels (H,), F (H,)) over the union of the viewframes the sources ranked."""
     labels = {s: np.asarray(rankings[s][0], dtype=np.int64).ravel() for s in used}
     universe = np.unique(np.concatenate([labels[s] for s in used]))  # sorted, in numpy: O(H log H), no loop
     total = np.zeros(len(universe))
     for s, w in used.items():
+        if s in absolute:
+            w *= trust(rankings[s][1], trusts.get(s))
+            if w <= 0:
+                continue
         u = evidence(rankings[s][1], absolute=s in absolute)
         us = np.full(len(universe), float(u.max()) if u.size else 0.0)
         us[np.searchsorted(universe, labels[s])] = u  # a label ranked twice: its last error, as before
@@ -139,6 +177,7 @@ def fuse_rankings(
     *,
     weights: Mapping[str, float] | None = None,
     absolute: Collection[str] = ABSOLUTE_SOURCES,
+    trusts: Mapping[str, tuple[float, float]] = ABSOLUTE_TRUST,
 ) -> list[tuple[int, float]]:
     """Fuse ranking sources into one ranking (module docstring).
 
@@ -151,6 +190,9 @@ def fuse_rankings(
         source of weight 0 is ignored.
     absolute : collection of source names
         Sources whose errors have a fixed scale (default :data:`ABSOLUTE_SOURCES`).
+    trusts : mapping source -> (lo, hi)
+        The absolute sources' trust bounds (default :data:`ABSOLUTE_TRUST`; a source not named
+        is always trusted).
 
     Returns
     -------
@@ -163,7 +205,7 @@ def fuse_rankings(
         err = np.asarray(errors, dtype=np.float64)
         order = np.lexsort((lab, err))
         return [(int(lab[i]), float(err[i])) for i in order]
-    lab, fused = _fused(rankings, used, absolute)
+    lab, fused = _fused(rankings, used, absolute, trusts)
     order = np.lexsort((lab, fused))
     return [(int(lab[i]), float(fused[i])) for i in order]
 
@@ -173,6 +215,7 @@ def fused_log_posterior(
     *,
     weights: Mapping[str, float] | None = None,
     absolute: Collection[str] = ABSOLUTE_SOURCES,
+    trusts: Mapping[str, tuple[float, float]] = ABSOLUTE_TRUST,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The calibrated belief over the viewframes from every source (module docstring).
 
@@ -182,7 +225,7 @@ def fused_log_posterior(
     This is the per-viewframe likelihood an observer of the fused ranking (the tracker) takes.
     """
     used = _check(rankings, weights)
-    lab, fused = _fused(rankings, used, absolute)
+    lab, fused = _fused(rankings, used, absolute, trusts)
     ll = -fused
     return lab, ll - float(np.log(np.exp(ll - ll.max()).sum()) + ll.max())
 
@@ -202,14 +245,15 @@ def fuse_shards(
     *,
     weights: Mapping[str, float] | None = None,
     absolute: Collection[str] = ABSOLUTE_SOURCES,
+    trusts: Mapping[str, tuple[float, float]] = ABSOLUTE_TRUST,
 ) -> list[tuple[int, float]]:
     """Merge each source's shards, then fuse the sources (module docstring, "Shards").
 
     ``shards``: source -> the rankings of its shards (:class:`models.associative.Ranking`, e.g.
-    :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights``, ``absolute`` as
+    :meth:`knowledge_sources.levels.Ranking.ranking`); ``weights``, ``absolute``, ``trusts`` as
     :func:`fuse_rankings`.
     """
-    return fuse_rankings(_merged(shards), weights=weights, absolute=absolute)
+    return fuse_rankings(_merged(shards), weights=weights, absolute=absolute, trusts=trusts)
 
 
 def shards_log_posterior(
@@ -217,7 +261,8 @@ def shards_log_posterior(
     *,
     weights: Mapping[str, float] | None = None,
     absolute: Collection[str] = ABSOLUTE_SOURCES,
+    trusts: Mapping[str, tuple[float, float]] = ABSOLUTE_TRUST,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`fused_log_posterior` of each source's shards merged as :func:`fuse_shards` merges them
     (the same order of viewframes for two or more sources; for one source the order of its errors)."""
-    return fused_log_posterior(_merged(shards), weights=weights, absolute=absolute)
+    return fused_log_posterior(_merged(shards), weights=weights, absolute=absolute, trusts=trusts)

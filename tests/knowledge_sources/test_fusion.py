@@ -7,12 +7,14 @@ import pytest
 
 from knowledge_sources.fusion import (
     ABSOLUTE_SOURCES,
+    ABSOLUTE_TRUST,
     evidence,
     fuse_rankings,
     fuse_shards,
     fused_log_posterior,
     shards_log_posterior,
     standardise,
+    trust,
 )
 
 
@@ -65,6 +67,37 @@ def test_an_absolute_sources_scale_is_its_reliability():
     weak = _source(rng, n, 15, separation=1.0)  # a neighbour, weakly
     assert fuse_rankings({"associative": weak, "skyline": clean}, weights=w)[0][0] == 14
     np.testing.assert_allclose(evidence([2.0, 1.5, 3.0], absolute=True), [0.5, 0.0, 1.5])
+
+
+@pytest.mark.parametrize(("best", "expected"), [(0.2, 1.0), (0.5, 1.0), (0.75, 0.5), (1.0, 0.0), (1.6, 0.0)])
+def test_trust_falls_with_the_best_error(best, expected):
+    lo, hi = ABSOLUTE_TRUST["skyline"]
+    assert (lo, hi) == (0.5, 1.0)
+    assert trust([best + 0.4, best, best + 1.0], (lo, hi)) == pytest.approx(expected)
+    assert trust([best], None) == 1.0 and trust([], (lo, hi)) == 1.0
+    with pytest.raises(ValueError, match="lo < hi"):
+        trust([best], (1.0, 1.0))
+
+
+def test_a_skyline_that_fits_nothing_well_is_not_trusted():
+    """A horizon found wrongly fits some wrong viewframe least badly (0.85 degrees) and the others
+    worse: its differences are noise. Untrusted, the memory decides; a clean skyline (its best
+    fit 0.3 degrees) is fused as before, at full weight."""
+    rng = np.random.default_rng(11)
+    n, truth = 32, 9
+    assoc = _source(rng, n, truth, separation=2.0)
+    wrong = list(range(n)), [0.85 if k == 20 else 1.4 + 0.1 * rng.normal() for k in range(n)]
+    w = {"associative": 0.64, "skyline": 3.8}
+    assert fuse_rankings({"associative": assoc, "skyline": wrong}, weights=w, trusts={})[0][0] == 20
+    assert fuse_rankings({"associative": assoc, "skyline": wrong}, weights=w)[0][0] == truth
+    worse = wrong[0], [e + 0.2 for e in wrong[1]]  # its best fit 1.05 degrees: no trust at all
+    lab, log_p = fused_log_posterior({"associative": assoc, "skyline": worse}, weights=w)
+    lab_m, log_p_m = fused_log_posterior({"associative": assoc}, weights=w)
+    np.testing.assert_allclose(log_p, log_p_m)  # not trusted at all: the memory's posterior alone
+    clean = list(range(n)), [0.3 if k == 14 else 1.2 + 0.1 * rng.normal() for k in range(n)]
+    assert fuse_rankings({"associative": assoc, "skyline": clean}, weights=w) == fuse_rankings(
+        {"associative": assoc, "skyline": clean}, weights=w, trusts={}
+    )
 
 
 def test_the_fused_log_posterior_is_normalised_and_orders_as_the_ranking():
