@@ -885,7 +885,13 @@ class Track(Message):
     evidence: bool = field(metadata=_doc("the frame had evidence (else: prediction only)"))
     belief: np.ndarray = field(metadata=_doc("(N,) float32 posterior probability of each route point", ndim=1))
     prior_next: np.ndarray = field(metadata=_doc("(N,) float32 predicted probability for the next frame", ndim=1))
-    loglik: np.ndarray | None = field(metadata=_doc("(S,) float32 the frame's evidence on the route, or null", ndim=1))
+    loglik: np.ndarray | None = field(
+        metadata=_doc(
+            "(S,) float32 the frame's evidence on the route (for the offline smoothing: only with "
+            "tracking.smoothing), or null",
+            ndim=1,
+        )
+    )
     dt: float | None = field(metadata=_doc("seconds since the previous frame, or null"))
     window_next: list | None = field(
         default=None,

@@ -250,7 +250,8 @@ class Tracker(KnowledgeSource):
                 evidence=est.evidence,
                 belief=est.belief.astype(np.float32),
                 prior_next=prior_next,
-                loglik=None if ll is None else ll.astype(np.float32),
+                # the evidence only for the offline smoothing: 4 samples a leg, 160 KB a frame at 10,000 points
+                loglik=None if ll is None or not self.spec.smoothing else ll.astype(np.float32),
                 dt=dt,
                 window_next=None if window is None else [int(window[0]), int(window[1])],
             ),

@@ -124,6 +124,8 @@ def test_track_through_the_blackboard(tmp_path, small_data, processes):
     records = read_trace(tmp_path / "run.trace")
     tracks = [r for r in records if r["kind"] == "post" and r.get("level") == "track"]
     assert len(tracks) == 14
+    # without tracking.smoothing the frame's evidence on the route is not posted (160 KB a frame at 10k points)
+    assert all(r["body"].get("loglik") is None for r in tracks)
     # ... of every ranking source the single-frame decision fuses: the memory's and the skyline's
     for r in tracks:
         frame = r["body"]["frame"]
