@@ -22,9 +22,6 @@ __all__ = ["AssociativeIndexer"]
 
 log = logging.getLogger(__name__)
 
-#: images read from a cache entry between two returns of their memory-mapped pages
-RELEASE_EVERY = 64
-
 
 class AssociativeIndexer(RouteRanker):
     """Stores the viewframes of its shard (``index // block == shard``, consecutive route points,
@@ -135,7 +132,7 @@ class AssociativeIndexer(RouteRanker):
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
         from models.index_store import cached_index
-        from models.viewframe_cache import entry_field, release_pages
+        from models.viewframe_cache import entry_field, release_behind
 
         mine = [k for k in range(mp.viewframes) if self.mine(k)]
 
@@ -157,8 +154,7 @@ class AssociativeIndexer(RouteRanker):
                     yield levels.Viewframe.read(board, k).pixels(agent=self.name).image
                     continue
                 yield np.asarray(stacked[k])
-                if (i + 1) % RELEASE_EVERY == 0 or i + 1 == len(mine):
-                    release_pages(stacked[j] for j in mine[max(0, i + 1 - 2 * RELEASE_EVERY) : i + 1])
+                release_behind(i, mine, lambda j: (stacked[j],))
 
         index, self.loaded = cached_index(mp.entry, mp.memory, mine, seed=self.shard, images=images)
         self._index = index

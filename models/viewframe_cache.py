@@ -43,7 +43,7 @@ import tempfile
 import threading
 import typing
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -60,12 +60,15 @@ __all__ = [
     "CACHE_ENV",
     "EntryWriter",
     "OPEN_ENTRIES",
+    "PIXEL_FIELDS",
     "Pixels",
+    "RELEASE_EVERY",
     "read_pixels",
     "ViewframeCache",
     "cache_key",
     "default_cache_root",
     "entry_field",
+    "release_behind",
     "release_pages",
     "source_digest",
 ]
@@ -136,6 +139,32 @@ def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PA
         except (OSError, ValueError, TypeError, AttributeError):
             continue
     return done
+
+
+#: rows used (posted, indexed) between two returns of their memory-mapped pages (:func:`release_behind`)
+RELEASE_EVERY = 64
+
+_Row = typing.TypeVar("_Row")
+
+
+def release_behind(
+    k: int,
+    rows: Sequence[_Row],
+    arrays: Callable[[_Row], Iterable[np.ndarray | None]],
+    *,
+    every: int | None = None,
+) -> bool:
+    """Once ``rows[k]`` is used, rows being used in order (viewframes read from a memory-mapped
+    entry and posted, images indexed): after every ``every``-th row and the last, give back the
+    pages of the ``arrays`` of the last two batches (this one and the one before, to cover the
+    pages that straddle the two; :func:`release_pages`), else a long route's whole entry would
+    become resident as it is used. ``every``: default :data:`RELEASE_EVERY`. Returns True when it
+    gave them back (a batch is done)."""
+    every = RELEASE_EVERY if every is None else every
+    if (k + 1) % every and k + 1 != len(rows):
+        return False
+    release_pages(a for row in rows[max(0, k + 1 - 2 * every) : k + 1] for a in arrays(row))
+    return True
 
 
 def source_digest(modules: Sequence[str]) -> str:
@@ -566,6 +595,10 @@ class _EntryPixels:
                 raise CacheEntryError(self.folder, f"unreadable {name}.{row}.npy: {err}") from None
         return None
 
+    def stacked(self, name: str) -> np.ndarray | None:
+        """Field ``name`` of every row, memory-mapped read-only, or None when it is not stacked."""
+        return self._stacked.get(name)
+
     def pixels(self, row: int) -> Pixels:
         image, mask = self._row("image", row), self._row("mask", row)
         if image is None or mask is None:
@@ -603,6 +636,21 @@ _open: OrderedDict[Path, _EntryPixels] = OrderedDict()
 _open_lock = threading.Lock()
 
 
+def _opened(folder: Path) -> _EntryPixels:
+    """The committed entry ``folder`` (absolute) opened, memory-mapped: kept open, at most
+    :data:`OPEN_ENTRIES` per process (least recently used closed first); CacheEntryError naming it."""
+    with _open_lock:
+        opened = _open.get(folder)
+        if opened is None:
+            opened = _EntryPixels(folder)
+            _open[folder] = opened
+            while len(_open) > OPEN_ENTRIES:
+                _open.popitem(last=False)
+        else:
+            _open.move_to_end(folder)
+    return opened
+
+
 def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
     """The pixels of row ``row`` (the viewframe index) of the committed cache entry ``entry`` (its
     folder, absolute), which must hold ``count`` viewframes: copies, the entry's pages are not kept
@@ -613,15 +661,7 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
     folder = Path(entry)
     if not folder.is_absolute():
         raise CacheEntryError(folder, "a viewframe cache entry must be named by its absolute path")
-    with _open_lock:
-        opened = _open.get(folder)
-        if opened is None:
-            opened = _EntryPixels(folder)
-            _open[folder] = opened
-            while len(_open) > OPEN_ENTRIES:
-                _open.popitem(last=False)
-        else:
-            _open.move_to_end(folder)
+    opened = _opened(folder)
     if opened.count != count:
         raise CacheEntryError(folder, f"the entry holds {opened.count} viewframes, the reference says {count} (stale)")
     if not 0 <= row < count:
@@ -630,19 +670,22 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
 
 
 def entry_field(entry: str | Path, name: str, *, count: int | None = None) -> np.ndarray | None:
-    """The stacked array field ``name`` (e.g. ``"image"``) of every viewframe of the cache entry
-    folder ``entry``, shape (V, ...), memory-mapped read-only (row k is viewframe k; nothing is
-    read until used: give the pages back with :func:`release_pages`); None, logged, when the
-    entry does not hold it stacked (absent, ragged, unreadable) or holds another ``count`` of
-    viewframes."""
-    path = Path(entry) / f"{name}.npy"
+    """The stacked pixel field ``name`` (one of :data:`PIXEL_FIELDS`, e.g. ``"image"``) of every
+    viewframe of the cache entry folder ``entry``, shape (V, ...), memory-mapped read-only (row k
+    is viewframe k; nothing is read until used: give the pages back with :func:`release_pages`
+    or :func:`release_behind`). The entry is opened as :func:`read_pixels` opens it (the same
+    checks, the same open entry). None, logged, when the entry cannot be read, holds another
+    ``count`` of viewframes or does not hold the field stacked (absent, one file per viewframe)."""
+    if name not in PIXEL_FIELDS:
+        raise ValueError(f"{name!r} is not a pixel field of a cache entry ({', '.join(PIXEL_FIELDS)})")
     try:
-        if not (Path(entry) / "meta.json").is_file():
-            raise OSError("not a cache entry (no meta.json)")
-        stacked = np.load(path, mmap_mode="r", allow_pickle=False)
-        if count is not None and stacked.shape[0] != count:
-            raise ValueError(f"holds {stacked.shape[0]} viewframes, expected {count}")
-    except (OSError, ValueError) as err:
-        log.warning("viewframe cache %s: cannot read %s: %s", entry, path.name, err)
+        opened = _opened(Path(entry).absolute())
+        if count is not None and opened.count != count:
+            raise CacheEntryError(opened.folder, f"holds {opened.count} viewframes, expected {count}")
+        stacked = opened.stacked(name)
+        if stacked is None:
+            raise CacheEntryError(opened.folder, "not stacked (absent, or one file per viewframe)")
+    except CacheEntryError as err:
+        log.warning("viewframe cache %s: cannot read %s.npy: %s", entry, name, err.message)
         return None
     return stacked
