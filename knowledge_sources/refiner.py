@@ -23,8 +23,8 @@ log = logging.getLogger(__name__)
 
 
 class PoseRefiner(KnowledgeSource):
-    """Owns a camera emulator of the map (it loads the posted ``scenario``, as the map renderer
-    does, while the map is made; or, when it missed that, the scenario the ``map`` names) and, for every ``position`` with a viewframe, refines the pose from that
+    """Owns a camera emulator of the map (it loads the scenario the ``map`` names, as the map
+    renderer does) and, for every ``position`` with a viewframe, refines the pose from that
     viewframe's route point against the frame's camera image (:func:`models.refine.refine_pose`:
     heading and pitch from the skyline shift, then position along and across the route by
     rendering views around the point, coarse to fine). Posts a ``pose`` linked to the position
@@ -36,7 +36,7 @@ class PoseRefiner(KnowledgeSource):
     and pitch only). Positions that arrive before the map wait.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.SCENARIO, levels.MAP, levels.POSITION)
+    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
     produces: ClassVar[tuple[str, ...]] = (levels.POSE,)
     exclusive: ClassVar[tuple[str, ...]] = (levels.POSE,)
 
@@ -83,7 +83,7 @@ class PoseRefiner(KnowledgeSource):
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
-        return 2.0 if event.hypothesis.level in (levels.SCENARIO, levels.MAP) else 1.0
+        return 2.0 if event.hypothesis.level == levels.MAP else 1.0
 
     def act(self, event: Event, board: Board) -> None:
         try:
@@ -94,28 +94,23 @@ class PoseRefiner(KnowledgeSource):
 
     def _act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
-        if h.level == levels.SCENARIO:
-            self._open(levels.Scenario.from_hypothesis(h).path)  # its renderer ready before the map
-        elif h.level == levels.MAP:
-            mp = levels.Map.from_hypothesis(h)
-            self._open(mp.path)
-            self._map = mp
+        if h.level == levels.MAP:
+            self._open(levels.Map.from_hypothesis(h))
             waiting, self._waiting = self._waiting, []
             for pos in waiting:
                 self._refine(pos, board)
         elif h.level == levels.POSITION:
-            if self._map is None:
+            if self._emulator is None:
                 self._waiting.append(h)
             else:
                 self._refine(h, board)
 
-    def _open(self, path: str) -> None:
-        """The world of the scenario file ``path`` and its camera emulator, once."""
+    def _open(self, mp: levels.Map) -> None:
         from models.world import World
 
-        if self._world is None:
-            self._world = World.from_scenario(path)
-            self._emulator = self._world.emulator
+        self._world = World.from_scenario(mp.path)
+        self._emulator = self._world.emulator
+        self._map = mp
 
     def _profile(self, frame: int, board: Board) -> np.ndarray | None:
         """The camera frame's skyline profile as the skyline ranker extracted it (its ranking of

@@ -112,27 +112,3 @@ def test_the_refiner_reuses_the_skyline_rankers_profile_of_the_frame(small_data,
     for k, profile in seen.items():  # the profile is the frame's, as the refiner would have extracted it
         want = skyline_from_image(frames[k], fov_y_deg=scenario.camera.fov_y_deg, step_deg=scenario.skyline.step_deg)
         np.testing.assert_array_equal(profile, want)
-
-
-def test_the_refiner_opens_its_renderer_when_the_scenario_is_posted(small_rendered):
-    """The refiner builds its world and camera emulator on the scenario, while the map is made;
-    the map, when it comes, is kept without building them again."""
-    from blackboard.memory_board import MemoryBlackboard
-    from knowledge_sources import levels
-    from knowledge_sources.mission import agent_plan
-    from knowledge_sources.refiner import PoseRefiner
-
-    path = small_rendered["path"]
-    options = {name: opts for _, name, opts in agent_plan(load_scenario(path))}["refiner"]
-    refiner = PoseRefiner("refiner", **options)
-    bb = MemoryBlackboard()
-    bb.add(refiner)
-    levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))
-    bb.run()
-    world = refiner._world
-    assert world is not None and refiner._emulator is not None and refiner._map is None
-    mp = small_rendered["map"]
-    bb.post(mp.level, mp.body, id=mp.id)
-    bb.run()
-    assert refiner._map is not None and refiner._world is world  # opened once
-    refiner.shutdown()
