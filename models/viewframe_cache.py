@@ -557,6 +557,7 @@ class _EntryPixels:
             raise CacheEntryError(folder, f"entry format {got!r}, expected {_FORMAT}")
         self.folder = folder
         self.count = int(meta["count"])
+        self._arrays = list(meta.get("arrays", []))  # the fields stacked in <name>.npy
         self._stacked: dict[str, np.ndarray] = {}
         self._absent: dict[str, list[bool]] = {}
         self._ragged: dict[str, list[bool]] = {}
@@ -595,9 +596,24 @@ class _EntryPixels:
                 raise CacheEntryError(self.folder, f"unreadable {name}.{row}.npy: {err}") from None
         return None
 
-    def stacked(self, name: str) -> np.ndarray | None:
-        """Field ``name`` of every row, memory-mapped read-only, or None when it is not stacked."""
-        return self._stacked.get(name)
+    def stacked(self, name: str) -> np.ndarray:
+        """Array field ``name`` of every row, memory-mapped read-only (the pixel fields mapped when
+        the entry was opened, another stacked field such as ``skyline`` on first use);
+        CacheEntryError when the entry holds it otherwise (absent in some rows, one file per
+        row, not at all) or it cannot be read."""
+        if name not in self._stacked and name in self._arrays and name not in PIXEL_FIELDS:
+            try:
+                stacked = np.load(self.folder / f"{name}.npy", mmap_mode="r", allow_pickle=False)
+            except (OSError, ValueError) as err:
+                raise CacheEntryError(self.folder, f"unreadable {name}.npy: {err}") from None
+            if stacked.shape[0] != self.count:
+                raise CacheEntryError(
+                    self.folder, f"{name}.npy holds {stacked.shape[0]} viewframes, meta.json says {self.count}"
+                )
+            self._stacked[name] = stacked
+        if name not in self._stacked or any(self._absent.get(name) or ()):
+            raise CacheEntryError(self.folder, f"{name} is not stacked for every viewframe (absent, or one file each)")
+        return self._stacked[name]
 
     def pixels(self, row: int) -> Pixels:
         image, mask = self._row("image", row), self._row("mask", row)
@@ -670,22 +686,18 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
 
 
 def entry_field(entry: str | Path, name: str, *, count: int | None = None) -> np.ndarray | None:
-    """The stacked pixel field ``name`` (one of :data:`PIXEL_FIELDS`, e.g. ``"image"``) of every
-    viewframe of the cache entry folder ``entry``, shape (V, ...), memory-mapped read-only (row k
-    is viewframe k; nothing is read until used: give the pages back with :func:`release_pages`
-    or :func:`release_behind`). The entry is opened as :func:`read_pixels` opens it (the same
-    checks, the same open entry). None, logged, when the entry cannot be read, holds another
-    ``count`` of viewframes or does not hold the field stacked (absent, one file per viewframe)."""
-    if name not in PIXEL_FIELDS:
-        raise ValueError(f"{name!r} is not a pixel field of a cache entry ({', '.join(PIXEL_FIELDS)})")
+    """The stacked array field ``name`` (e.g. ``"image"``, ``"skyline"``) of every viewframe of the
+    cache entry folder ``entry``, shape (V, ...), memory-mapped read-only (row k is viewframe k;
+    nothing is read until used: give the pages back with :func:`release_pages` or
+    :func:`release_behind`). The entry is opened as :func:`read_pixels` opens it (the same checks,
+    the same open entry). None, logged, when the entry cannot be read, holds another ``count`` of
+    viewframes or does not hold the field stacked for every viewframe (absent in some, one file
+    per viewframe, not at all)."""
     try:
         opened = _opened(Path(entry).absolute())
         if count is not None and opened.count != count:
             raise CacheEntryError(opened.folder, f"holds {opened.count} viewframes, expected {count}")
-        stacked = opened.stacked(name)
-        if stacked is None:
-            raise CacheEntryError(opened.folder, "not stacked (absent, or one file per viewframe)")
+        return opened.stacked(name)
     except CacheEntryError as err:
         log.warning("viewframe cache %s: cannot read %s.npy: %s", entry, name, err.message)
         return None
-    return stacked

@@ -438,7 +438,8 @@ def test_an_entrys_stacked_field_is_read_memory_mapped_or_none_with_a_warning(tm
 
 def test_entry_field_and_read_pixels_read_one_open_entry(entry) -> None:
     """The two readers of an entry open it once, the same way: the stacked field is the map
-    read_pixels reads its rows from, and a pixel field the entry lacks is refused by name."""
+    read_pixels reads its rows from; another stacked field (the skylines) is mapped on first use;
+    a field absent in some rows (the background) or not held is None."""
     from models.viewframe_cache import entry_field
 
     folder, rendered = entry
@@ -446,8 +447,10 @@ def test_entry_field_and_read_pixels_read_one_open_entry(entry) -> None:
     assert images is viewframe_cache._open[folder].stacked("image")
     px = viewframe_cache.read_pixels(folder, 1, count=len(rendered))
     assert np.array_equal(px.image, images[1])
-    with pytest.raises(ValueError, match="depth"):
-        entry_field(folder, "depth")
+    skylines = entry_field(folder, "skyline", count=len(rendered))
+    assert isinstance(skylines, np.memmap) and not skylines.flags.writeable
+    assert all(np.array_equal(skylines[vf.index], vf.skyline, equal_nan=True) for vf in rendered)
+    assert entry_field(folder, "background") is None and entry_field(folder, "nope") is None
 
 
 def test_release_behind_gives_back_the_last_two_batches_after_each_batch(monkeypatch) -> None:
