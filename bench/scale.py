@@ -65,6 +65,7 @@ import gc  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
 import platform  # noqa: E402
+import re  # noqa: E402
 import resource  # noqa: E402
 import subprocess  # noqa: E402
 import tempfile  # noqa: E402
@@ -654,10 +655,12 @@ def main(argv: list[str] | None = None) -> int:
                     for rep in range(args.repeat):
                         for tag, checkout in checkouts:  # alternating: the same load on both
                             name = f"mission {label}{tag}" + (f" #{rep + 1}" if args.repeat > 1 else "")
+                            # one trace and results file per mission (kept with --keep: compare them)
+                            slug = re.sub(r"[^A-Za-z0-9=.-]+", "_", f"{n}{label}{tag}-{rep + 1}").strip("_")
                             r[name] = mission(
                                 drive,
                                 drive_cache,
-                                tmp / f"drive{n}.trace",
+                                tmp / f"drive{slug}.trace",
                                 paced=True,
                                 profile=prof if rep == 0 and checkout is None else None,
                                 setup_only=args.setup_only,

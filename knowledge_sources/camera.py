@@ -27,13 +27,16 @@ class Camera(KnowledgeSource):
     the indexers' track window apply to every frame). The true pose, when known, goes to the
     separate ``truth`` level, which no agent consumes: it is there for evaluation only. The
     mission starts when every associative indexer shard has posted ``index`` (the vehicle
-    drives once its map is prepared), so no frame waits for a memory still being built.
+    drives once its map is prepared), so no frame waits for a memory still being built. The
+    frames are prepared (read, or simulated with the camera's own renderer) as soon as the
+    ``scenario`` is posted, while the map is rendered or read and indexed; a camera that missed
+    the scenario prepares them from the map's scenario path once the map is indexed.
 
     Paced on ``track``, a tracker that never answers a frame stops the camera there: the run
     then ends at quiescence with the later frames reported as never posted.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.INDEX, *PACE_LEVELS)
+    consumes: ClassVar[tuple[str, ...]] = (levels.SCENARIO, levels.INDEX, *PACE_LEVELS)
     produces: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
     exclusive: ClassVar[tuple[str, ...]] = (levels.SENSOR_FRAME, levels.TRUTH)
 
@@ -54,12 +57,13 @@ class Camera(KnowledgeSource):
         self._started = False
         self._frames: list[Any] = []  # paced: the frames, posted one by one
         self._next = 0
+        self._prepared: list[Any] | None = None  # the frames, prepared when the scenario was posted
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
         level = event.hypothesis.level
-        if level == levels.INDEX or (self.pace is not None and level == self.pace):
+        if level in (levels.SCENARIO, levels.INDEX) or (self.pace is not None and level == self.pace):
             return 1.0
         return None
 
@@ -67,8 +71,11 @@ class Camera(KnowledgeSource):
         return input_error_message(err)  # the scenario's files: the run stops with their error
 
     def act(self, event: Event, board: Board) -> None:
-        from models.world import World
-
+        if event.hypothesis.level == levels.SCENARIO:
+            if self._prepared is None and not self._started:
+                self._prepared = _frames_of(levels.Scenario.from_hypothesis(event.hypothesis).path)
+                log.info("%s: %d camera frames prepared", self.name, len(self._prepared))
+            return
         if event.hypothesis.level != levels.INDEX:  # paced: an answer; the next frame once it is the last posted's
             answered = int(event.hypothesis.body["frame"])
             if self._next < len(self._frames) and answered == self._frames[self._next - 1].index:
@@ -80,11 +87,12 @@ class Camera(KnowledgeSource):
         if self._started or len(self._ready) < index.shards:
             return
         self._started = True
-        got = board.get(levels.map_id())
-        if got is None:
-            raise LookupError("the map is indexed but not on the blackboard")
-        with World.from_scenario(levels.Map.from_hypothesis(got).path) as world:
-            frames = world.sensor_frames
+        frames, self._prepared = self._prepared, None
+        if frames is None:  # the scenario's event missed (joined late): from the map's scenario path
+            got = board.get(levels.map_id())
+            if got is None:
+                raise LookupError("the map is indexed but not on the blackboard")
+            frames = _frames_of(levels.Map.from_hypothesis(got).path)
         if self.pace is not None:
             self._frames, self._next = list(frames), 1
             if frames:
@@ -111,3 +119,12 @@ class Camera(KnowledgeSource):
         )
         if f.truth is not None:
             levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))
+
+
+def _frames_of(path: str) -> list[Any]:
+    """The camera frames of the scenario file ``path`` (:attr:`models.world.World.sensor_frames`),
+    its renderer closed once they are made."""
+    from models.world import World
+
+    with World.from_scenario(path) as world:
+        return list(world.sensor_frames)

@@ -553,7 +553,13 @@ def viewframe_index(hypothesis_id: str) -> int | None:
 
 @dataclass(frozen=True, slots=True)
 class Map(Message):
-    """The map is complete: everything the other agents need of it besides the viewframe images."""
+    """The map is complete: everything the other agents need of it besides the viewframe images.
+
+    The per-viewframe parts are arrays, so that a consumer decodes them in one copy each (a
+    route of 10,000 viewframes as nested lists and maps was 3.2 MB to parse into 18.5 MB of
+    objects, in every consumer): ``poses`` one row per viewframe, ``visible`` and ``placements``
+    one row per landmark seen in a viewframe (build them from maps with :meth:`of`; read them as
+    maps with :meth:`seen`, :meth:`visible_sets` and :meth:`placement_table`)."""
 
     level: ClassVar[str] = "map"
     posted_by: ClassVar[str] = "map renderer"
@@ -562,16 +568,36 @@ class Map(Message):
     path: str = field(metadata=_doc("absolute path of the scenario file"))
     viewframes: int = field(metadata=_doc("number of viewframes"))
     priors: dict = field(metadata=_doc("P(L): {landmark id: prior}"))
-    landmarks: list = field(metadata=_doc("[{id, kind, index, x, y}, ...] in scenario order"))
-    route: list = field(metadata=_doc("[[x, y], ...] route points, world metres"))
-    poses: list = field(metadata=_doc("[[x, y, z, heading_deg, pitch_deg], ...] the pose of each viewframe"))
-    visible: dict = field(metadata=_doc('{"k": {landmark id: pixels}}: landmarks visible in viewframe k'))
-    memory: dict = field(metadata=_doc("the scenario's memory settings (MemorySpec.model_dump)"))
-    placements: dict = field(
-        default_factory=dict,
+    landmarks: list = field(metadata=_doc("[{id, kind, index, x, y}, ...] in scenario order (index: the position)"))
+    route: np.ndarray = field(
+        metadata=_doc("(N, 2) float64 route points (x, y), world metres", dtype="float64", ndim=2, channels=2)
+    )
+    poses: np.ndarray = field(
         metadata=_doc(
-            '{"k": {landmark id: [elevation_deg, azimuth_deg, size_deg]}}: where viewframe k shows each '
-            "visible landmark, angles from the optical axis (models.placement)"
+            "(V, 5) float64 the pose of each viewframe: x, y, z, heading_deg, pitch_deg, world metres and degrees",
+            dtype="float64",
+            ndim=2,
+            channels=5,
+        )
+    )
+    visible: np.ndarray = field(
+        metadata=_doc(
+            "(M, 3) int32 the landmarks visible in the viewframes, a row (k, landmark index, pixels) each, "
+            "by viewframe k, in each viewframe's description order",
+            dtype="int32",
+            ndim=2,
+            channels=3,
+        )
+    )
+    memory: dict = field(metadata=_doc("the scenario's memory settings (MemorySpec.model_dump)"))
+    placements: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "(M, 3) float64 where the viewframe of each visible row shows its landmark: elevation_deg, "
+            "azimuth_deg, size_deg, angles from the optical axis (models.placement); null: not known",
+            dtype="float64",
+            ndim=2,
+            channels=3,
         ),
     )
     entry: str | None = field(
@@ -581,6 +607,101 @@ class Map(Message):
             "into (models.viewframe_cache), null: rendered without a cache"
         ),
     )
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        n, lms, rows = self.viewframes, len(self.landmarks), self.visible
+        if self.poses.shape[0] != n:
+            raise MessageError(self.level, "poses", f"must have a row per viewframe ({n}), got {self.poses.shape[0]}")
+        if len(rows):
+            k, lm, px = rows[:, 0], rows[:, 1], rows[:, 2]
+            if k.min() < 0 or k.max() >= n or (np.diff(k) < 0).any():
+                raise MessageError(self.level, "visible", f"viewframes must be in [0, {n}), in order")
+            if lm.min() < 0 or lm.max() >= lms:
+                raise MessageError(self.level, "visible", f"landmark indices must be in [0, {lms})")
+            if px.min() < 0:
+                raise MessageError(self.level, "visible", "pixels must be >= 0")
+        if self.placements is not None and self.placements.shape[0] != len(rows):
+            raise MessageError(
+                self.level,
+                "placements",
+                f"must have a row per visible row ({len(rows)}), got {self.placements.shape[0]}",
+            )
+
+    @classmethod
+    def of(
+        cls,
+        *,
+        scenario: str,
+        path: str,
+        priors: Mapping[str, float],
+        landmarks: Sequence[Mapping[str, Any]],
+        route: Sequence[Sequence[float]],
+        poses: Sequence[Sequence[float]],
+        visible: Mapping[int, Mapping[str, int]],
+        memory: Mapping[str, Any],
+        placements: Mapping[int, Mapping[str, Sequence[float]]] | None = None,
+        entry: str | None = None,
+    ) -> Self:
+        """The map of ``poses`` (one per viewframe), ``visible`` ``{k: {landmark id: pixels}}`` and
+        ``placements`` ``{k: {landmark id: (elevation_deg, azimuth_deg, size_deg)}}`` (each landmark
+        of ``visible[k]``; None: not known) as maps: made into the message's arrays, rows in the
+        maps' order. A landmark id not in ``landmarks`` raises :class:`MessageError`."""
+        index = {str(lm["id"]): i for i, lm in enumerate(landmarks)}
+        rows: list[tuple[int, int, int]] = []
+        places: list[Sequence[float]] = []
+        for k in sorted(visible):
+            for lm, px in visible[k].items():
+                if lm not in index:
+                    raise MessageError(
+                        cls.level, "visible", f"viewframe {k}: landmark {lm!r} is not a landmark of the map"
+                    )
+                rows.append((int(k), index[lm], int(px)))
+                if placements is not None:
+                    got = (placements.get(k) or {}).get(lm)
+                    if got is None:
+                        raise MessageError(cls.level, "placements", f"viewframe {k}: no placement of landmark {lm!r}")
+                    places.append(got)
+        return cls(
+            scenario=scenario,
+            path=path,
+            viewframes=len(poses),
+            priors={str(k): float(v) for k, v in priors.items()},
+            landmarks=[dict(lm) for lm in landmarks],
+            route=np.asarray(route, dtype=np.float64).reshape(-1, 2),
+            poses=np.asarray(poses, dtype=np.float64).reshape(-1, 5),
+            visible=np.asarray(rows, dtype=np.int32).reshape(-1, 3),
+            placements=None if placements is None else np.asarray(places, dtype=np.float64).reshape(-1, 3),
+            memory=dict(memory),
+            entry=entry,
+        )
+
+    def pose(self, k: int) -> list[float]:
+        """Viewframe ``k``'s pose ``[x, y, z, heading_deg, pitch_deg]`` (world metres, degrees)."""
+        return [float(v) for v in self.poses[k]]
+
+    def seen(self) -> dict[int, dict[str, int]]:
+        """``{k: {landmark id: pixels}}`` for every viewframe k (empty: none visible), in the rows' order."""
+        ids = [str(lm["id"]) for lm in self.landmarks]
+        out: dict[int, dict[str, int]] = {k: {} for k in range(self.viewframes)}
+        for k, lm, px in self.visible.tolist():
+            out[k][ids[lm]] = px
+        return out
+
+    def visible_sets(self, *, min_pixels: int = 0) -> dict[int, frozenset[str]]:
+        """``{k: landmark ids visible in viewframe k with at least min_pixels pixels}`` for every viewframe k."""
+        return {k: frozenset(lm for lm, px in v.items() if px >= min_pixels) for k, v in self.seen().items()}
+
+    def placement_table(self) -> dict[int, dict[str, tuple[float, float, float]]]:
+        """``{k: {landmark id: (elevation_deg, azimuth_deg, size_deg)}}`` for every viewframe k, or
+        ``{}`` when the map has no placements."""
+        if self.placements is None:
+            return {}
+        ids = [str(lm["id"]) for lm in self.landmarks]
+        out: dict[int, dict[str, tuple[float, float, float]]] = {k: {} for k in range(self.viewframes)}
+        for (k, lm, _), (el, az, size) in zip(self.visible.tolist(), self.placements.tolist()):
+            out[k][ids[lm]] = (el, az, size)
+        return out
 
     def id(self) -> str:
         return map_id()

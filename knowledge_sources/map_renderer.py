@@ -3,22 +3,15 @@
 from __future__ import annotations
 
 import logging
-import os
 from typing import Any, ClassVar
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.errors import input_error_message
 
-__all__ = ["INLINE_ENV", "MapRenderer"]
+__all__ = ["MapRenderer"]
 
 log = logging.getLogger(__name__)
-
-#: viewframes posted between two returns of their memory-mapped pages (models.viewframe_cache.release_pages),
-#: and between two reads that wait for the blackboard node to have received them (flow control)
-RELEASE_EVERY = 64
-#: set (to anything but 0/off/no/false) by ``mapinterp run --inline-viewframes``: the pixels inline
-INLINE_ENV = "MAPINTERP_INLINE_VIEWFRAMES"
 
 
 class MapRenderer(KnowledgeSource):
@@ -29,8 +22,8 @@ class MapRenderer(KnowledgeSource):
     When the viewframes are in a viewframe cache entry (:attr:`models.world.World.entry`), each
     ``viewframe`` message names the entry instead of carrying the image, mask and background
     (the readers get them with :meth:`knowledge_sources.levels.Viewframe.pixels`), unless the
-    scenario says ``render: {inline: true}``, the option ``inline`` is true or ``$MAPINTERP_INLINE_VIEWFRAMES``
-    is set (``mapinterp run --inline-viewframes``).
+    scenario says ``render: {inline: true}`` or the option ``inline`` is true (``mapinterp run
+    --inline-viewframes``: :func:`knowledge_sources.mission.agent_plan` passes it).
     """
 
     def __init__(self, name: str, *, inline: bool = False, **options: Any) -> None:
@@ -49,7 +42,7 @@ class MapRenderer(KnowledgeSource):
         return input_error_message(err)  # the scenario's files: the run stops with their error
 
     def act(self, event: Event, board: Board) -> None:
-        from models.viewframe_cache import release_pages
+        from models.viewframe_cache import release_behind
         from models.world import World
 
         source = event.hypothesis
@@ -59,15 +52,15 @@ class MapRenderer(KnowledgeSource):
             viewframes = world.viewframes
             priors = world.priors
             entry = None if world.entry is None else str(world.entry.resolve())
-        inline = self.inline or scenario.render.inline or _env_inline()
+        inline = self.inline or scenario.render.inline
         by_reference = entry is not None and not inline
         if entry is not None and not by_reference:
-            log.info("%s: viewframe pixels posted inline (render.inline), not by reference to %s", self.name, entry)
+            log.info("%s: viewframe pixels posted inline (inline asked), not by reference to %s", self.name, entry)
         poses = []
         # per viewframe: {landmark id: pixels} and {landmark id: placement}, from the description's
-        # plain data (a description read from the cache builds no graph for them)
-        visible: dict[str, dict[str, int]] = {}
-        placements: dict[str, dict[str, list[float]]] = {}
+        # plain data (a description read from the cache builds no graph for them); arrays in the map
+        visible: dict[int, dict[str, int]] = {}
+        placements: dict[int, dict[str, tuple[float, float, float]]] = {}
         fov_y_deg = scenario.camera.fov_y_deg
         for k, vf in enumerate(viewframes):
             message = (
@@ -76,20 +69,17 @@ class MapRenderer(KnowledgeSource):
             poses.append(message.pose)
             nodes = message.description["nodes"]
             shown = message.description["visible"]
-            visible[str(vf.index)] = {n: int(nodes[n]["pixels"]) for n in shown}
-            placements[str(vf.index)] = {n: list(_placement(nodes[n], vf.image.shape, fov_y_deg)) for n in shown}
+            visible[int(vf.index)] = {n: int(nodes[n]["pixels"]) for n in shown}
+            placements[int(vf.index)] = {n: _placement(nodes[n], vf.image.shape, fov_y_deg) for n in shown}
             levels.post(
                 board,
                 message,
                 links=(source.id,),
             )
             del message
-            if (k + 1) % RELEASE_EVERY == 0 or k + 1 == len(viewframes):
-                # viewframes from the cache are memory-mapped: the pages read to post them are given
-                # back batch by batch (this one and the one before, to cover the pages that straddle
-                # the two), else the route's whole entry would become resident as it is posted
-                batch = viewframes[max(0, k + 1 - 2 * RELEASE_EVERY) : k + 1]
-                release_pages(a for v in batch for a in (v.image, v.mask, v.background, v.depth, v.skyline))
+            # viewframes from the cache are memory-mapped: the pages read to post them are given
+            # back batch by batch
+            if release_behind(k, viewframes, lambda v: (v.image, v.mask, v.background, v.depth, v.skyline)):
                 # flow control: a read is answered once the node has received every post this agent
                 # sent (the read barrier), so the node's queue holds at most a batch of viewframes; a
                 # renderer reading a filled cache outruns the node, whose queue of 150 KB messages
@@ -98,11 +88,10 @@ class MapRenderer(KnowledgeSource):
                 board.get(levels.viewframe_id(k))
         levels.post(
             board,
-            levels.Map(
+            levels.Map.of(
                 scenario=scenario.name,
                 path=request.path,
-                viewframes=len(viewframes),
-                priors={k: float(v) for k, v in priors.items()},
+                priors=priors,
                 landmarks=[
                     {"id": lm.id, "kind": lm.kind, "index": i, "x": lm.x, "y": lm.y}
                     for i, lm in enumerate(scenario.landmarks)
@@ -117,11 +106,6 @@ class MapRenderer(KnowledgeSource):
             links=(source.id,),
         )
         log.info("%s: posted %d viewframes of scenario %s", self.name, len(viewframes), scenario.name)
-
-
-def _env_inline() -> bool:
-    value = os.environ.get(INLINE_ENV, "").strip().lower()
-    return value not in ("", "0", "off", "no", "false")
 
 
 def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:

@@ -65,18 +65,20 @@ def agent_plan(
     frame_rate: float | None = None,
     track: bool | None = None,
     paced: bool = False,
+    inline_viewframes: bool = False,
 ) -> list[tuple[str, str, dict[str, Any]]]:
     """The agents of a mission: ``(factory, name, options)`` triples, options being plain data.
 
     ``track``: include the tracker (default: the scenario's ``tracking.enabled``); ``paced``:
     the camera posts each frame once the frame before is answered (its track when tracking,
-    else its position)."""
+    else its position); ``inline_viewframes``: the map renderer's option ``inline`` (the pixels
+    in every viewframe message, as the scenario's ``render: {inline: true}``)."""
     sched = scenario.scheduler
     tracked = scenario.tracking.enabled if track is None else bool(track)
     shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
     pace = (levels.TRACK if tracked else levels.POSITION) if paced else None
     plan: list[tuple[str, str, dict[str, Any]]] = [
-        ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {}),
+        ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {"inline": True} if inline_viewframes else {}),
         ("knowledge_sources.camera:Camera", "camera", {"rate_hz": frame_rate, "pace": pace}),
     ]
     for s in range(shards):
@@ -228,6 +230,7 @@ def run_mission(
     auth: bool | None = None,
     on_hypothesis: Callable[[str, Any, float], None] | None = None,
     paced: bool = False,
+    inline_viewframes: bool = False,
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
@@ -253,6 +256,10 @@ def run_mission(
         The camera posts each frame once the frame before is answered (its track when tracking,
         else its position): the system's capacity with the track of every frame's predecessor
         there as the frame is ranked. Not with ``frame_rate``.
+    inline_viewframes : bool
+        The map renderer posts every viewframe with its pixels, not by reference to the viewframe
+        cache entry (for agents on hosts that do not see the cache folder; as the scenario's
+        ``render: {inline: true}``).
     kill_after : (agent, level, n), optional
         Fault injection for tests and demos: kill ``agent`` once ``n`` hypotheses are posted on
         ``level``.
@@ -316,7 +323,14 @@ def run_mission(
         if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
             runtime.kill(kill_after[0])
 
-    plan = agent_plan(scenario, strategy=strategy, frame_rate=frame_rate, track=track, paced=paced)
+    plan = agent_plan(
+        scenario,
+        strategy=strategy,
+        frame_rate=frame_rate,
+        track=track,
+        paced=paced,
+        inline_viewframes=inline_viewframes,
+    )
     remote = sorted(set(remote))
     unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
     if unknown:

@@ -132,7 +132,7 @@ class PoseRefiner(KnowledgeSource):
             log.warning("%s: frame %d: camera frame not on the blackboard: not refined", self.name, position.frame)
             return
         image = levels.SensorFrame.from_hypothesis(got).image
-        x, y, _, heading, pitch = self._map.poses[position.viewframe]
+        x, y, _, heading, pitch = self._map.pose(position.viewframe)
         start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
         r = refine_pose(image, self._emulator, start, query_skyline=self._profile(position.frame, board), **self.search)
         levels.post(

@@ -224,13 +224,8 @@ class Scheduler(KnowledgeSource):
         """Keep the map and what the questions need of it, derived once."""
         self._map = mp
         self._landmarks = {lm["id"]: lm for lm in mp.landmarks}
-        self._visible = {
-            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in mp.visible.items()
-        }
-        self._placements = {
-            int(k): {lm: (float(p[0]), float(p[1]), float(p[2])) for lm, p in v.items()}
-            for k, v in (mp.placements or {}).items()
-        }
+        self._visible = mp.visible_sets(min_pixels=self.min_pixels)
+        self._placements = mp.placement_table()
 
     def _ensure_map(self, board: Board) -> levels.Map:
         if self._map is None:
@@ -339,7 +334,7 @@ class Scheduler(KnowledgeSource):
         d = st.analysis.decision
         assert d is not None
         st.done = True
-        position, heading_deg = levels.Position.at(None if d.viewframe is None else mp.poses[d.viewframe])
+        position, heading_deg = levels.Position.at(None if d.viewframe is None else mp.pose(d.viewframe))
         if self.tracked:  # the tracker's track of this frame answers it (the tracker waits for it)
             levels.post(
                 board,

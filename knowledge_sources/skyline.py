@@ -37,8 +37,16 @@ class SkylineRanker(RouteRanker):
 
     Options (from the scenario's ``skyline`` block and camera): ``fov_y_deg``, ``step_deg``,
     ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``roll_candidates``,
-    ``coarse_candidates``; ``tracked`` (a tracker runs; default False). Camera frames that arrive
+    ``coarse_candidates``; ``tracked`` (a tracker runs; default False); ``keep_profiles`` (see
+    below; default None: decided from this process's viewframe cache). Camera frames that arrive
     before the map is complete wait; viewframes missed as events are read back from the blackboard.
+
+    Where the skylines come from: when the ``map`` names the viewframe cache entry its viewframes
+    came from, from the entry's stacked skylines (the same arrays the viewframe messages carry),
+    and with ``keep_profiles`` False this ranker does not consume the viewframe level at all (as
+    the associative indexers: no message of it is received, which on a long route is most of
+    the messages posted); else from each viewframe message as it comes (``keep_profiles`` True,
+    the default without a viewframe cache), or read back from the blackboard.
 
     The track's neighbourhood: when ``tracked``, the ranking of a frame holds the viewframes of
     the associative indexers' track window (the same rule, :class:`models.index.TrackWindows`,
@@ -66,8 +74,11 @@ class SkylineRanker(RouteRanker):
         roll_candidates: int | None = DEFAULT_ROLL_CANDIDATES,
         coarse_candidates: int | None = SkylineSpec().coarse_candidates,
         tracked: bool = False,
+        keep_profiles: bool | None = None,
         **options: Any,
     ) -> None:
+        from models.viewframe_cache import default_cache_root
+
         super().__init__(name, tracked=tracked, **options)
         if not 0 < float(fov_y_deg) < 180:
             raise ValueError(f"fov_y_deg must be in (0, 180), got {fov_y_deg}")
@@ -91,28 +102,42 @@ class SkylineRanker(RouteRanker):
         self._refs: np.ndarray | None = None
         self._labels: np.ndarray | None = None
         self._coarse: CoarseSkylines | None = None
+        #: the skylines are kept as their messages arrive (else read from the map's cache entry, or back from the board)
+        self.keep_profiles = default_cache_root() is None if keep_profiles is None else bool(keep_profiles)
+        if not self.keep_profiles:  # the viewframe level is not subscribed to (see the class docstring)
+            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
 
     def keep(self, viewframe: levels.Viewframe) -> None:
-        self._profiles[viewframe.index] = np.asarray(viewframe.skyline, dtype=np.float32)
+        if self.keep_profiles:
+            self._profiles[viewframe.index] = np.asarray(viewframe.skyline, dtype=np.float32)
 
     def build(self, mp: levels.Map, board: Board) -> MemorySpec:
-        from models.index import memory_settings
+        import mmap
 
-        for k in range(mp.viewframes):
-            if k not in self._profiles:
-                self._profiles[k] = np.asarray(levels.Viewframe.read(board, k).skyline, dtype=np.float32)
-        labels = sorted(self._profiles)
-        sizes = {self._profiles[k].size for k in labels}
-        if len(sizes) != 1:
-            raise RuntimeError(f"{self.name}: viewframe skylines differ in length ({sorted(sizes)})")
-        self._labels = np.asarray(labels, dtype=np.int64)
-        self._refs = np.stack([self._profiles[k] for k in labels])
+        from models.index import memory_settings
+        from models.viewframe_cache import entry_field, release_pages
+
+        stacked = None if mp.entry is None else entry_field(mp.entry, "skyline", count=mp.viewframes)
+        if stacked is not None and stacked.ndim == 2:  # every viewframe's skyline, row k: viewframe k
+            self._labels = np.arange(mp.viewframes, dtype=np.int64)
+            self._refs = np.array(stacked, dtype=np.float32)  # a copy: 460 bytes a viewframe at 115 bins
+            release_pages([stacked], advice=mmap.MADV_DONTNEED)  # the entry's pages, read once
+        else:
+            for k in range(mp.viewframes):
+                if k not in self._profiles:
+                    self._profiles[k] = np.asarray(levels.Viewframe.read(board, k).skyline, dtype=np.float32)
+            labels = sorted(self._profiles)
+            sizes = {self._profiles[k].size for k in labels}
+            if len(sizes) != 1:
+                raise RuntimeError(f"{self.name}: viewframe skylines differ in length ({sorted(sizes)})")
+            self._labels = np.asarray(labels, dtype=np.int64)
+            self._refs = np.stack([self._profiles[k] for k in labels])
         self._profiles.clear()
-        if self.coarse_candidates is not None and self.coarse_candidates < len(labels):
+        if self.coarse_candidates is not None and self.coarse_candidates < len(self._labels):
             from models.skyline_coarse import CoarseSkylines
 
             self._coarse = CoarseSkylines.prepare(self._refs)
-        log.info("%s: %d viewframe skylines of %d bins", self.name, len(labels), self._refs.shape[1])
+        log.info("%s: %d viewframe skylines of %d bins", self.name, len(self._labels), self._refs.shape[1])
         return memory_settings(mp.memory)
 
     def rank(self, hypothesis: Hypothesis, board: Board) -> None:

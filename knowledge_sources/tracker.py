@@ -201,9 +201,7 @@ class Tracker(KnowledgeSource):
         if self._filter is not None:
             return
         self._filter = RouteFilter(mp.route, spec=self.spec)
-        self._visible = {
-            int(k): frozenset(lm for lm, px in v.items() if px >= self.min_pixels) for k, v in mp.visible.items()
-        }
+        self._visible = mp.visible_sets(min_pixels=self.min_pixels)
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         from knowledge_sources.fusion import fuse_shards, shards_log_posterior

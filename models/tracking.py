@@ -153,7 +153,7 @@ class RouteGrid:
     samples: np.ndarray
 
     @classmethod
-    def build(cls, route: Sequence[Sequence[float]], *, cell_m: float, tail: float = 0.5) -> RouteGrid:
+    def build(cls, route: Sequence[Sequence[float]] | np.ndarray, *, cell_m: float, tail: float = 0.5) -> RouteGrid:
         """The grid of ``route`` (N >= 2 points), running on past the last point by ``tail`` of the last leg."""
         pts = np.asarray(route, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
@@ -550,7 +550,7 @@ class RouteFilter:
         0
     """
 
-    def __init__(self, route: Sequence[Sequence[float]], *, spec: TrackingSpec) -> None:
+    def __init__(self, route: Sequence[Sequence[float]] | np.ndarray, *, spec: TrackingSpec) -> None:
         self.spec = spec
         self.grid = RouteGrid.build(route, cell_m=spec.cell_m, tail=spec.tail)
         self.motion = MotionModel.from_spec(spec, self.grid)

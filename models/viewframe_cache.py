@@ -43,7 +43,7 @@ import tempfile
 import threading
 import typing
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -60,12 +60,15 @@ __all__ = [
     "CACHE_ENV",
     "EntryWriter",
     "OPEN_ENTRIES",
+    "PIXEL_FIELDS",
     "Pixels",
+    "RELEASE_EVERY",
     "read_pixels",
     "ViewframeCache",
     "cache_key",
     "default_cache_root",
     "entry_field",
+    "release_behind",
     "release_pages",
     "source_digest",
 ]
@@ -136,6 +139,32 @@ def release_pages(arrays: Iterable[np.ndarray | None], *, advice: int = _MADV_PA
         except (OSError, ValueError, TypeError, AttributeError):
             continue
     return done
+
+
+#: rows used (posted, indexed) between two returns of their memory-mapped pages (:func:`release_behind`)
+RELEASE_EVERY = 64
+
+_Row = typing.TypeVar("_Row")
+
+
+def release_behind(
+    k: int,
+    rows: Sequence[_Row],
+    arrays: Callable[[_Row], Iterable[np.ndarray | None]],
+    *,
+    every: int | None = None,
+) -> bool:
+    """Once ``rows[k]`` is used, rows being used in order (viewframes read from a memory-mapped
+    entry and posted, images indexed): after every ``every``-th row and the last, give back the
+    pages of the ``arrays`` of the last two batches (this one and the one before, to cover the
+    pages that straddle the two; :func:`release_pages`), else a long route's whole entry would
+    become resident as it is used. ``every``: default :data:`RELEASE_EVERY`. Returns True when it
+    gave them back (a batch is done)."""
+    every = RELEASE_EVERY if every is None else every
+    if (k + 1) % every and k + 1 != len(rows):
+        return False
+    release_pages(a for row in rows[max(0, k + 1 - 2 * every) : k + 1] for a in arrays(row))
+    return True
 
 
 def source_digest(modules: Sequence[str]) -> str:
@@ -528,6 +557,7 @@ class _EntryPixels:
             raise CacheEntryError(folder, f"entry format {got!r}, expected {_FORMAT}")
         self.folder = folder
         self.count = int(meta["count"])
+        self._arrays = list(meta.get("arrays", []))  # the fields stacked in <name>.npy
         self._stacked: dict[str, np.ndarray] = {}
         self._absent: dict[str, list[bool]] = {}
         self._ragged: dict[str, list[bool]] = {}
@@ -566,6 +596,25 @@ class _EntryPixels:
                 raise CacheEntryError(self.folder, f"unreadable {name}.{row}.npy: {err}") from None
         return None
 
+    def stacked(self, name: str) -> np.ndarray:
+        """Array field ``name`` of every row, memory-mapped read-only (the pixel fields mapped when
+        the entry was opened, another stacked field such as ``skyline`` on first use);
+        CacheEntryError when the entry holds it otherwise (absent in some rows, one file per
+        row, not at all) or it cannot be read."""
+        if name not in self._stacked and name in self._arrays and name not in PIXEL_FIELDS:
+            try:
+                stacked = np.load(self.folder / f"{name}.npy", mmap_mode="r", allow_pickle=False)
+            except (OSError, ValueError) as err:
+                raise CacheEntryError(self.folder, f"unreadable {name}.npy: {err}") from None
+            if stacked.shape[0] != self.count:
+                raise CacheEntryError(
+                    self.folder, f"{name}.npy holds {stacked.shape[0]} viewframes, meta.json says {self.count}"
+                )
+            self._stacked[name] = stacked
+        if name not in self._stacked or any(self._absent.get(name) or ()):
+            raise CacheEntryError(self.folder, f"{name} is not stacked for every viewframe (absent, or one file each)")
+        return self._stacked[name]
+
     def pixels(self, row: int) -> Pixels:
         image, mask = self._row("image", row), self._row("mask", row)
         if image is None or mask is None:
@@ -603,6 +652,21 @@ _open: OrderedDict[Path, _EntryPixels] = OrderedDict()
 _open_lock = threading.Lock()
 
 
+def _opened(folder: Path) -> _EntryPixels:
+    """The committed entry ``folder`` (absolute) opened, memory-mapped: kept open, at most
+    :data:`OPEN_ENTRIES` per process (least recently used closed first); CacheEntryError naming it."""
+    with _open_lock:
+        opened = _open.get(folder)
+        if opened is None:
+            opened = _EntryPixels(folder)
+            _open[folder] = opened
+            while len(_open) > OPEN_ENTRIES:
+                _open.popitem(last=False)
+        else:
+            _open.move_to_end(folder)
+    return opened
+
+
 def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
     """The pixels of row ``row`` (the viewframe index) of the committed cache entry ``entry`` (its
     folder, absolute), which must hold ``count`` viewframes: copies, the entry's pages are not kept
@@ -613,15 +677,7 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
     folder = Path(entry)
     if not folder.is_absolute():
         raise CacheEntryError(folder, "a viewframe cache entry must be named by its absolute path")
-    with _open_lock:
-        opened = _open.get(folder)
-        if opened is None:
-            opened = _EntryPixels(folder)
-            _open[folder] = opened
-            while len(_open) > OPEN_ENTRIES:
-                _open.popitem(last=False)
-        else:
-            _open.move_to_end(folder)
+    opened = _opened(folder)
     if opened.count != count:
         raise CacheEntryError(folder, f"the entry holds {opened.count} viewframes, the reference says {count} (stale)")
     if not 0 <= row < count:
@@ -630,19 +686,18 @@ def read_pixels(entry: str | Path, row: int, *, count: int) -> Pixels:
 
 
 def entry_field(entry: str | Path, name: str, *, count: int | None = None) -> np.ndarray | None:
-    """The stacked array field ``name`` (e.g. ``"image"``) of every viewframe of the cache entry
-    folder ``entry``, shape (V, ...), memory-mapped read-only (row k is viewframe k; nothing is
-    read until used: give the pages back with :func:`release_pages`); None, logged, when the
-    entry does not hold it stacked (absent, ragged, unreadable) or holds another ``count`` of
-    viewframes."""
-    path = Path(entry) / f"{name}.npy"
+    """The stacked array field ``name`` (e.g. ``"image"``, ``"skyline"``) of every viewframe of the
+    cache entry folder ``entry``, shape (V, ...), memory-mapped read-only (row k is viewframe k;
+    nothing is read until used: give the pages back with :func:`release_pages` or
+    :func:`release_behind`). The entry is opened as :func:`read_pixels` opens it (the same checks,
+    the same open entry). None, logged, when the entry cannot be read, holds another ``count`` of
+    viewframes or does not hold the field stacked for every viewframe (absent in some, one file
+    per viewframe, not at all)."""
     try:
-        if not (Path(entry) / "meta.json").is_file():
-            raise OSError("not a cache entry (no meta.json)")
-        stacked = np.load(path, mmap_mode="r", allow_pickle=False)
-        if count is not None and stacked.shape[0] != count:
-            raise ValueError(f"holds {stacked.shape[0]} viewframes, expected {count}")
-    except (OSError, ValueError) as err:
-        log.warning("viewframe cache %s: cannot read %s: %s", entry, path.name, err)
+        opened = _opened(Path(entry).absolute())
+        if count is not None and opened.count != count:
+            raise CacheEntryError(opened.folder, f"holds {opened.count} viewframes, expected {count}")
+        return opened.stacked(name)
+    except CacheEntryError as err:
+        log.warning("viewframe cache %s: cannot read %s.npy: %s", entry, name, err.message)
         return None
-    return stacked

@@ -135,15 +135,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def apply_cache_arguments(args: argparse.Namespace) -> None:
     """``--no-cache`` / ``--cache-dir`` as ``$MAPINTERP_CACHE``, which this process's worlds and
-    the agent processes it starts read (:mod:`models.viewframe_cache`); ``--inline-viewframes`` as
-    ``$MAPINTERP_INLINE_VIEWFRAMES`` (:data:`knowledge_sources.map_renderer.INLINE_ENV`)."""
+    the agent processes it starts read (:mod:`models.viewframe_cache`). (``--inline-viewframes``
+    is the map renderer's option ``inline``: :func:`knowledge_sources.mission.run_mission`.)"""
     import os
 
-    from knowledge_sources.map_renderer import INLINE_ENV
     from models.viewframe_cache import CACHE_ENV
-
-    if getattr(args, "inline_viewframes", False):
-        os.environ[INLINE_ENV] = "1"
 
     if getattr(args, "no_cache", False):
         os.environ[CACHE_ENV] = "off"
@@ -295,6 +291,7 @@ def main(args: argparse.Namespace) -> int:
             on_wait_remote=lambda commands: _print_remote(commands, args.wait_remote),
             on_hypothesis=on_hypothesis,
             track=False if args.no_track else None,
+            inline_viewframes=getattr(args, "inline_viewframes", False),
         )
         # still under the handlers: a second Ctrl-C while the results are written exits at once
         if args.out is not None:

@@ -92,3 +92,25 @@ def test_a_paced_camera_posts_each_frame_after_the_answer_to_the_one_before(smal
         assert where[(answer, k)] < where[(levels.SENSOR_FRAME, k + 1)]
     if track:  # so the track of the frame before was there for every frame's ranking
         assert all(f["track_prior"] for f in results["frames"][1:])
+
+
+def test_frames_are_prepared_when_the_scenario_is_posted_and_posted_once_indexed(small_rendered: dict) -> None:
+    """The camera prepares its frames on the scenario (while the map is made), posts nothing before
+    every shard is indexed, then the same frames as a camera that prepares them from the map's
+    scenario path once indexed; it no longer needs the map."""
+    early = MemoryBlackboard()  # no map on this board: the frames come from the scenario's path
+    early.add(Camera("camera"))
+    levels.post(early.user, levels.Scenario(path=str(small_rendered["path"]), strategy="associative"))
+    early.run()
+    assert early.hypotheses(levels.SENSOR_FRAME) == []
+    levels.post(early.user, levels.Index(shard=0, shards=1, viewframes=8))
+    early.run()
+    late = _board_with_map(small_rendered)
+    late.add(Camera("camera"))
+    levels.post(late.user, levels.Index(shard=0, shards=1, viewframes=8))
+    late.run()
+    got, want = (
+        [levels.SensorFrame.from_hypothesis(h) for h in bb.hypotheses(levels.SENSOR_FRAME)] for bb in (early, late)
+    )
+    assert len(got) == len(SMALL["route"]) and [f.frame for f in got] == [f.frame for f in want]
+    assert all(np.array_equal(a.image, b.image) for a, b in zip(got, want))

@@ -49,9 +49,8 @@ def test_a_mission_with_viewframes_by_reference_gives_the_results_of_one_without
     frame's answer, queries and ranking are the same."""
     from blackboard.trace import read_trace
 
-    # --no-cache and --inline-viewframes set their environment variables for the runs: restored after the test
+    # --no-cache sets its environment variable for the runs: restored after the test
     monkeypatch.setenv("MAPINTERP_CACHE", str(tmp_path / "env-cache"))
-    monkeypatch.delenv("MAPINTERP_INLINE_VIEWFRAMES", raising=False)
     cache = tmp_path / "cache"
     assert main(["run", str(small), "--cache-dir", str(cache), "--no-progress"]) == 0  # fills it
     keys = ("frame", "viewframe", "queries", "backtracks", "correct")
@@ -61,7 +60,6 @@ def test_a_mission_with_viewframes_by_reference_gives_the_results_of_one_without
         cached = [] if "--no-cache" in flags else ["--cache-dir", str(cache)]
         argv = ["run", str(small), *cached, *flags, "--out", str(out), "--trace", str(trace), "--no-progress"]
         assert main(argv) == 0, name
-        monkeypatch.delenv("MAPINTERP_INLINE_VIEWFRAMES", raising=False)  # the flag set it for its run only
         results = json.loads(out.read_text())
         got[name] = [({k: f[k] for k in keys}, [k for k, _ in f["ranking"]]) for f in results["frames"]]
         posts = [r for r in read_trace(trace) if r.get("kind") == "post" and r.get("level") == "viewframe"]

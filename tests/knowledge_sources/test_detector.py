@@ -14,7 +14,7 @@ from tests.knowledge_sources.conftest import inline_viewframe
 def _visible_landmark(small_rendered: dict) -> tuple[levels.Viewframe, dict]:
     """A viewframe and a landmark well visible in it."""
     mp = levels.Map.from_hypothesis(small_rendered["map"])
-    best = max(((k, lm, px) for k, seen in mp.visible.items() for lm, px in seen.items()), key=lambda t: t[2])
+    best = max(((k, lm, px) for k, seen in mp.seen().items() for lm, px in seen.items()), key=lambda t: t[2])
     vf = inline_viewframe(levels.Viewframe.from_hypothesis(small_rendered["viewframes"][int(best[0])]))
     return vf, next(lm for lm in mp.landmarks if lm["id"] == best[1])
 
@@ -118,7 +118,7 @@ def test_the_answer_says_where_the_landmark_was_found(small_rendered: dict, shif
 
     vf, lm = _visible_landmark(small_rendered)
     mp = levels.Map.from_hypothesis(small_rendered["map"])
-    predicted = mp.placements[str(vf.index)][lm["id"]]
+    predicted = mp.placement_table()[vf.index][lm["id"]]
     image = np.roll(vf.image, shift, axis=1)
     if shift:
         image[:, :shift] = image[:, shift : shift + 1]
@@ -143,8 +143,9 @@ def test_the_answer_says_where_the_landmark_was_found(small_rendered: dict, shif
 
 def test_the_map_places_every_visible_landmark(small_rendered: dict) -> None:
     mp = levels.Map.from_hypothesis(small_rendered["map"])
-    assert set(mp.placements) == set(mp.visible)
-    for k, seen in mp.visible.items():
-        assert set(mp.placements[k]) == set(seen)
-        for el, az, size in mp.placements[k].values():
+    placements, seen_in = mp.placement_table(), mp.seen()
+    assert set(placements) == set(seen_in) == set(range(mp.viewframes))
+    for k, seen in seen_in.items():
+        assert set(placements[k]) == set(seen)
+        for el, az, size in placements[k].values():
             assert abs(el) <= 22.5 and abs(az) <= 30.0 and size > 0

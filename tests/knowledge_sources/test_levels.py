@@ -32,15 +32,15 @@ SAMPLES: list[levels.Message] = [
         description={"visible": ["H1"]},
         skyline=np.array([0.5, 1.5, 2.0], np.float32),
     ),
-    levels.Map(
+    levels.Map.of(
         scenario="s",
         path="/tmp/s.yaml",
-        viewframes=2,
         priors={"H1": 0.5},
         landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
         route=[[0.0, 0.0], [10.0, 0.0]],
         poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 180.0, 0.0]],
-        visible={"0": {"H1": 80}, "1": {}},
+        visible={0: {"H1": 80}, 1: {}},
+        placements={0: {"H1": [1.0, -2.0, 3.5]}},
         memory={"size": 64},
     ),
     levels.Index(shard=1, shards=3, viewframes=12),
@@ -386,3 +386,98 @@ def test_pixels_of_a_reference_this_host_cannot_read_name_entry_viewframe_and_ag
         msg.pixels(agent="indexer-7")
     text = str(err.value)
     assert text.startswith(f"{where}: agent indexer-7, viewframe vf-000001: ") and "render: {inline: true}" in text
+
+
+def _route_map(n: int, per: int, *, seed: int = 4) -> tuple[levels.Map, dict, dict]:
+    """A map of ``n`` viewframes showing ``per`` of 40 landmarks each (seeded), and its
+    ``visible`` and ``placements`` as maps."""
+    rng = np.random.default_rng(seed)
+    landmarks = [{"id": f"L{i}", "kind": "house", "index": i, "x": float(i), "y": 0.0} for i in range(40)]
+    visible = {k: {f"L{i}": int(rng.integers(1, 5000)) for i in rng.choice(40, per, replace=False)} for k in range(n)}
+    placements = {k: {lm: tuple(rng.normal(size=3).tolist()) for lm in v} for k, v in visible.items()}
+    mp = levels.Map.of(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={lm["id"]: 0.5 for lm in landmarks},
+        landmarks=landmarks,
+        route=rng.normal(size=(n, 2)).tolist(),
+        poses=rng.normal(size=(n, 5)).tolist(),
+        visible=visible,
+        placements=placements,
+        memory={"size": 128},
+    )
+    return mp, visible, placements
+
+
+def test_the_map_is_a_few_arrays_of_bounded_size_per_viewframe() -> None:
+    """A long route's map travels as arrays: its encoded size is the arrays' bytes (7 float64 a
+    viewframe, 3 int32 and 3 float64 a visible landmark) and a little, it decodes into those
+    arrays (no object per viewframe: nested maps of 10,000 viewframes were 3.2 MB to parse into
+    18.5 MB), and reads back as the maps it was made of, bit for bit."""
+    n, per = 2000, 6
+    mp, visible, placements = _route_map(n, per)
+    data = encode({"hyp": Hypothesis.new(mp.level, mp.to_body(), source="t", id=mp.id()).to_record()})
+    assert len(data) < n * (8 * 7 + per * (4 * 3 + 8 * 3)) + 8192
+    back = levels.Map.from_hypothesis(Hypothesis.from_record(decode(data)["hyp"]))
+    for name in ("route", "poses", "visible", "placements"):
+        assert isinstance(getattr(back, name), np.ndarray), name
+    assert back.seen() == visible
+    assert back.placement_table() == placements
+    assert back.visible_sets(min_pixels=2500) == {
+        k: frozenset(lm for lm, px in v.items() if px >= 2500) for k, v in visible.items()
+    }
+    assert [back.pose(k) for k in range(n)] == mp.poses.tolist()
+
+
+@pytest.mark.parametrize(
+    ("change", "field", "problem"),
+    [
+        ({"visible": {0: {"nope": 3}}}, "visible", "not a landmark of the map"),
+        ({"placements": {0: {}}}, "placements", "no placement of landmark"),
+    ],
+)
+def test_a_bad_map_names_its_field(change: dict, field: str, problem: str) -> None:
+    base = dict(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={"H1": 0.5},
+        landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
+        route=[[0.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={0: {"H1": 80}},
+        placements={0: {"H1": [1.0, -2.0, 3.5]}},
+        memory={},
+    )
+    with pytest.raises(levels.MessageError) as info:
+        levels.Map.of(**{**base, **change})
+    assert (info.value.level, info.value.field) == ("map", field) and problem in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"poses": np.zeros((3, 5))}, "poses"),
+        ({"poses": np.zeros((2, 4))}, "poses"),
+        ({"visible": np.array([[0, 1, 5]], np.int32)}, "visible"),  # landmark 1 of 1
+        ({"visible": np.array([[1, 0, 5], [0, 0, 5]], np.int32)}, "visible"),  # out of order
+        ({"visible": np.array([[0, 0, 5]], np.int64)}, "visible"),  # dtype
+        ({"placements": np.zeros((2, 3))}, "placements"),
+    ],
+)
+def test_a_bad_map_body_names_its_field(change: dict, field: str) -> None:
+    one = levels.Map.of(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={"H1": 0.5},
+        landmarks=[{"id": "H1", "kind": "house", "index": 0, "x": 1.0, "y": 2.0}],
+        route=[[0.0, 0.0], [1.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [1.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={0: {"H1": 5}},
+        placements={0: {"H1": [1.0, -2.0, 3.5]}},
+        memory={},
+    )
+    levels.Map.from_body(one.to_body())  # valid as it is
+    body = {**one.to_body(), **change}
+    with pytest.raises(levels.MessageError) as info:
+        levels.Map.from_body(body, hypothesis_id="map")
+    assert (info.value.level, info.value.field, info.value.hypothesis_id) == ("map", field, "map")

@@ -28,14 +28,17 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     mp = levels.Map.from_hypothesis(mp_h)
     assert mp_h.timestamp >= max(h.timestamp for h in small_rendered["viewframes"])
     assert mp.viewframes == n and mp.scenario == "small" and mp.path == str(small_rendered["path"])
-    assert mp.route == [[float(x), float(y)] for x, y in SMALL["route"]]
-    assert mp.poses == [v.pose for v in sorted(vfs, key=lambda v: v.index)]
+    assert mp.route.tolist() == [[float(x), float(y)] for x, y in SMALL["route"]]
+    assert mp.poses.tolist() == [v.pose for v in sorted(vfs, key=lambda v: v.index)]
+    assert [mp.pose(v.index) for v in vfs] == [v.pose for v in vfs]
     assert [lm["id"] for lm in mp.landmarks] == [lm["id"] for lm in SMALL["landmarks"]]
-    assert set(mp.visible) == {str(k) for k in range(n)}
-    # what the map says is visible is what the viewframe masks show
+    seen = mp.seen()
+    assert set(seen) == set(range(n)) and any(seen.values())
+    # what the map says is visible is what the viewframe masks show, with the descriptions' pixels
     for v in vfs:
         shown = {mp.landmarks[i]["id"] for i in set(v.pixels(agent="test").mask.ravel().tolist()) - {-1}}
-        assert set(mp.visible[str(v.index)]) <= shown
+        assert set(seen[v.index]) <= shown
+        assert seen[v.index] == {lm: v.description["nodes"][lm]["pixels"] for lm in v.description["visible"]}
     assert set(mp.priors) == {lm["id"] for lm in SMALL["landmarks"]}
     assert all(0.0 <= p <= 1.0 for p in mp.priors.values())
     assert mp_h.links == (levels.scenario_id(),)
@@ -50,9 +53,9 @@ def test_the_renderer_waits_for_the_board_after_each_batch(tmp_path, monkeypatch
     import yaml
 
     from blackboard.memory_board import MemoryBoard
-    from knowledge_sources import map_renderer
+    from models import viewframe_cache
 
-    monkeypatch.setattr(map_renderer, "RELEASE_EVERY", 3)
+    monkeypatch.setattr(viewframe_cache, "RELEASE_EVERY", 3)
     reads: list[tuple[str, str, int]] = []
     plain = MemoryBoard.get
 
@@ -84,32 +87,30 @@ def test_a_missing_scenario_file_is_named(tmp_path) -> None:
     assert bb.hypotheses(levels.VIEWFRAME) == []
 
 
-#: how the map renderer is told to post the pixels: (scenario render block, environment, option,
-#: cache on, pixels expected inline)
+#: the map's array fields
+ARRAYS = ("route", "poses", "visible", "placements")
+
+#: how the map renderer is told to post the pixels: (scenario render block, option, cache on,
+#: pixels expected inline)
 POSTING = {
-    "cache-by-reference": ({}, {}, {}, True, False),
-    "render-inline": ({"inline": True}, {}, {}, True, True),
-    "inline-viewframes-flag": ({}, {"MAPINTERP_INLINE_VIEWFRAMES": "1"}, {}, True, True),
-    "inline-option": ({}, {}, {"inline": True}, True, True),
-    "no-cache": ({}, {}, {}, False, True),
+    "cache-by-reference": ({}, {}, True, False),
+    "render-inline": ({"inline": True}, {}, True, True),
+    "inline-option": ({}, {"inline": True}, True, True),
+    "no-cache": ({}, {}, False, True),
 }
 
 
-@pytest.mark.parametrize(("render", "env", "option", "cache", "inline"), POSTING.values(), ids=POSTING.keys())
+@pytest.mark.parametrize(("render", "option", "cache", "inline"), POSTING.values(), ids=POSTING.keys())
 def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_asked(
-    tmp_path, monkeypatch, small_rendered, render, env, option, cache, inline
+    tmp_path, monkeypatch, small_rendered, render, option, cache, inline
 ) -> None:
     """With a cache entry, each viewframe message names the entry and carries no pixel array;
-    with ``render.inline``, ``--inline-viewframes`` (its environment variable), the ``inline``
-    option or without a cache they carry them. Either way the readers get the same pixels."""
+    with ``render.inline``, the ``inline`` option (``--inline-viewframes``) or without a cache
+    they carry them. Either way the readers get the same pixels."""
     import yaml
 
     from blackboard.codec import encode
-    from knowledge_sources.map_renderer import INLINE_ENV
 
-    monkeypatch.delenv(INLINE_ENV, raising=False)
-    for k, v in env.items():
-        monkeypatch.setenv(k, v)
     if not cache:
         monkeypatch.setenv("MAPINTERP_CACHE", "off")
     path = tmp_path / "small.yaml"
@@ -122,8 +123,12 @@ def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_aske
     assert (mp.entry is not None) == cache
     # the map is the same however its viewframes came (rendered, or read with their descriptions' data)
     first = levels.Map.from_hypothesis(small_rendered["map"])
-    for name in ("viewframes", "priors", "poses", "visible", "placements", "landmarks"):
-        assert getattr(mp, name) == getattr(first, name), name
+    for name in ("viewframes", "priors", "landmarks", "route", "poses", "visible", "placements"):
+        assert (
+            np.array_equal(getattr(mp, name), getattr(first, name))
+            if name in ARRAYS
+            else (getattr(mp, name) == getattr(first, name))
+        ), name
     reference = {h.id: levels.Viewframe.from_hypothesis(h).pixels(agent="test") for h in small_rendered["viewframes"]}
     for h in bb.hypotheses(levels.VIEWFRAME):
         vf = levels.Viewframe.from_hypothesis(h)
@@ -139,3 +144,19 @@ def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_aske
             assert (a is None) == (b is None), name
             if a is not None:
                 assert a.dtype == b.dtype and np.array_equal(a, b), name
+
+
+def test_inline_viewframes_is_passed_to_the_map_renderer_as_its_option(small) -> None:
+    """``mapinterp run --inline-viewframes`` reaches the map renderer as its ``inline`` option in the
+    mission's plan (as every agent option, also in a remote agent's command line), not through
+    the environment; without it the renderer gets no option (the scenario's ``render.inline`` holds)."""
+    from knowledge_sources.commands.agent import command_line
+    from knowledge_sources.mission import agent_plan
+    from models.scenario import load_scenario
+
+    scenario = load_scenario(small)
+    options = {name: (factory, opts) for factory, name, opts in agent_plan(scenario, inline_viewframes=True)}
+    factory, opts = options["map-renderer"]
+    assert opts == {"inline": True}
+    assert "inline=true" in command_line(factory, "map-renderer", opts, run_id="r", connect="tcp/127.0.0.1:1")
+    assert {name: opts for _, name, opts in agent_plan(scenario)}["map-renderer"] == {}

@@ -296,7 +296,7 @@ def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
             first = 0
         else:
             mp = levels.Map.from_hypothesis(small_rendered["map"])
-            first, (lm, _) = next((int(k), next(iter(seen.items()))) for k, seen in mp.visible.items() if seen)
+            first, (lm, _) = next((k, next(iter(seen.items()))) for k, seen in mp.seen().items() if seen)
             landmark = next(x for x in mp.landmarks if x["id"] == lm)
             image = inline_viewframe(vfs[first]).image
             rt.post(

@@ -19,10 +19,9 @@ POSES = [
     [20.0, 5.0, 2.0, 180.0, 0.0],
     [30.0, 5.0, 2.0, 270.0, 0.0],
 ]
-MAP = levels.Map(
+MAP = levels.Map.of(
     scenario="synthetic",
     path="/nonexistent/synthetic.yaml",
-    viewframes=4,
     priors={"H1": 0.75, "T1": 0.5},
     landmarks=[
         {"id": "H1", "kind": "house", "index": 0, "x": 5.0, "y": 5.0},
@@ -30,7 +29,7 @@ MAP = levels.Map(
     ],
     route=[p[:2] for p in POSES],
     poses=POSES,
-    visible={"0": {"H1": 500}, "1": {"T1": 500}, "2": {"H1": 500, "T1": 30}, "3": {"H1": 400}},
+    visible={0: {"H1": 500}, 1: {"T1": 500}, 2: {"H1": 500, "T1": 30}, 3: {"H1": 400}},
     memory={},
 )
 
@@ -329,13 +328,8 @@ def test_a_track_answers_the_track_query() -> None:
 # viewframes 0, 2 and 3 show H1: from 0 (the right one here) larger and further right than from 2
 PLACED = dataclasses.replace(
     MAP,
-    placements={
-        "0": {"H1": [1.0, 6.0, 4.2]},
-        "1": {"T1": [5.0, 0.0, 3.0]},
-        "2": {"H1": [1.0, 2.0, 3.0]},
-        "3": {"H1": [0.5, -9.0, 2.5]},
-    },
-)
+    placements=np.array([[1.0, 6.0, 4.2], [5.0, 0.0, 3.0], [1.0, 2.0, 3.0], [9.0, 9.0, 9.0], [0.5, -9.0, 2.5]]),
+)  # a row per visible row: 0 H1, 1 T1, 2 H1, 2 T1, 3 H1
 
 
 @pytest.mark.parametrize("position, decided", [(True, 0), (False, 2)])

@@ -117,3 +117,29 @@ def test_the_scheduler_fuses_the_coarse_stages_ranking_in_a_mission(tmp_path, sm
     assert sizes["skyline"] == [3] * n
     assert sizes["associative"] and all(s == n for s in sizes["associative"])
     assert results["summary"]["top1"] >= 0.75
+
+
+def test_with_a_cache_the_skylines_come_from_the_entry_not_the_messages(small_rendered: dict) -> None:
+    """With a viewframe cache on (as in the tests) the ranker does not consume the viewframe
+    level: it reads the skylines from the entry the map names, and ranks as a ranker fed by the
+    viewframe messages (a map without an entry)."""
+    sky = _ranker(False)
+    assert not sky.keep_profiles and levels.VIEWFRAME not in sky.consumes
+    bb = MemoryBlackboard()
+    bb.add(sky)
+    repost(bb, small_rendered["map"])  # no viewframe message on this board
+    frames_from_viewframes(bb, small_rendered, [1, 5])
+    bb.run()
+    fed = _ranker(False, keep_profiles=True)
+    assert levels.VIEWFRAME in fed.consumes
+    bb2 = MemoryBlackboard()
+    bb2.add(fed)
+    for h in small_rendered["viewframes"]:
+        repost(bb2, h)
+    bb2.post(levels.MAP, {**small_rendered["map"].body, "entry": None}, id=levels.map_id())
+    frames_from_viewframes(bb2, small_rendered, [1, 5])
+    bb2.run()
+    for frame in (1, 5):
+        a, b = _ranking(bb, frame), _ranking(bb2, frame)
+        assert a.viewframes == b.viewframes and a.variances == b.variances and a.shifts == b.shifts
+        assert a.viewframes[0] == frame

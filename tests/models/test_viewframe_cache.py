@@ -434,3 +434,36 @@ def test_an_entrys_stacked_field_is_read_memory_mapped_or_none_with_a_warning(tm
         assert entry_field(cache.path("a" * 64), "image", count=len(heap) + 1) is None
         assert entry_field(tmp_path / "nowhere", "image") is None
     assert caplog.text.count("cannot read image.npy") == 3 and str(cache.path("r" * 64)) in caplog.text
+
+
+def test_entry_field_and_read_pixels_read_one_open_entry(entry) -> None:
+    """The two readers of an entry open it once, the same way: the stacked field is the map
+    read_pixels reads its rows from; another stacked field (the skylines) is mapped on first use;
+    a field absent in some rows (the background) or not held is None."""
+    from models.viewframe_cache import entry_field
+
+    folder, rendered = entry
+    images = entry_field(folder, "image", count=len(rendered))
+    assert images is viewframe_cache._open[folder].stacked("image")
+    px = viewframe_cache.read_pixels(folder, 1, count=len(rendered))
+    assert np.array_equal(px.image, images[1])
+    skylines = entry_field(folder, "skyline", count=len(rendered))
+    assert isinstance(skylines, np.memmap) and not skylines.flags.writeable
+    assert all(np.array_equal(skylines[vf.index], vf.skyline, equal_nan=True) for vf in rendered)
+    assert entry_field(folder, "background") is None and entry_field(folder, "nope") is None
+
+
+def test_release_behind_gives_back_the_last_two_batches_after_each_batch(monkeypatch) -> None:
+    """After every ``every``-th row and the last: the arrays of the last ``2 * every`` rows."""
+    from models.viewframe_cache import release_behind
+
+    asked: list[list[int]] = []
+    monkeypatch.setattr(
+        viewframe_cache, "release_pages", lambda arrays: asked.append([int(a[0]) for a in arrays if a is not None])
+    )
+    rows = list(range(10))
+    done = [k for k in rows if release_behind(k, rows, lambda r: (np.array([r]), None), every=4)]
+    assert done == [3, 7, 9]
+    assert asked == [[0, 1, 2, 3], [0, 1, 2, 3, 4, 5, 6, 7], [2, 3, 4, 5, 6, 7, 8, 9]]
+    monkeypatch.setattr(viewframe_cache, "RELEASE_EVERY", 5)  # the default, read at the call
+    assert [k for k in rows if release_behind(k, rows, lambda r: ())] == [4, 9]
