@@ -280,15 +280,30 @@ class SimulateSpec(_Spec):
 
 
 class SensorSpec(_Spec):
-    """Exactly one of ``frames`` (real images) or ``simulate``."""
+    """Exactly one of ``frames`` (real images) or ``simulate``.
+
+    ``fov_y_deg`` and ``fov_x_deg`` are the vertical and horizontal fields of view of the images
+    in ``frames`` (default: the scenario camera's ``fov_y_deg``, the same lens, with square
+    pixels: give one of them, or both for non-square pixels). Images of any size and aspect
+    ratio are mapped onto the scenario camera's field of view (:func:`models.sensor.fit_to_camera`):
+    scaled by the ratio of the focal lengths, cropped where they see more than the camera and
+    padded (border pixels replicated) where they see less; an image that sees less than half of
+    the camera's width or height is refused. Without either field an image whose aspect ratio
+    differs from the camera's is taken to have the camera's vertical field of view, with a
+    warning.
+    """
 
     frames: list[FrameSpec] | None = Field(default=None, min_length=1, max_length=MAX_FRAMES)
     simulate: SimulateSpec | None = None
+    fov_y_deg: float | None = Field(default=None, gt=0, lt=180)
+    fov_x_deg: float | None = Field(default=None, gt=0, lt=180)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> SensorSpec:
         if (self.frames is None) == (self.simulate is None):
             raise ValueError("needs exactly one of frames, simulate")
+        if self.frames is None and (self.fov_y_deg is not None or self.fov_x_deg is not None):
+            raise ValueError("fov_y_deg and fov_x_deg describe the images of sensor.frames: give frames")
         if self.frames:
             given = [f.time for f in self.frames]
             if any(t is not None for t in given):
