@@ -60,6 +60,9 @@ class SensorFrame:
         The image file, or ``"simulated"``.
     time : float or None
         Seconds (any origin) when the frame was taken, when known; increasing with ``index``.
+    columns : tuple (first, last) or None
+        The [first, last) columns of ``image`` that hold the scene when the file's image sees
+        less than the camera's width (padded, :func:`fit_to_camera`); None: every column.
     """
 
     index: int
@@ -67,6 +70,7 @@ class SensorFrame:
     truth: tuple[float, float, float] | None
     source: str
     time: float | None = None
+    columns: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -450,7 +454,8 @@ def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
         except InputError as err:  # name the scenario and the field too (as the pre-run check does)
             raise ScenarioError(scenario.path, f"sensor.frames[{i}].image", str(err)) from None
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
-        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time))
+        columns = fit.valid_cols if fit is not None and fit.coverage[1] < 1.0 - 1e-6 else None
+        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time, columns))
     return frames
 
 

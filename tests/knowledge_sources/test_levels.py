@@ -386,3 +386,13 @@ def test_pixels_of_a_reference_this_host_cannot_read_name_entry_viewframe_and_ag
         msg.pixels(agent="indexer-7")
     text = str(err.value)
     assert text.startswith(f"{where}: agent indexer-7, viewframe vf-000001: ") and "render: {inline: true}" in text
+
+
+def test_sensor_frame_columns_are_checked_against_the_image():
+    image = np.zeros((12, 16, 3), np.uint8)
+    ok = levels.SensorFrame(frame=0, image=image, source="f.png", columns=[4, 12])
+    assert levels.SensorFrame.from_body(ok.to_body()).columns == [4, 12]
+    assert levels.SensorFrame(frame=0, image=image, source="f.png").columns is None
+    for bad in ([12, 4], [0, 17], [-1, 8], [1.5, 8], ["a", 8]):
+        with pytest.raises(levels.MessageError, match="columns"):
+            levels.SensorFrame(frame=0, image=image, source="f.png", columns=bad)

@@ -284,3 +284,32 @@ def test_fov_fields_need_frames_on_file(tmp_path):
 
 def test_min_coverage_is_half():
     assert MIN_COVERAGE == 0.5
+
+
+@pytest.mark.slow
+def test_a_padded_frame_has_no_horizon_where_it_sees_nothing(renders, tmp_path):
+    """The portrait frame's columns reach the skyline: its bins outside them are NaN (the
+    replicated border would otherwise draw a flat false horizon there), the ones inside
+    agree with the 4:3 view's."""
+    from models.skyline import profile_azimuths, skyline_from_image
+
+    frames = []
+    for k, image in enumerate(renders[(720, 960)]):
+        _write_bgr(tmp_path / f"p{k}.png", image)
+        frames.append({"image": f"p{k}.png"})
+    got = frames_from_files(_scenario(tmp_path, frames, fov_y_deg=45.0))
+    for frame, want in zip(got, renders[(W, H)]):
+        assert frame.columns is not None
+        q = skyline_from_image(frame.image, fov_y_deg=45.0, columns=frame.columns)
+        full = skyline_from_image(frame.image, fov_y_deg=45.0)
+        ref = skyline_from_image(want, fov_y_deg=45.0)
+        az = profile_azimuths(q.size)
+        half = math.degrees(math.atan(math.tan(math.radians(22.5)) * 720 / 960))
+        outside, inside = np.abs(az) > half + 0.5, np.abs(az) < half - 1.0
+        assert np.all(np.isnan(q[outside])) and np.isfinite(full[outside]).mean() > 0.5
+        ok = inside & np.isfinite(q) & np.isfinite(ref)
+        assert ok.mean() > 0.5 * inside.mean()
+        assert np.median(np.abs(q[ok] - ref[ok])) < 0.5  # degrees
+    # a frame of the camera's aspect ratio is not padded: every column counts
+    _write_bgr(tmp_path / "full.png", renders[(1280, 720)][0])
+    assert frames_from_files(_scenario(tmp_path, [{"image": "full.png"}]))[0].columns is None
