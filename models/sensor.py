@@ -281,7 +281,7 @@ def read_image(path: str | Path) -> np.ndarray:
     except OSError as exc:
         raise InputError(path, f"cannot read the camera image: {exc.strerror or exc}") from None
     if raw.size == 0:
-        raise InputError(path, "the camera image file is empty")
+        raise InputError(path, "not a readable image: the file is empty")
     _check_complete(raw, path)
     # IMREAD_UNCHANGED keeps 16 bits and alpha but ignores EXIF orientation: apply it below
     data = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
@@ -393,22 +393,6 @@ def load_frame(
             rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
         return np.ascontiguousarray(rgb), None
     h, w = rgb.shape[:2]
-    if frame_fov_y_deg is None and frame_fov_x_deg is None and abs(w * height - h * width) > max(w, h, width, height):
-        key = (w, h, width, height)
-        if key not in _warned_aspect:
-            _warned_aspect.add(key)
-            log.warning(
-                "camera images of %dx%d pixels (aspect %.3f) against a %dx%d camera (aspect %.3f): "
-                "taken with the camera's vertical field of view (%g deg) and cropped or padded; set "
-                "sensor.fov_y_deg (or sensor.fov_x_deg) when the lens differs",
-                w,
-                h,
-                w / h,
-                width,
-                height,
-                width / height,
-                fov_y_deg,
-            )
     try:
         out, fit = fit_to_camera(
             rgb,
@@ -428,6 +412,22 @@ def load_frame(
             f"{100 * rows:.0f} % of its height (at least {100 * MIN_COVERAGE:.0f} % of each needed): "
             "check sensor.fov_y_deg / sensor.fov_x_deg against camera.fov_y_deg",
         )
+    if frame_fov_y_deg is None and frame_fov_x_deg is None and abs(w * height - h * width) > max(w, h, width, height):
+        key = (w, h, width, height)
+        if key not in _warned_aspect:
+            _warned_aspect.add(key)
+            log.warning(
+                "camera images of %dx%d pixels (aspect %.3f) against a %dx%d camera (aspect %.3f): "
+                "taken with the camera's vertical field of view (%g deg) and cropped or padded; set "
+                "sensor.fov_y_deg (or sensor.fov_x_deg) when the lens differs",
+                w,
+                h,
+                w / h,
+                width,
+                height,
+                width / height,
+                fov_y_deg,
+            )
     return out, fit
 
 
