@@ -28,6 +28,18 @@ __all__ = ["load_terrain", "scenario_terrain", "terrain_frame", "is_raster", "de
 
 log = logging.getLogger(__name__)
 
+_warned: set[str] = set()
+
+
+def _warn_once(msg: str, *args: object) -> None:
+    """``log.warning`` once per process for each message (the pre-run check and the agents
+    that read the same map would each say it again)."""
+    text = msg % args
+    if text not in _warned:
+        _warned.add(text)
+        log.warning("%s", text)
+
+
 #: ground heights beyond this (metres, either sign) are taken for a broken file
 MAX_ABS_HEIGHT_M = 1e5
 
@@ -66,7 +78,7 @@ def _load_raster(path: Path, spec: TerrainSpec) -> Terrain:
         else:
             z_scale = 1.0
             if why:
-                log.warning(
+                _warn_once(
                     "%s: heights taken as metres, but %s: set terrain.z_scale (0.3048 for feet, "
                     "0.3048006096 for US survey feet) if they are not",
                     path,
@@ -108,7 +120,7 @@ def despike(heights: np.ndarray, *, path: Path, policy: str, cell_size: float) -
     )
     if policy == "refuse":
         raise InputError(path, f"{what}: spikes or pits; set terrain.spikes: fill or keep")
-    log.warning("%s: %s: taken for spikes or pits, filled with their neighbours' median", path, what)
+    _warn_once("%s: %s: taken for spikes or pits, filled with their neighbours' median", path, what)
     return np.where(bad, median, heights)
 
 

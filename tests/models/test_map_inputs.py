@@ -227,3 +227,32 @@ def test_3d_contour_lines_carry_their_height_as_z(hills, tmp_path):
     (tmp_path / "z.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
     local = _terrain(tmp_path, contours=str(tmp_path / "z.geojson"), cell_size=CS, z_scale=0.3048)
     np.testing.assert_allclose(local.heights, want.heights, atol=1e-6)
+
+
+def test_the_lonlat_jacksboro_dem_with_untagged_holes_and_in_feet(tmp_path):
+    """The bundled lon/lat GeoTIFF (int16, no nodata value) with a block of -32768 beside the
+    route: before, a 33 km deep pit in the resampled map; now the same heights as around it.
+    Its heights in feet with the band's unit 'ft': the metre DEM again."""
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[2] / "scenarios" / "data" / "jacksboro.tif"
+    with rasterio.open(src) as ds:
+        h, profile = ds.read(1), ds.profile
+    holes = h.copy()
+    holes[146:158, 219:228] = -32768
+    with rasterio.open(tmp_path / "holes.tif", "w", **profile) as ds:
+        ds.write(holes, 1)
+    with rasterio.open(tmp_path / "ft.tif", "w", **{**profile, "dtype": "float32"}) as ds:
+        ds.write((h / 0.3048).astype(np.float32), 1)
+        ds.units = ("ft",)
+
+    def load(name: str) -> Terrain:
+        data = {"name": "geo", "crs": "EPSG:4326", "terrain": {"dem": str(tmp_path / name)}, "camera": CAMERA}
+        data["route"] = [[-84.2359998, 36.6081003], [-84.2356332, 36.6077596]]
+        return scenario_terrain(scenario_from_dict(data, path=tmp_path / "s.yaml"))
+
+    original = load(str(src))
+    filled = load("holes.tif")
+    assert filled.heights.min() >= original.heights.min() - 1.0
+    assert np.mean(np.abs(filled.heights - original.heights) > 1.0) < 0.01
+    np.testing.assert_allclose(load("ft.tif").heights, original.heights, atol=1e-3)
