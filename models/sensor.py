@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -197,15 +197,9 @@ def fit_to_camera(
     :class:`FrameFit`.
     """
     h, w = image.shape[:2]
-    f_cam = focal_px(height, fov_y_deg)
-    if frame_fov_y_deg is None and frame_fov_x_deg is None:
-        frame_fov_y_deg = fov_y_deg
-    fy = focal_px(h, frame_fov_y_deg) if frame_fov_y_deg is not None else None
-    fx = focal_px(w, frame_fov_x_deg) if frame_fov_x_deg is not None else None
-    fy = fy if fy is not None else fx
-    fx = fx if fx is not None else fy
-    assert fx is not None and fy is not None
-    sx, sy = f_cam / fx, f_cam / fy
+    sy, sx = _scales(
+        w, h, height=height, fov_y_deg=fov_y_deg, frame_fov_y_deg=frame_fov_y_deg, frame_fov_x_deg=frame_fov_x_deg
+    )
     # resize to about the final scale first (anti-aliased when shrinking), then place it exactly
     w1, h1 = max(1, int(round(w * sx))), max(1, int(round(h * sy)))
     if (h1, w1) != (h, w):
@@ -227,6 +221,27 @@ def fit_to_camera(
     last = min(width, int(math.floor(width / 2 + half_w + 1e-6)))
     fit = FrameFit((sy, sx), (min(1.0, sy * h / height), min(1.0, sx * w / width)), (first, last))
     return np.ascontiguousarray(out), fit
+
+
+def _scales(
+    w: int,
+    h: int,
+    *,
+    height: int,
+    fov_y_deg: float,
+    frame_fov_y_deg: float | None,
+    frame_fov_x_deg: float | None,
+) -> tuple[float, float]:
+    """(rows, cols) camera pixels per pixel of a (h, w) frame: the focal lengths' ratio."""
+    f_cam = focal_px(height, fov_y_deg)
+    if frame_fov_y_deg is None and frame_fov_x_deg is None:
+        frame_fov_y_deg = fov_y_deg
+    fy = focal_px(h, frame_fov_y_deg) if frame_fov_y_deg is not None else None
+    fx = focal_px(w, frame_fov_x_deg) if frame_fov_x_deg is not None else None
+    fy = fy if fy is not None else fx
+    fx = fx if fx is not None else fy
+    assert fx is not None and fy is not None
+    return f_cam / fy, f_cam / fx
 
 
 #: a camera frame must see at least this fraction of the camera's width and of its height
@@ -263,7 +278,7 @@ def _to_rgb8(data: np.ndarray, path: Path) -> np.ndarray:
     raise InputError(path, f"an image of {data.shape[2]} channels: gray, RGB or RGBA expected")
 
 
-def read_image(path: str | Path) -> np.ndarray:
+def read_image(path: str | Path, *, reduce: Callable[[int, int], int] | None = None) -> np.ndarray:
     """Decode an image file (PNG, JPEG, TIFF, BMP, WebP ...: what OpenCV reads) as (H, W, 3) uint8 RGB.
 
     Gray, gray + alpha, RGBA (the alpha is dropped) and palette images become RGB; 16-bit and
@@ -272,6 +287,10 @@ def read_image(path: str | Path) -> np.ndarray:
     orientation is applied (the image as a viewer shows it). Raises
     :class:`~models.errors.InputError` naming the file when it is missing, unreadable, truncated
     or smaller than :data:`~models.scenario.MIN_IMAGE_PX` on a side.
+
+    ``reduce(width, height)`` (the image's size as shown) may return 2, 4 or 8: a JPEG is then
+    decoded at that fraction of its size (libjpeg's DCT scaling, several times faster than a
+    full decode of a large photo), for a caller that shrinks it much more anyway.
     """
     path = Path(path)
     if not path.is_file():
@@ -284,7 +303,15 @@ def read_image(path: str | Path) -> np.ndarray:
         raise InputError(path, "not a readable image: the file is empty")
     _check_complete(raw, path)
     # IMREAD_UNCHANGED keeps 16 bits and alpha but ignores EXIF orientation: apply it below
-    data = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED)
+    flags, size = cv2.IMREAD_UNCHANGED, None
+    if reduce is not None and raw[:2].tobytes() == b"\xff\xd8":
+        size = _jpeg_size(raw)
+        if size is not None:
+            shown = size[::-1] if _exif_orientation(raw[:65536].tobytes()) >= 5 else size
+            factor = reduce(*shown) if min(size) >= 8 * MIN_IMAGE_PX else 1
+            if factor in _REDUCED:
+                flags = _REDUCED[factor] | cv2.IMREAD_IGNORE_ORIENTATION
+    data = cv2.imdecode(raw, flags)
     if data is None or data.size == 0:
         raise InputError(path, "not a readable image (PNG, JPEG or TIFF expected)")
     if min(data.shape[:2]) < MIN_IMAGE_PX:
@@ -293,6 +320,38 @@ def read_image(path: str | Path) -> np.ndarray:
         )
     rgb = _to_rgb8(data, path)
     return np.ascontiguousarray(_apply_exif_orientation(rgb, raw))
+
+
+_REDUCED = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def _jpeg_size(raw: np.ndarray) -> tuple[int, int] | None:
+    """(width, height) of a JPEG as stored, from its start-of-frame marker; None when not found."""
+    data = raw[: 1 << 20].tobytes()
+    at = 2
+    while at + 9 < len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            at += 2
+            continue
+        length = int.from_bytes(data[at + 2 : at + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h = int.from_bytes(data[at + 5 : at + 7], "big")
+            w = int.from_bytes(data[at + 7 : at + 9], "big")
+            return (w, h) if w > 0 and h > 0 else None
+        at += 2 + length
+    return None
+
+
+def _reduction(scale: float) -> int:
+    """The largest JPEG decode reduction (1, 2, 4, 8) keeping at least twice the pixels a
+    resize by ``scale`` (target pixels per image pixel) needs."""
+    for factor in (8, 4, 2):
+        if 2.0 * scale * factor <= 1.0:
+            return factor
+    return 1
 
 
 def _check_complete(raw: np.ndarray, path: Path) -> None:
@@ -386,13 +445,23 @@ def load_frame(
 ) -> tuple[np.ndarray, FrameFit | None]:
     """:func:`load_frame_image` and its :class:`FrameFit` (None when only resized)."""
     path = Path(path)
-    rgb = read_image(path)
+    fovs = {"frame_fov_y_deg": frame_fov_y_deg, "frame_fov_x_deg": frame_fov_x_deg}
+
+    shown: list[tuple[int, int]] = []  # the file's (width, height) when decoded reduced
+
+    def reduce(w: int, h: int) -> int:
+        shown.append((w, h))
+        if fov_y_deg is None:
+            return _reduction(max(width / w, height / h))
+        return _reduction(max(_scales(w, h, height=height, fov_y_deg=fov_y_deg, **fovs)))
+
+    rgb = read_image(path, reduce=reduce)
     if fov_y_deg is None:
         if rgb.shape[:2] != (height, width):
             shrinking = rgb.shape[0] > height
             rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
         return np.ascontiguousarray(rgb), None
-    h, w = rgb.shape[:2]
+    w, h = shown[0] if shown else (rgb.shape[1], rgb.shape[0])
     try:
         out, fit = fit_to_camera(
             rgb,

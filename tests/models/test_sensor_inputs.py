@@ -108,18 +108,37 @@ def test_jpeg_exif_orientation_is_applied(tmp_path, orientation, stored):
 
 
 @pytest.mark.slow
-def test_a_huge_image_is_read_in_bounded_time(tmp_path):
+@pytest.mark.parametrize("orientation", [1, 6])
+def test_a_huge_jpeg_is_decoded_reduced_to_what_the_camera_needs(tmp_path, orientation):
+    """A 6000 x 4000 photo (72 MB of pixels) for a 160 x 120 camera: decoded at 1/8 (libjpeg's
+    DCT scaling), as fast as a small image, and the same camera image as a full decode gives."""
     import resource
     import time
 
-    big = cv2.resize(_scene(), (6000, 4000), interpolation=cv2.INTER_NEAREST)
-    path = _write_bgr(tmp_path / "big.jpg", big)
+    rng = np.random.default_rng(4)
+    scene = cv2.resize(_scene(400, 600), (6000, 4000), interpolation=cv2.INTER_LINEAR)
+    scene = cv2.GaussianBlur(scene, (0, 0), 3.0) + rng.integers(0, 6, scene.shape, dtype=np.uint8)
+    stored = scene if orientation == 1 else np.ascontiguousarray(np.rot90(scene, 1))
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    Image.fromarray(stored).save(tmp_path / "big.jpg", exif=exif.tobytes(), quality=90)
     t0 = time.perf_counter()
-    img = load_frame_image(path, width=W, height=H, fov_y_deg=45.0)
+    img, fit = load_frame(tmp_path / "big.jpg", width=W, height=H, fov_y_deg=45.0)
     elapsed = time.perf_counter() - t0
-    assert img.shape == (H, W, 3)
-    assert elapsed < 5.0  # about 0.3 s on the 2-core test machine
+    full = read_image(tmp_path / "big.jpg")  # no reduction
+    assert full.shape == (4000, 6000, 3)
+    want, _ = fit_to_camera(full, width=W, height=H, fov_y_deg=45.0)
+    assert img.shape == (H, W, 3) and fit is not None
+    assert np.abs(img.astype(int) - want).mean() < 1.0
+    assert _close(img[5, 80], SKY, 10) and _close(img[110, 80], GROUND, 10)
+    assert elapsed < 1.0  # about 0.05 s on the 2-core test machine; a full decode about 0.3 s
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss < 2_000_000  # KB: well under 2 GB
+
+
+def test_a_huge_png_is_read(tmp_path):
+    big = cv2.resize(_scene(), (6000, 4000), interpolation=cv2.INTER_NEAREST)
+    img = load_frame_image(_write_bgr(tmp_path / "big.png", big), width=W, height=H, fov_y_deg=45.0)
+    assert _close(img[80, 30], RED, 3)
 
 
 @pytest.mark.parametrize(
