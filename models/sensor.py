@@ -252,6 +252,12 @@ _warned_aspect: set[tuple[int, int, int, int]] = set()
 
 def _to_rgb8(data: np.ndarray, path: Path) -> np.ndarray:
     """A decoded image (gray, gray + alpha, BGR, BGRA; 8 or 16 bit or float) as (H, W, 3) uint8 RGB."""
+    if data.ndim == 3 and data.shape[2] not in (1, 2, 3, 4):
+        raise InputError(path, f"an image of {data.shape[2]} channels: gray, RGB or RGBA expected")
+    if data.ndim == 3 and data.shape[2] in (2, 4):  # the alpha is dropped (before any scaling)
+        data = data[..., : data.shape[2] - 1]
+    if data.ndim == 3 and data.shape[2] == 1:
+        data = data[..., 0]
     if data.dtype != np.uint8:
         # 16-bit (often 10 or 12 bits of data in 16) or float: scaled by the image's brightest
         # value (a gain: black stays black, colours keep their ratios; the memory's patterns and
@@ -265,17 +271,10 @@ def _to_rgb8(data: np.ndarray, path: Path) -> np.ndarray:
         values = np.where(finite, values, lo)
         scaled = (values - lo) * (255.0 / (hi - lo)) if hi > lo else np.zeros_like(values)
         data = np.clip(scaled + 0.5, 0, 255).astype(np.uint8)
-    if data.ndim == 3 and data.shape[2] == 1:
-        data = data[..., 0]
+    data = np.ascontiguousarray(data)
     if data.ndim == 2:
         return cv2.cvtColor(data, cv2.COLOR_GRAY2RGB)
-    if data.shape[2] == 2:  # gray + alpha
-        return cv2.cvtColor(np.ascontiguousarray(data[..., 0]), cv2.COLOR_GRAY2RGB)
-    if data.shape[2] == 4:
-        return cv2.cvtColor(data, cv2.COLOR_BGRA2RGB)
-    if data.shape[2] == 3:
-        return cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
-    raise InputError(path, f"an image of {data.shape[2]} channels: gray, RGB or RGBA expected")
+    return cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
 
 
 def read_image(path: str | Path, *, reduce: Callable[[int, int], int] | None = None) -> np.ndarray:

@@ -332,3 +332,13 @@ def test_a_padded_frame_has_no_horizon_where_it_sees_nothing(renders, tmp_path):
     # a frame of the camera's aspect ratio is not padded: every column counts
     _write_bgr(tmp_path / "full.png", renders[(1280, 720)][0])
     assert frames_from_files(_scenario(tmp_path, [{"image": "full.png"}]))[0].columns is None
+
+
+def test_16_bit_rgba_with_12_bits_of_colour(tmp_path):
+    """A 16-bit RGBA PNG whose colours use 12 bits and whose alpha is opaque (65535): the gain
+    comes from the colours, not from the alpha (which would leave the image nearly black)."""
+    bgr = (_scene()[..., ::-1].astype(np.uint16) * 16).astype(np.uint16)  # up to 230 * 16 = 3680
+    bgra = np.dstack([bgr, np.full((H, W), 65535, np.uint16)])
+    assert cv2.imwrite(str(tmp_path / "f.png"), bgra)
+    img = load_frame_image(tmp_path / "f.png", width=W, height=H)
+    assert _close(img[5, 5], np.array(SKY) * 255 / 230) and img.max() == 255
