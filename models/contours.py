@@ -11,7 +11,9 @@ each). ``terrain.z_scale`` converts other units. The DEM follows the grid conven
   georeferenced: its lines are projected into the working CRS of :func:`models.georef.working_crs`
   and the local origin (0, 0) is the south-west corner of their extent; the map frame is returned.
 * A file without a CRS, and a GeoJSON without a ``crs`` member, holds local metres (x, y >= 0)
-  as before.
+  as before; but a GeoJSON without a ``crs`` member whose coordinates all lie within lon/lat
+  bounds and span less than :data:`LONLAT_MAX_SPAN` is lon/lat degrees (RFC 7946 GeoJSON, as
+  many tools write it), with a warning.
 
 Vector files are read with pyogrio; plain GeoJSON without a CRS is parsed directly.
 """
@@ -256,7 +258,13 @@ def read_contours(
     plain = _plain_geojson(path)
     if plain is not None:
         lines = _geojson_lines(path, plain, attribute)
-        return [(p, e * z_scale) for p, e in lines], None
+        if not _looks_lonlat(lines):
+            return [(p, e * z_scale) for p, e in lines], None
+        log.warning(
+            "%s: a GeoJSON without a crs member whose coordinates all lie within a few degrees of "
+            "lon/lat: read as lon/lat (RFC 7946), not as local metres; give it a crs member to say otherwise",
+            path,
+        )
     lines, crs_text = _ogr_lines(path, attribute)
     lines = [(p, e * z_scale) for p, e in lines]
     if not crs_text:
@@ -275,6 +283,18 @@ def read_contours(
         raise InputError(path, f"contour coordinates cannot be projected from {crs_text}")
     frame = MapFrame(crs, work, (float(origin[0]), float(origin[1])))
     return [(p - origin, e) for p, e in projected], frame
+
+
+#: a GeoJSON without a crs member spanning less than this in x and in y, within lon/lat bounds, is
+#: read as lon/lat degrees (RFC 7946 GeoJSON is), not as a map of a few metres
+LONLAT_MAX_SPAN = 10.0
+
+
+def _looks_lonlat(lines: list[ContourLine]) -> bool:
+    xy = np.concatenate([p for p, _ in lines])
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    inside = lo[0] >= -180 and hi[0] <= 180 and lo[1] >= -90 and hi[1] <= 90
+    return bool(inside and np.all(hi - lo < LONLAT_MAX_SPAN))
 
 
 def load_contours(path: str | Path, *, attribute: str | None = None) -> list[ContourLine]:

@@ -151,6 +151,13 @@ def raster_height_units(path: str | Path) -> tuple[float | None, str]:
         from models.georef import parse_crs
 
         parsed = parse_crs(crs.to_wkt())
+        for ax in parsed.axis_info:  # a compound CRS's vertical axis states the heights' unit
+            if ax.direction.lower() == "up":
+                up = _HEIGHT_UNITS.get(ax.unit_name.strip().lower())
+                if up is None and ax.unit_conversion_factor > 0:
+                    up = float(ax.unit_conversion_factor)
+                if up is not None:
+                    return up, f"its vertical CRS is in {ax.unit_name}"
         names = {ax.unit_name.lower() for ax in parsed.axis_info[:2]}
         if any("foot" in n or "feet" in n for n in names):
             return None, f"its CRS is in {' / '.join(sorted(names))}"

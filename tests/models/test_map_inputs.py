@@ -36,8 +36,8 @@ def _transform(rows: int, cs: float = CS, x0: float = X0, y0: float = Y0) -> Aff
     return Affine(cs, 0, x0, 0, -cs, y0 + rows * cs)
 
 
-def _terrain(tmp_path, **terrain) -> Terrain:
-    data = {"name": "maps", "terrain": terrain, "route": [[150, 150], [300, 300]], "camera": CAMERA}
+def _terrain(tmp_path, route=((150, 150), (300, 300)), **terrain) -> Terrain:
+    data = {"name": "maps", "terrain": terrain, "route": [list(p) for p in route], "camera": CAMERA}
     return scenario_terrain(scenario_from_dict(data, path=tmp_path / "s.yaml"))
 
 
@@ -256,3 +256,49 @@ def test_the_lonlat_jacksboro_dem_with_untagged_holes_and_in_feet(tmp_path):
     assert filled.heights.min() >= original.heights.min() - 1.0
     assert np.mean(np.abs(filled.heights - original.heights) > 1.0) < 0.01
     np.testing.assert_allclose(load("ft.tif").heights, original.heights, atol=1e-3)
+
+
+def test_rfc7946_geojson_contours_in_lonlat_without_a_crs_member(hills, tmp_path, caplog):
+    """GeoJSON as geojson.io, mapshaper or shapely write it: lon/lat degrees and no crs member.
+    Before, read as a map of a few metres; now as lon/lat (with a warning), the same DEM as the
+    UTM file of the same lines."""
+    from pyproj import Transformer
+
+    to_ll = Transformer.from_crs(UTM, "EPSG:4326", always_xy=True)
+    lines = [(p + [X0, Y0], e) for p, e in _lines(hills)]
+    feats = [
+        {
+            "type": "Feature",
+            "properties": {"ELEV": e},
+            "geometry": {"type": "LineString", "coordinates": np.column_stack(to_ll.transform(*p.T)).tolist()},
+        }
+        for p, e in lines
+    ]
+    (tmp_path / "ll.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    with caplog.at_level(logging.WARNING):
+        route = [to_ll.transform(X0 + 150, Y0 + 150), to_ll.transform(X0 + 300, Y0 + 300)]
+        got = _terrain(tmp_path, route, contours=str(tmp_path / "ll.geojson"), cell_size=CS)
+    assert "read as lon/lat (RFC 7946)" in caplog.text
+    assert got.frame is not None and got.frame.crs.to_epsg() == 4326
+    want = _terrain(tmp_path, contours=str(write_contour_vector(tmp_path / "utm.gpkg", lines, crs=UTM)), cell_size=CS)
+    assert abs(got.shape[0] - want.shape[0]) <= 2 and abs(got.shape[1] - want.shape[1]) <= 2
+    r, c = min(got.shape[0], want.shape[0]), min(got.shape[1], want.shape[1])
+    assert np.median(np.abs(got.heights[:r, :c] - want.heights[:r, :c])) < 2.0
+
+
+@pytest.mark.parametrize("vertical, metres_per_unit", [("6360", 1200 / 3937), ("5703", 1.0)])
+def test_a_compound_crs_states_the_heights_unit(tmp_path, caplog, vertical, metres_per_unit):
+    """State plane feet horizontally, NAVD88 in US survey feet (6360) or metres (5703)
+    vertically: the vertical CRS says what the heights are, and no warning is needed."""
+    from pyproj import CRS
+    from rasterio.crs import CRS as RioCRS
+
+    ft = 1200 / 3937
+    h = np.fromfunction(lambda r, c: 100.0 + r + 2 * c, (40, 40))
+    crs = RioCRS.from_wkt(CRS(f"EPSG:2264+{vertical}").to_wkt())
+    path = write_geotiff(tmp_path / "c.tif", h / metres_per_unit, Affine(CS / ft, 0, 2e6, 0, -CS / ft, 6e5), crs)
+    with caplog.at_level(logging.WARNING):
+        t = _terrain(tmp_path, dem=str(path))
+    assert "z_scale" not in caplog.text
+    assert t.heights.min() >= 99.0  # metres, not feet (feet taken as metres: up to 3.3 times more)
+    assert t.heights.max() == pytest.approx(h.max(), abs=2.0)
