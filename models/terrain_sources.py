@@ -58,8 +58,15 @@ def _load_npy(path: Path, cell_size: float, z_scale: float | None = None) -> Ter
         raise InputError(path, f"DEM must be a 2-D array of at least 2x2 cells, got shape {np.shape(heights)}")
     if not (np.issubdtype(heights.dtype, np.integer) or np.issubdtype(heights.dtype, np.floating)):
         raise InputError(path, f"DEM heights must be real numbers, not {heights.dtype}")
-    if not np.all(np.isfinite(heights)):
-        raise InputError(path, "DEM heights must be finite numbers (found NaN or inf)")
+    finite = np.isfinite(heights)
+    if not np.all(finite):
+        r, c = map(int, np.argwhere(~finite)[0])
+        raise InputError(
+            path,
+            f"DEM heights must be finite numbers (found NaN or inf in {int((~finite).sum())} cells, the first at "
+            f"row {r}, col {c}); fill the holes, or give the DEM as a GeoTIFF with a nodata value "
+            "(terrain.nodata: fill fills them)",
+        )
     scale = 1.0 if z_scale is None else z_scale
     return Terrain(heights=heights.astype(np.float64) * scale, cell_size=cell_size)
 
