@@ -354,13 +354,39 @@ def _reduction(scale: float) -> int:
 
 
 def _check_complete(raw: np.ndarray, path: Path) -> None:
-    """Refuse a PNG or JPEG cut short (OpenCV decodes those with grey rows and a warning only)."""
-    head = raw[:8].tobytes()
-    tail = raw[-12:].tobytes()
-    if head.startswith(b"\x89PNG\r\n\x1a\n") and b"IEND" not in tail:
-        raise InputError(path, "the PNG file is truncated or damaged (no IEND chunk at its end)")
-    if head.startswith(b"\xff\xd8") and b"\xff\xd9" not in raw[-64:].tobytes():
-        raise InputError(path, "the JPEG file is truncated or damaged (no end-of-image marker at its end)")
+    """Refuse a PNG or JPEG cut short (OpenCV decodes a cut JPEG with grey rows and a warning only).
+
+    A PNG must hold its IEND chunk; a JPEG its end-of-image marker after the start of its scan
+    (a marker there cannot be data, which stuffs every 0xFF; the markers before the scan are
+    skipped, since an EXIF thumbnail carries an end-of-image marker of its own). Data after the
+    end (a phone's trailer, a motion photo's video) is allowed."""
+    data = raw.tobytes()
+    if data.startswith(b"\x89PNG\r\n\x1a\n") and data.rfind(b"IEND") < 0:
+        raise InputError(path, "the PNG file is truncated or damaged (no IEND chunk)")
+    if data.startswith(b"\xff\xd8"):
+        scan = _jpeg_scan_start(data)
+        if scan is None or data.find(b"\xff\xd9", scan) < 0:
+            raise InputError(path, "the JPEG file is truncated or damaged (no end-of-image marker after its scan)")
+
+
+def _jpeg_scan_start(data: bytes) -> int | None:
+    """Offset of a JPEG's first start-of-scan segment's data, None when the markers end before it."""
+    at = 2
+    while at + 4 <= len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker == 0xFF:  # fill byte
+            at += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            at += 2
+            continue
+        length = int.from_bytes(data[at + 2 : at + 4], "big")
+        if marker == 0xDA:
+            return at + 2 + length
+        at += 2 + length
+    return None
 
 
 def _apply_exif_orientation(rgb: np.ndarray, raw: np.ndarray) -> np.ndarray:

@@ -342,3 +342,22 @@ def test_16_bit_rgba_with_12_bits_of_colour(tmp_path):
     assert cv2.imwrite(str(tmp_path / "f.png"), bgra)
     img = load_frame_image(tmp_path / "f.png", width=W, height=H)
     assert _close(img[5, 5], np.array(SKY) * 255 / 230) and img.max() == 255
+
+
+def test_jpeg_endings_phones_write_are_accepted_and_cut_scans_refused(tmp_path):
+    """Data after a JPEG's end (a phone's trailer, a motion photo's video) is no damage; a JPEG
+    cut inside its scan is, even when an EXIF thumbnail before the scan ends with its own
+    end-of-image marker."""
+    ok, enc = cv2.imencode(".jpg", np.ascontiguousarray(_scene()[..., ::-1]))
+    assert ok
+    jpeg = enc.tobytes()
+    (tmp_path / "trailer.jpg").write_bytes(jpeg + b"\x00" * 100 + b"SEFT" + bytes(range(256)) * 40)
+    assert _close(read_image(tmp_path / "trailer.jpg")[80, 30], RED, 12)
+    thumb = b"\xff\xd8" + b"thumbnail" * 10 + b"\xff\xd9"
+    app1 = b"Exif\x00\x00" + thumb
+    with_thumb = jpeg[:2] + b"\xff\xe1" + (len(app1) + 2).to_bytes(2, "big") + app1 + jpeg[2:]
+    (tmp_path / "thumb.jpg").write_bytes(with_thumb)
+    assert _close(read_image(tmp_path / "thumb.jpg")[80, 30], RED, 12)
+    (tmp_path / "cut.jpg").write_bytes(with_thumb[: len(with_thumb) - 200])
+    with pytest.raises(InputError, match="cut.jpg: the JPEG file is truncated or damaged"):
+        read_image(tmp_path / "cut.jpg")
