@@ -361,3 +361,11 @@ def test_jpeg_endings_phones_write_are_accepted_and_cut_scans_refused(tmp_path):
     (tmp_path / "cut.jpg").write_bytes(with_thumb[: len(with_thumb) - 200])
     with pytest.raises(InputError, match="cut.jpg: the JPEG file is truncated or damaged"):
         read_image(tmp_path / "cut.jpg")
+
+
+def test_hot_pixels_do_not_darken_a_16_bit_frame(tmp_path):
+    ramp = np.linspace(0, 4095, W)[None].repeat(H, 0).astype(np.uint16)
+    ramp[3, 7] = ramp[50, 90] = 65535  # two hot pixels
+    cv2.imwrite(str(tmp_path / "hot.png"), ramp)
+    img = load_frame_image(tmp_path / "hot.png", width=W, height=H)
+    assert img[0, -1, 0] >= 250 and img[0, W // 2, 0] > 100  # not 4095 / 65535 of the range
