@@ -7,6 +7,12 @@ produces such frames with the same camera emulator that renders the viewframes, 
 them; everything is drawn from one seeded generator, so a scenario always yields the same frames.
 A scenario's frames (from files or simulated) are :attr:`models.world.World.sensor_frames`.
 
+Frames on file (:func:`frames_from_files`) are decoded by :func:`read_image` (any format OpenCV
+reads, 8/16-bit or float, gray to RGBA, EXIF orientation applied, truncated files refused) and
+mapped onto the scenario camera's field of view by :func:`fit_to_camera` (another size or aspect
+ratio is scaled by the focal lengths' ratio and cropped or padded, never squeezed; a padded
+frame's :attr:`SensorFrame.columns` say which columns see the scene).
+
 Images are ``(H, W, 3)`` uint8 RGB arrays indexed ``(row, col)``; poses are in world
 ``(x, y, z)`` metres with heading counterclockwise from +x.
 """
