@@ -114,7 +114,13 @@ class Camera(KnowledgeSource):
         """Post one camera frame (a :class:`models.sensor.SensorFrame`) and its truth."""
         posted = levels.post(
             board,
-            levels.SensorFrame(frame=f.index, image=f.image, source=f.source, time=f.time),
+            levels.SensorFrame(
+                frame=f.index,
+                image=f.image,
+                source=f.source,
+                time=f.time,
+                columns=None if f.columns is None else list(f.columns),
+            ),
             links=(levels.map_id(),),
         )
         if f.truth is not None:

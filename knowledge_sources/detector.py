@@ -123,7 +123,13 @@ class LandmarkDetectorAgent(KnowledgeSource):
         detector = self._registry.for_kind(q.kind)
         px = vf.pixels(agent=self.name)
         view = CandidateView.from_mask(px.image, px.mask, q.landmark_index, background=px.background)
-        det = detector.detect(frame.image, view=view)
+        if frame.columns is not None and _outside(view.silhouette, frame.columns):
+            from models.detectors import Detection
+
+            # a narrower camera image padded to the camera's width: the landmark is where it sees nothing
+            det = Detection(None, 0.0, reason=f"outside the columns {frame.columns} the camera image sees")
+        else:
+            det = detector.detect(frame.image, view=view)
         where = None
         if det.where is not None and self.fov_y_deg is not None:
             from models.placement import found_placement
@@ -148,3 +154,10 @@ class LandmarkDetectorAgent(KnowledgeSource):
             links=(event.hypothesis.id, frame_h.id, vf_h.id),
             credibility=float(min(1.0, max(0.0, det.score))),
         )
+
+
+def _outside(silhouette, columns: list) -> bool:
+    """True when most of a landmark's silhouette (H, W) bool lies outside image columns [first, last)."""
+    total = int(silhouette.sum())
+    inside = int(silhouette[:, columns[0] : columns[1]].sum())
+    return total > 0 and inside < 0.5 * total

@@ -747,6 +747,22 @@ class SensorFrame(Message):
     image: np.ndarray = field(metadata=_doc("(H, W, 3) uint8 RGB", dtype="uint8", ndim=3, channels=3))
     source: str = field(metadata=_doc('the image file, or "simulated"'))
     time: float | None = field(default=None, metadata=_doc("when the frame was taken, seconds, or null"))
+    columns: list | None = field(
+        default=None,
+        metadata=_doc(
+            "[first, last) image columns holding the scene (a narrower camera image padded to the camera's "
+            "width, models.sensor.fit_to_camera), or null: all",
+            length=2,
+        ),
+    )
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        if self.columns is not None:
+            first, last = self.columns
+            width = self.image.shape[1]
+            if not (type(first) is int and type(last) is int and 0 <= first < last <= width):
+                raise MessageError(self.level, "columns", f"must be [first, last) with 0 <= first < last <= {width}")
 
     def id(self) -> str:
         return frame_id(self.frame)

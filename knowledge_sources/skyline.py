@@ -147,7 +147,9 @@ class SkylineRanker(RouteRanker):
 
         assert self._refs is not None and self._labels is not None
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
-        query = skyline_from_image(frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"])
+        query = skyline_from_image(
+            frame.image, fov_y_deg=self.fov_y_deg, step_deg=self.match["step_deg"], columns=frame.columns
+        )
         if query.size != self._refs.shape[1]:
             raise RuntimeError(
                 f"{self.name}: frame {frame.frame}: camera skyline has {query.size} bins, "

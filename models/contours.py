@@ -1,14 +1,19 @@
 """Contour lines (GeoJSON, Shapefile, GeoPackage, any vector OGR reads) turned into a DEM.
 
 A contour file holds ``LineString`` (or ``MultiLineString``) features with a numeric height
-attribute in metres (``elevation`` unless the scenario's ``terrain.elevation_attribute`` names
-another). The DEM follows the grid convention of :mod:`models.terrain`.
+attribute in metres: the one the scenario's ``terrain.elevation_attribute`` names, else the
+first of :data:`ELEVATION_NAMES` (``elevation``, ``elev``, ``ELEVATION``, ``contour``, ``height``,
+``z`` ...: any case) the file has, else the lines' own z coordinates (3-D lines, one level
+each). ``terrain.z_scale`` converts other units. The DEM follows the grid convention of
+:mod:`models.terrain`.
 
 * A file with a CRS (a Shapefile's ``.prj``, a GeoPackage's SRS, a GeoJSON ``crs`` member) is
   georeferenced: its lines are projected into the working CRS of :func:`models.georef.working_crs`
   and the local origin (0, 0) is the south-west corner of their extent; the map frame is returned.
 * A file without a CRS, and a GeoJSON without a ``crs`` member, holds local metres (x, y >= 0)
-  as before.
+  as before; but a GeoJSON without a ``crs`` member whose coordinates all lie within lon/lat
+  bounds and span less than :data:`LONLAT_MAX_SPAN` is lon/lat degrees (RFC 7946 GeoJSON, as
+  many tools write it), with a warning.
 
 Vector files are read with pyogrio; plain GeoJSON without a CRS is parsed directly.
 """
@@ -33,6 +38,7 @@ from models.terrain import Terrain
 
 __all__ = [
     "ContourLine",
+    "ELEVATION_NAMES",
     "read_contours",
     "load_contours",
     "contours_to_dem",
@@ -58,25 +64,95 @@ def _plain_geojson(path: Path) -> dict | None:
     return None if isinstance(data, dict) and "crs" in data else data
 
 
-def _geojson_lines(path: Path, data: object, attribute: str) -> list[ContourLine]:
+#: height attribute names tried, in this order and in any case, when the scenario names none
+ELEVATION_NAMES = ("elevation", "elev", "ele", "height", "z", "contour", "level", "alt", "altitude")
+
+
+def _pick_attribute(path: Path, fields: list[str], attribute: str | None) -> str | None:
+    """The height attribute among ``fields``: ``attribute`` (exactly, else in another case),
+    or by default the first of :data:`ELEVATION_NAMES` there; None: none (the lines' z then)."""
+    by_lower: dict[str, list[str]] = {}
+    for f in fields:
+        by_lower.setdefault(f.lower(), []).append(f)
+    if attribute is not None:
+        if attribute in fields:
+            return attribute
+        near = by_lower.get(attribute.lower(), [])
+        if len(near) == 1:
+            return near[0]
+        known = ", ".join(map(str, fields)) or "none"
+        raise InputError(
+            path,
+            f"no attribute {attribute!r} with the contour heights (terrain.elevation_attribute); the file has: {known}",
+        )
+    for name in ELEVATION_NAMES:
+        found = by_lower.get(name, [])
+        if found:
+            if found[0] != "elevation":
+                log.info("%s: contour heights from the attribute %r", path, found[0])
+            return found[0]
+    return None
+
+
+def _no_heights(path: Path, fields: list[str]) -> InputError:
+    known = ", ".join(map(str, fields)) or "none"
+    return InputError(
+        path,
+        "no contour heights: no attribute named like an elevation (" + ", ".join(ELEVATION_NAMES[:6]) + ", ...) "
+        f"and no z coordinates; name it with terrain.elevation_attribute (the file has: {known})",
+    )
+
+
+def _line_z(path: Path, where: str, parts: list[np.ndarray]) -> float:
+    """The height of a 3-D contour line: its points' z, which must be one level."""
+    z = np.concatenate([np.asarray(p, dtype=np.float64)[:, 2] for p in parts])
+    if not np.all(np.isfinite(z)):
+        raise InputError(path, f"{where}: z coordinates must be finite")
+    lo, hi = float(z.min()), float(z.max())
+    if hi - lo > 1e-3 * max(1.0, abs(hi)):
+        raise InputError(
+            path,
+            f"{where}: its z varies along the line ({lo:g}..{hi:g}): not a contour line; "
+            "name the height attribute with terrain.elevation_attribute",
+        )
+    return float(np.median(z))
+
+
+def _geojson_lines(path: Path, data: object, attribute: str | None) -> list[ContourLine]:
     features = data.get("features") if isinstance(data, dict) else None
     if not isinstance(features, list) or not features:
         raise InputError(path, "expected a GeoJSON FeatureCollection with at least one feature")
+    first = features[0].get("properties") if isinstance(features[0], dict) else None
+    fields = list(first) if isinstance(first, dict) else []
+    name = _pick_attribute(path, fields, attribute) if fields or attribute else None
     lines: list[ContourLine] = []
     for i, feat in enumerate(features):
         where = f"features[{i}]"
-        try:
-            geom = feat["geometry"]
-            elevation = float(feat["properties"][attribute])
-        except (KeyError, TypeError, ValueError):
-            raise InputError(path, f"{where}: needs a geometry and a numeric properties.{attribute}") from None
+        geom = feat.get("geometry") if isinstance(feat, dict) else None
         kind = geom.get("type") if isinstance(geom, dict) else None
-        if kind == "LineString":
+        if kind == "LineString" and isinstance(geom, dict):
             parts = [geom.get("coordinates")]
-        elif kind == "MultiLineString":
+        elif kind == "MultiLineString" and isinstance(geom, dict):
             parts = geom.get("coordinates") or []
+        elif geom is None:
+            raise InputError(path, f"{where}: has no geometry")
         else:
             raise InputError(path, f"{where}: geometry must be a LineString or MultiLineString, not {kind}")
+        if name is not None:
+            props = feat.get("properties") if isinstance(feat, dict) else None
+            value = props.get(name) if isinstance(props, dict) else None
+            try:
+                elevation = float(value)  # type: ignore[arg-type]
+            except (TypeError, ValueError):
+                raise InputError(path, f"{where}: needs a numeric properties.{name}, not {value!r}") from None
+        else:
+            try:
+                arrays = [np.asarray(p, dtype=np.float64) for p in parts]
+            except (TypeError, ValueError):
+                raise InputError(path, f"{where}: coordinates must be numbers") from None
+            if not arrays or any(a.ndim != 2 or a.shape[1] < 3 for a in arrays):
+                raise _no_heights(path, fields)
+            elevation = _line_z(path, where, arrays)
         lines.extend(_checked(path, where, parts, elevation))
     return lines
 
@@ -90,77 +166,107 @@ def _checked(path: Path, where: str, parts: list, elevation: float) -> list[Cont
             pts = np.asarray(part, dtype=np.float64)
         except (TypeError, ValueError):
             raise InputError(path, f"{where}: coordinates must be numbers") from None
-        if pts.ndim != 2 or pts.shape[0] < 2 or pts.shape[1] < 2 or not np.all(np.isfinite(pts)):
+        if pts.ndim != 2 or pts.shape[0] < 2 or pts.shape[1] < 2 or not np.all(np.isfinite(pts[:, :2])):
             raise InputError(path, f"{where}: a line needs at least 2 finite [x, y] points")
         out.append((pts[:, :2].copy(), elevation))
     return out
 
 
 def _wkb_lines(blob: bytes) -> tuple[str, list[np.ndarray]]:
-    """(geometry type, parts) of a 2-D WKB LineString or MultiLineString."""
+    """(geometry type, parts) of a WKB (ISO or extended) LineString or MultiLineString; each
+    part ndarray of shape (n, 2), or (n, 3) with z when the geometry has z."""
     order = "<" if blob[0] == 1 else ">"
-    kind = struct.unpack_from(order + "I", blob, 1)[0] % 1000
+    code = struct.unpack_from(order + "I", blob, 1)[0]
+    off = 5
+    if code & 0x20000000:  # EWKB with an SRID
+        off += 4
+    has_z = bool(code & 0x80000000) or (code & 0xFFFF) // 1000 in (1, 3)
+    has_m = bool(code & 0x40000000) or (code & 0xFFFF) // 1000 in (2, 3)
+    kind = (code & 0xFFFF) % 1000
+    dims = 2 + has_z + has_m
+
+    def line(at: int, o: str) -> tuple[np.ndarray, int]:
+        n = struct.unpack_from(o + "I", blob, at)[0]
+        pts = np.frombuffer(blob, dtype=o + "f8", count=dims * n, offset=at + 4).reshape(n, dims)
+        return (pts[:, :3] if has_z else pts[:, :2]), at + 4 + 8 * dims * n
+
     if kind == 2:
-        n = struct.unpack_from(order + "I", blob, 5)[0]
-        return "LineString", [np.frombuffer(blob, dtype=order + "f8", count=2 * n, offset=9).reshape(n, 2)]
+        return "LineString", [line(off, order)[0]]
     if kind == 5:
-        count, off, parts = struct.unpack_from(order + "I", blob, 5)[0], 9, []
+        count, parts = struct.unpack_from(order + "I", blob, off)[0], []
+        at = off + 4
         for _ in range(count):
-            sub = "<" if blob[off] == 1 else ">"
-            n = struct.unpack_from(sub + "I", blob, off + 5)[0]
-            parts.append(np.frombuffer(blob, dtype=sub + "f8", count=2 * n, offset=off + 9).reshape(n, 2))
-            off += 9 + 16 * n
+            sub = "<" if blob[at] == 1 else ">"
+            sub_code = struct.unpack_from(sub + "I", blob, at + 1)[0]
+            pts, at = line(at + 5 + (4 if sub_code & 0x20000000 else 0), sub)
+            parts.append(pts)
         return "MultiLineString", parts
     names = {1: "Point", 3: "Polygon", 4: "MultiPoint", 6: "MultiPolygon", 7: "GeometryCollection"}
     return names.get(kind, f"WKB type {kind}"), []
 
 
-def _ogr_lines(path: Path, attribute: str) -> tuple[list[ContourLine], str | None]:
+def _ogr_lines(path: Path, attribute: str | None) -> tuple[list[ContourLine], str | None]:
     import pyogrio
     from pyogrio.errors import DataLayerError, DataSourceError, FieldError, GeometryError
 
     try:
-        meta, _, geometry, field_data = pyogrio.raw.read(path, force_2d=True)
+        meta, _, geometry, field_data = pyogrio.raw.read(path)
     except (DataSourceError, DataLayerError, FieldError, GeometryError, OSError) as exc:
         raise InputError(path, f"cannot read contour lines (OGR): {exc}") from None
-    fields = list(meta.get("fields", []))
-    if attribute not in fields:
-        known = ", ".join(map(str, fields)) or "none"
-        raise InputError(
-            path,
-            f"no attribute {attribute!r} with the contour heights (terrain.elevation_attribute); the file has: {known}",
-        )
-    values = field_data[fields.index(attribute)]
+    fields = [str(f) for f in meta.get("fields", [])]
+    name = _pick_attribute(path, fields, attribute)
+    values = field_data[fields.index(name)] if name is not None else None
     if geometry is None or len(geometry) == 0:
         raise InputError(path, "no contour line features")
     lines: list[ContourLine] = []
-    for i, (blob, value) in enumerate(zip(geometry, values)):
+    for i, blob in enumerate(geometry):
         where = f"feature {i}"
-        try:
-            elevation = float(value)
-        except (TypeError, ValueError):
-            raise InputError(path, f"{where}: {attribute} must be a number, not {value!r}") from None
         if blob is None:
             raise InputError(path, f"{where}: has no geometry")
-        kind, parts = _wkb_lines(bytes(blob))
+        try:
+            kind, parts = _wkb_lines(bytes(blob))
+        except (struct.error, ValueError, IndexError):
+            raise InputError(path, f"{where}: its geometry cannot be decoded") from None
         if not parts:
             raise InputError(path, f"{where}: geometry must be a LineString or MultiLineString, not {kind}")
+        if values is not None:
+            value = values[i]
+            try:
+                elevation = float(value)
+            except (TypeError, ValueError):
+                raise InputError(path, f"{where}: {name} must be a number, not {value!r}") from None
+        elif all(p.shape[1] == 3 for p in parts):
+            elevation = _line_z(path, where, parts)
+        else:
+            raise _no_heights(path, fields)
         lines.extend(_checked(path, where, parts, elevation))
     return lines, meta.get("crs")
 
 
-def read_contours(path: str | Path, *, attribute: str = "elevation") -> tuple[list[ContourLine], MapFrame | None]:
+def read_contours(
+    path: str | Path, *, attribute: str | None = None, z_scale: float = 1.0
+) -> tuple[list[ContourLine], MapFrame | None]:
     """Contour lines in local metres and, for a file with a CRS, their map frame.
 
-    ``attribute`` names the height field. Raises :class:`InputError` naming the file and feature.
+    ``attribute`` names the height field (None: the first of :data:`ELEVATION_NAMES` the file
+    has, in any case, else the lines' z coordinates); ``z_scale`` converts the heights to metres.
+    Raises :class:`InputError` naming the file and feature.
     """
     path = Path(path)
     if not path.exists():
         raise InputError(path, "contour file not found")
     plain = _plain_geojson(path)
     if plain is not None:
-        return _geojson_lines(path, plain, attribute), None
+        lines = _geojson_lines(path, plain, attribute)
+        if not _looks_lonlat(lines):
+            return [(p, e * z_scale) for p, e in lines], None
+        log.warning(
+            "%s: a GeoJSON without a crs member whose coordinates all lie within a few degrees of "
+            "lon/lat: read as lon/lat (RFC 7946), not as local metres; give it a crs member to say otherwise",
+            path,
+        )
     lines, crs_text = _ogr_lines(path, attribute)
+    lines = [(p, e * z_scale) for p, e in lines]
     if not crs_text:
         return lines, None
     from pyproj import Transformer
@@ -179,7 +285,19 @@ def read_contours(path: str | Path, *, attribute: str = "elevation") -> tuple[li
     return [(p - origin, e) for p, e in projected], frame
 
 
-def load_contours(path: str | Path, *, attribute: str = "elevation") -> list[ContourLine]:
+#: a GeoJSON without a crs member spanning less than this in x and in y, within lon/lat bounds, is
+#: read as lon/lat degrees (RFC 7946 GeoJSON is), not as a map of a few metres
+LONLAT_MAX_SPAN = 10.0
+
+
+def _looks_lonlat(lines: list[ContourLine]) -> bool:
+    xy = np.concatenate([p for p, _ in lines])
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    inside = lo[0] >= -180 and hi[0] <= 180 and lo[1] >= -90 and hi[1] <= 90
+    return bool(inside and np.all(hi - lo < LONLAT_MAX_SPAN))
+
+
+def load_contours(path: str | Path, *, attribute: str | None = None) -> list[ContourLine]:
     """Contour lines in local metres (see :func:`read_contours`, which also gives the map frame)."""
     return read_contours(path, attribute=attribute)[0]
 

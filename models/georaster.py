@@ -28,19 +28,65 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from rasterio.enums import MaskFlags
 
 from models.errors import InputError
 from models.georef import MapFrame, is_metric, parse_crs, working_crs
 
-__all__ = ["RasterGrid", "raster_frame", "read_raster_dem", "RASTER_SUFFIXES_NOT"]
+__all__ = [
+    "RasterGrid",
+    "raster_frame",
+    "read_raster_dem",
+    "raster_height_units",
+    "RASTER_SUFFIXES_NOT",
+    "NODATA_SENTINELS",
+    "FOOT_M",
+    "US_SURVEY_FOOT_M",
+]
 
 log = logging.getLogger(__name__)
+
+_warned: set[str] = set()
+
+
+def _warn_once(msg: str, *args: object) -> None:
+    """``log.warning`` once per process for each message (the pre-run check and the agents
+    that read the same map would each say it again)."""
+    text = msg % args
+    if text not in _warned:
+        _warned.add(text)
+        log.warning("%s", text)
+
 
 #: suffixes that are not read as rasters (``terrain.dem`` keeps today's .npy contract)
 RASTER_SUFFIXES_NOT = (".npy",)
 
 #: boundary points per raster edge when the footprint is projected into the working CRS
 _EDGE_POINTS = 101
+
+#: heights that stand for "no data" in a raster that names no nodata value (what GIS tools
+#: write by default); and any magnitude from this on (float32's lowest, -3.4e38)
+NODATA_SENTINELS = (-9999.0, -99999.0, -32767.0, -32768.0)
+_NODATA_MAGNITUDE = 1e30
+
+#: metres per international foot and per US survey foot
+FOOT_M = 0.3048
+US_SURVEY_FOOT_M = 1200.0 / 3937.0
+_HEIGHT_UNITS = {
+    "m": 1.0,
+    "metre": 1.0,
+    "meter": 1.0,
+    "metres": 1.0,
+    "meters": 1.0,
+    "ft": FOOT_M,
+    "foot": FOOT_M,
+    "feet": FOOT_M,
+    "international foot": FOOT_M,
+    "us survey foot": US_SURVEY_FOOT_M,
+    "us_survey_foot": US_SURVEY_FOOT_M,
+    "ftus": US_SURVEY_FOOT_M,
+    "us-ft": US_SURVEY_FOOT_M,
+}
 
 
 @dataclass(frozen=True)
@@ -68,9 +114,54 @@ def _open(path: Path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
         try:
-            return rasterio.open(path)
+            ds = rasterio.open(path)
         except RasterioIOError as exc:
             raise InputError(path, f"cannot read the DEM as a raster (GDAL): {exc}") from None
+    _check_bands(ds, path)
+    return ds
+
+
+def _check_bands(ds, path: Path) -> None:
+    """Refuse a colour image (RGB, palette) given as a DEM; say which band of several is read."""
+    from rasterio.enums import ColorInterp
+
+    colours = {ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.palette}
+    interp = set(ds.colorinterp or ())
+    if interp & colours:
+        what = f"{ds.count} band(s): {', '.join(c.name for c in ds.colorinterp)}"
+        ds.close()
+        raise InputError(
+            path, f"the raster is a colour image ({what}), not heights: give the DEM (one band of elevations)"
+        )
+    if ds.count > 1:
+        _warn_once("%s: %d bands: band 1 is read as the heights", path, ds.count)
+
+
+def raster_height_units(path: str | Path) -> tuple[float | None, str]:
+    """Metres per height unit that a raster's metadata states, and why: the band's unit
+    (``m``, ``ft``, ``US survey foot`` ...), else None with a hint when its CRS is in feet."""
+    path = Path(path)
+    with _open(path) as ds:
+        unit = (ds.units or ("",))[0] or ""
+        crs = ds.crs
+    scale = _HEIGHT_UNITS.get(unit.strip().lower())
+    if scale is not None:
+        return scale, f"the band's unit is {unit!r}"
+    if crs is not None:
+        from models.georef import parse_crs
+
+        parsed = parse_crs(crs.to_wkt())
+        for ax in parsed.axis_info:  # a compound CRS's vertical axis states the heights' unit
+            if ax.direction.lower() == "up":
+                up = _HEIGHT_UNITS.get(ax.unit_name.strip().lower())
+                if up is None and ax.unit_conversion_factor > 0:
+                    up = float(ax.unit_conversion_factor)
+                if up is not None:
+                    return up, f"its vertical CRS is in {ax.unit_name}"
+        names = {ax.unit_name.lower() for ax in parsed.axis_info[:2]}
+        if any("foot" in n or "feet" in n for n in names):
+            return None, f"its CRS is in {' / '.join(sorted(names))}"
+    return None, ""
 
 
 def _grid(ds, path: Path, cell_size: float | None) -> RasterGrid:
@@ -165,14 +256,32 @@ def read_raster_dem(
     Raises :class:`InputError` naming the file for an unreadable, rotated or CRS-less raster,
     an all-nodata raster, or any nodata cell when ``nodata="refuse"``.
     """
+    from rasterio.errors import RasterioError
+
     path = Path(path)
     with _open(path) as ds:
         grid = _grid(ds, path, cell_size)
-        band = ds.read(1, masked=True).astype(np.float64)
+        try:
+            band = ds.read(1, masked=True).astype(np.float64)
+        except RasterioError as exc:  # a truncated or damaged file: GDAL names the cause
+            cause = exc.__cause__ or exc.__context__ or exc
+            raise InputError(path, f"cannot read the DEM's heights (GDAL): {cause}") from None
         scale, offset = (ds.scales or (1.0,))[0], (ds.offsets or (0.0,))[0]
         src_transform, src_crs = ds.transform, ds.crs
-    values = np.ma.getdata(band) * scale + offset
+        tagged = ds.nodata is not None or any(f != MaskFlags.all_valid for f in ds.mask_flag_enums[0])
+    raw = np.ma.getdata(band)
+    values = raw * scale + offset
     invalid = np.ma.getmaskarray(band) | ~np.isfinite(values)
+    if not tagged:  # no nodata value named: the usual sentinels are holes, not heights
+        sentinel = np.isin(raw, NODATA_SENTINELS) | (np.abs(raw) >= _NODATA_MAGNITUDE)
+        if sentinel.any():
+            _warn_once(
+                "%s names no nodata value, but %d cells hold %s: taken as nodata",
+                path,
+                int(sentinel.sum()),
+                ", ".join(f"{v:g}" for v in np.unique(raw[sentinel])[:3]),
+            )
+            invalid |= sentinel
     n_bad = int(invalid.sum())
     if n_bad == invalid.size:
         raise InputError(path, "every cell of the DEM is nodata")
@@ -184,7 +293,7 @@ def read_raster_dem(
                 f"{n_bad} of {invalid.size} cells are nodata (the first at raster row {r}, "
                 f"col {c}); set terrain.nodata: fill to fill them from their nearest neighbours",
             )
-        log.warning(
+        _warn_once(
             "%s: %d of %d nodata cells (%.1f %%) filled with the nearest valid height",
             path,
             n_bad,

@@ -11,7 +11,16 @@ and the field::
     scenarios/x.yaml: landmarks[0]: 'H1' at (9000, 10) is outside the terrain (x 0..2550, y 0..2550 m)
 
 The scenario file itself is validated on load (:mod:`models.scenario`: types, finite numbers,
-bounds); these checks read the files it names and relate them to each other.
+bounds); these checks read the files it names and relate them to each other. The map is read as
+the map renderer reads it (:func:`models.terrain_sources.scenario_terrain`: a truncated or colour
+raster, nodata cells with ``terrain.nodata: refuse``, spikes with ``terrain.spikes: refuse``, contour
+files without heights are refused here), and every camera image as the camera reads it
+(:func:`models.sensor.frames_from_files`: decoded in full, so a truncated or damaged file is
+caught, and mapped onto the camera's field of view, so an image that sees too little of it is)::
+
+    scenarios/x.yaml: sensor.frames[0].image: f0.jpg: the JPEG file is truncated or damaged ...
+    scenarios/x.yaml: sensor.frames[0].image: slit.png: the image (240x960 pixels) sees only 19 % ...
+    scenarios/x.yaml: terrain.contours: c.gpkg: no contour heights: no attribute named like an elevation ...
 """
 
 from __future__ import annotations

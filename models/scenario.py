@@ -144,8 +144,22 @@ class TerrainSpec(_Spec):
     ``cell_size`` (metres) is required but for a raster ``dem`` (a GeoTIFF or any GDAL raster),
     whose own cells are used unless ``cell_size`` asks for others (it is then resampled, see
     :mod:`models.georaster`). ``nodata`` says what a raster's nodata cells become: ``fill``
-    (nearest valid height, with a warning) or ``refuse`` (an error). ``elevation_attribute``
-    names the contour files' height attribute.
+    (nearest valid height, with a warning) or ``refuse`` (an error); a raster that names no
+    nodata value has its cells of -9999, -99999, -32767, -32768 or beyond ±1e30 taken as nodata.
+
+    Heights are metres: ``z_scale`` is the metres per height unit of a ``dem`` or ``contours``
+    file (0.3048 for heights in feet, 0.3048006096 for US survey feet); by default a raster
+    whose band names its unit (``ft``, ``US survey foot``, ``m``) is converted by it, and
+    anything else is taken as metres (with a warning when the map's CRS is in feet).
+
+    ``spikes`` says what a ``dem``'s single-cell spikes and pits become (cells further from
+    the median of their eight neighbours than 50 m and than 5 times the DEM's 99th-percentile
+    neighbour step: a broken cell, not a cliff): ``fill`` (that median, with a warning naming
+    how many and where), ``keep`` or ``refuse`` (an error).
+
+    ``elevation_attribute`` names the contour files' height attribute; by default the first of
+    ``elevation``, ``elev``, ``ele``, ``height``, ``z``, ``contour``, ``level``, ``alt``,
+    ``altitude`` the file has (in any case), else the lines' own z coordinates (3-D lines).
     """
 
     cell_size: float | None = Field(default=None, gt=0, le=MAX_SIZE_M)
@@ -154,7 +168,9 @@ class TerrainSpec(_Spec):
     contours: Path | None = None
     sample: Literal["jacksboro"] | None = None
     nodata: Literal["fill", "refuse"] = "fill"
-    elevation_attribute: str = Field(default="elevation", min_length=1)
+    z_scale: float | None = Field(default=None, gt=0, le=1000)
+    spikes: Literal["fill", "keep", "refuse"] = "fill"
+    elevation_attribute: str | None = Field(default=None, min_length=1)
 
     @field_validator("dem", "contours")
     @classmethod
@@ -283,15 +299,30 @@ class SimulateSpec(_Spec):
 
 
 class SensorSpec(_Spec):
-    """Exactly one of ``frames`` (real images) or ``simulate``."""
+    """Exactly one of ``frames`` (real images) or ``simulate``.
+
+    ``fov_y_deg`` and ``fov_x_deg`` are the vertical and horizontal fields of view of the images
+    in ``frames`` (default: the scenario camera's ``fov_y_deg``, the same lens, with square
+    pixels: give one of them, or both for non-square pixels). Images of any size and aspect
+    ratio are mapped onto the scenario camera's field of view (:func:`models.sensor.fit_to_camera`):
+    scaled by the ratio of the focal lengths, cropped where they see more than the camera and
+    padded (border pixels replicated) where they see less; an image that sees less than half of
+    the camera's width or height is refused. Without either field an image whose aspect ratio
+    differs from the camera's is taken to have the camera's vertical field of view, with a
+    warning.
+    """
 
     frames: list[FrameSpec] | None = Field(default=None, min_length=1, max_length=MAX_FRAMES)
     simulate: SimulateSpec | None = None
+    fov_y_deg: float | None = Field(default=None, gt=0, lt=180)
+    fov_x_deg: float | None = Field(default=None, gt=0, lt=180)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> SensorSpec:
         if (self.frames is None) == (self.simulate is None):
             raise ValueError("needs exactly one of frames, simulate")
+        if self.frames is None and (self.fov_y_deg is not None or self.fov_x_deg is not None):
+            raise ValueError("fov_y_deg and fov_x_deg describe the images of sensor.frames: give frames")
         if self.frames:
             given = [f.time for f in self.frames]
             if any(t is not None for t in given):

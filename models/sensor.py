@@ -7,6 +7,12 @@ produces such frames with the same camera emulator that renders the viewframes, 
 them; everything is drawn from one seeded generator, so a scenario always yields the same frames.
 A scenario's frames (from files or simulated) are :attr:`models.world.World.sensor_frames`.
 
+Frames on file (:func:`frames_from_files`) are decoded by :func:`read_image` (any format OpenCV
+reads, 8/16-bit or float, gray to RGBA, EXIF orientation applied, truncated files refused) and
+mapped onto the scenario camera's field of view by :func:`fit_to_camera` (another size or aspect
+ratio is scaled by the focal lengths' ratio and cropped or padded, never squeezed; a padded
+frame's :attr:`SensorFrame.columns` say which columns see the scene).
+
 Images are ``(H, W, 3)`` uint8 RGB arrays indexed ``(row, col)``; poses are in world
 ``(x, y, z)`` metres with heading counterclockwise from +x.
 """
@@ -15,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +35,12 @@ __all__ = [
     "SensorFrame",
     "DrivePose",
     "drive_poses",
+    "FrameFit",
+    "MIN_COVERAGE",
+    "fit_to_camera",
+    "focal_px",
+    "read_image",
+    "load_frame",
     "load_frame_image",
     "frames_from_files",
     "degrade",
@@ -54,6 +66,9 @@ class SensorFrame:
         The image file, or ``"simulated"``.
     time : float or None
         Seconds (any origin) when the frame was taken, when known; increasing with ``index``.
+    columns : tuple (first, last) or None
+        The [first, last) columns of ``image`` that hold the scene when the file's image sees
+        less than the camera's width (padded, :func:`fit_to_camera`); None: every column.
     """
 
     index: int
@@ -61,6 +76,7 @@ class SensorFrame:
     truth: tuple[float, float, float] | None
     source: str
     time: float | None = None
+    columns: tuple[int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -136,48 +152,415 @@ def drive_poses(
     return out
 
 
-def load_frame_image(path: str | Path, *, width: int, height: int) -> np.ndarray:
-    """Read a PNG/JPEG camera image, gray or colour, any size, as ``(height, width, 3)`` uint8 RGB.
+def focal_px(size_px: int, fov_deg: float) -> float:
+    """Pinhole focal length in pixels of ``size_px`` pixels spanning a field of view of ``fov_deg``."""
+    return (size_px / 2) / math.tan(math.radians(fov_deg) / 2)
 
-    Raises :class:`~models.errors.InputError` naming the file when it is missing or unreadable.
+
+@dataclass(frozen=True)
+class FrameFit:
+    """How a camera frame of another size or field of view was mapped onto the scenario camera.
+
+    ``scale`` is (rows, cols): camera pixels per frame pixel (the focal lengths' ratio);
+    ``coverage`` is (rows, cols): the fraction of the camera's image height and width the frame
+    sees (1.0: all of it, the rest is cropped away; less: the rest was padded);
+    ``valid_cols`` the [first, last) camera columns the frame sees.
+    """
+
+    scale: tuple[float, float]
+    coverage: tuple[float, float]
+    valid_cols: tuple[int, int]
+
+    @property
+    def padded(self) -> bool:
+        """True when the frame sees less than the camera in some direction (part of it padded)."""
+        return min(self.coverage) < 1.0 - 1e-6
+
+
+def fit_to_camera(
+    image: np.ndarray,
+    *,
+    width: int,
+    height: int,
+    fov_y_deg: float,
+    frame_fov_y_deg: float | None = None,
+    frame_fov_x_deg: float | None = None,
+) -> tuple[np.ndarray, FrameFit]:
+    """Map a camera frame ``image`` (H, W, C), indexed (row, col), onto the scenario camera's
+    ``(height, width)`` pixels of vertical field ``fov_y_deg``, keeping the geometry.
+
+    The frame is a pinhole image centred on the optical axis with vertical field
+    ``frame_fov_y_deg`` (default: the camera's, the same lens) and horizontal field
+    ``frame_fov_x_deg`` (default: from the vertical one with square pixels). Each axis is
+    scaled by the ratio of the focal lengths (``camera f / frame f``), the frame's centre put
+    on the camera's; what lies outside the camera's view is cropped away, and where the frame
+    sees less than the camera the border pixels are replicated outwards (so the frame's edge
+    makes no false edge for the edge-based memory; :attr:`FrameFit.valid_cols` says which
+    columns are real, for the skyline). A frame of the camera's aspect ratio and field of
+    view is only resized, as before.
+
+    Returns the mapped image, shape (height, width, C), of the input's dtype, and the
+    :class:`FrameFit`.
+    """
+    h, w = image.shape[:2]
+    sy, sx = _scales(
+        w, h, height=height, fov_y_deg=fov_y_deg, frame_fov_y_deg=frame_fov_y_deg, frame_fov_x_deg=frame_fov_x_deg
+    )
+    # resize to about the final scale first (anti-aliased when shrinking), then place it exactly
+    w1, h1 = max(1, int(round(w * sx))), max(1, int(round(h * sy)))
+    if (h1, w1) != (h, w):
+        shrinking = w1 < w and h1 < h
+        image = cv2.resize(image, (w1, h1), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+    # pixel edges: camera x + 0.5 = width / 2 + sx * (frame x + 0.5 - w / 2), frame x + 0.5 = (x1 + 0.5) * w / w1
+    ax, ay = sx * w / w1, sy * h / h1
+    bx = width / 2 - 0.5 + 0.5 * ax - sx * w / 2
+    by = height / 2 - 0.5 + 0.5 * ay - sy * h / 2
+    if (h1, w1) == (height, width) and abs(ax - 1) < 1e-9 and abs(ay - 1) < 1e-9 and abs(bx) < 1e-6 and abs(by) < 1e-6:
+        out = image
+    else:
+        matrix = np.array([[ax, 0.0, bx], [0.0, ay, by]])
+        out = cv2.warpAffine(image, matrix, (width, height), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        if out.ndim < image.ndim:  # cv2 drops a single channel
+            out = out[..., None]
+    half_w = sx * w / 2
+    first = max(0, int(math.ceil(width / 2 - half_w - 1e-6)))
+    last = min(width, int(math.floor(width / 2 + half_w + 1e-6)))
+    fit = FrameFit((sy, sx), (min(1.0, sy * h / height), min(1.0, sx * w / width)), (first, last))
+    return np.ascontiguousarray(out), fit
+
+
+def _scales(
+    w: int,
+    h: int,
+    *,
+    height: int,
+    fov_y_deg: float,
+    frame_fov_y_deg: float | None,
+    frame_fov_x_deg: float | None,
+) -> tuple[float, float]:
+    """(rows, cols) camera pixels per pixel of a (h, w) frame: the focal lengths' ratio."""
+    f_cam = focal_px(height, fov_y_deg)
+    if frame_fov_y_deg is None and frame_fov_x_deg is None:
+        frame_fov_y_deg = fov_y_deg
+    fy = focal_px(h, frame_fov_y_deg) if frame_fov_y_deg is not None else None
+    fx = focal_px(w, frame_fov_x_deg) if frame_fov_x_deg is not None else None
+    fy = fy if fy is not None else fx
+    fx = fx if fx is not None else fy
+    assert fx is not None and fy is not None
+    return f_cam / fy, f_cam / fx
+
+
+#: a camera frame must see at least this fraction of the camera's width and of its height
+MIN_COVERAGE = 0.5
+
+_warned_aspect: set[tuple[int, int, int, int]] = set()
+
+
+def _to_rgb8(data: np.ndarray, path: Path) -> np.ndarray:
+    """A decoded image (gray, gray + alpha, BGR, BGRA; 8 or 16 bit or float) as (H, W, 3) uint8 RGB."""
+    if data.ndim == 3 and data.shape[2] not in (1, 2, 3, 4):
+        raise InputError(path, f"an image of {data.shape[2]} channels: gray, RGB or RGBA expected")
+    if data.ndim == 3 and data.shape[2] in (2, 4):  # the alpha is dropped (before any scaling)
+        data = data[..., : data.shape[2] - 1]
+    if data.ndim == 3 and data.shape[2] == 1:
+        data = data[..., 0]
+    if data.dtype != np.uint8:
+        # 16-bit (often 10 or 12 bits of data in 16) or float: scaled by the image's brightest
+        # values (a gain: black stays black, colours keep their ratios; the memory's patterns and
+        # the skyline's class models do not depend on a gain), the top 0.1 % clipped so that a
+        # few hot pixels do not darken the rest; negative floats from their minimum
+        values = data.astype(np.float64)
+        finite = np.isfinite(values)
+        if not finite.any():
+            raise InputError(path, "the image holds no finite pixel value")
+        sample = values[finite][:: max(1, int(finite.sum()) // 1_000_000)]
+        lo, hi = float(sample.min()), float(np.percentile(sample, 99.9))
+        if hi <= max(lo, 0.0):
+            hi = float(values[finite].max())
+        lo = min(float(values[finite].min()), 0.0)
+        values = np.where(finite, values, lo)
+        scaled = (values - lo) * (255.0 / (hi - lo)) if hi > lo else np.zeros_like(values)
+        data = np.clip(scaled + 0.5, 0, 255).astype(np.uint8)
+    data = np.ascontiguousarray(data)
+    if data.ndim == 2:
+        return cv2.cvtColor(data, cv2.COLOR_GRAY2RGB)
+    return cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
+
+
+def read_image(path: str | Path, *, reduce: Callable[[int, int], int] | None = None) -> np.ndarray:
+    """Decode an image file (PNG, JPEG, TIFF, BMP, WebP ...: what OpenCV reads) as (H, W, 3) uint8 RGB.
+
+    Gray, gray + alpha, RGBA (the alpha is dropped) and palette images become RGB; 16-bit and
+    float images are scaled so that their brightest values are 255 (a gain, which neither the
+    memory nor the skyline depends on; the top 0.1 % clipped, so hot pixels do not darken the
+    image; 12 bits of data in a 16-bit file keep their detail). A JPEG's EXIF
+    orientation is applied (the image as a viewer shows it). Raises
+    :class:`~models.errors.InputError` naming the file when it is missing, unreadable, truncated
+    or smaller than :data:`~models.scenario.MIN_IMAGE_PX` on a side.
+
+    ``reduce(width, height)`` (the image's size as shown) may return 2, 4 or 8: a JPEG is then
+    decoded at that fraction of its size (libjpeg's DCT scaling, several times faster than a
+    full decode of a large photo), for a caller that shrinks it much more anyway.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "camera image not found")
-    data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        raw = np.fromfile(path, dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(path, f"cannot read the camera image: {exc.strerror or exc}") from None
+    if raw.size == 0:
+        raise InputError(path, "not a readable image: the file is empty")
+    _check_complete(raw, path)
+    # IMREAD_UNCHANGED keeps 16 bits and alpha but ignores EXIF orientation: apply it below
+    flags, size = cv2.IMREAD_UNCHANGED, None
+    if reduce is not None and raw[:2].tobytes() == b"\xff\xd8":
+        size = _jpeg_size(raw)
+        if size is not None:
+            shown = size[::-1] if _exif_orientation(raw[:65536].tobytes()) >= 5 else size
+            factor = reduce(*shown) if min(size) >= 8 * MIN_IMAGE_PX else 1
+            if factor in _REDUCED:
+                flags = _REDUCED[factor] | cv2.IMREAD_IGNORE_ORIENTATION
+    data = cv2.imdecode(raw, flags)
     if data is None or data.size == 0:
-        raise InputError(path, "not a readable image (PNG or JPEG expected)")
+        raise InputError(path, "not a readable image (PNG, JPEG or TIFF expected)")
     if min(data.shape[:2]) < MIN_IMAGE_PX:
         raise InputError(
             path, f"image is {data.shape[1]}x{data.shape[0]} pixels; at least {MIN_IMAGE_PX}x{MIN_IMAGE_PX} needed"
         )
-    if data.dtype != np.uint8:
-        data = cv2.normalize(data, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # type: ignore[call-overload]
-    if data.ndim == 2:
-        rgb = cv2.cvtColor(data, cv2.COLOR_GRAY2RGB)
-    elif data.shape[2] == 4:
-        rgb = cv2.cvtColor(data, cv2.COLOR_BGRA2RGB)
-    else:
-        rgb = cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
-    if rgb.shape[:2] != (height, width):
-        shrinking = rgb.shape[0] > height
-        rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
-    return np.ascontiguousarray(rgb)
+    rgb = _to_rgb8(data, path)
+    return np.ascontiguousarray(_apply_exif_orientation(rgb, raw))
+
+
+_REDUCED = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
+
+
+def _jpeg_size(raw: np.ndarray) -> tuple[int, int] | None:
+    """(width, height) of a JPEG as stored, from its start-of-frame marker; None when not found."""
+    data = raw[: 1 << 20].tobytes()
+    at = 2
+    while at + 9 < len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            at += 2
+            continue
+        length = int.from_bytes(data[at + 2 : at + 4], "big")
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            h = int.from_bytes(data[at + 5 : at + 7], "big")
+            w = int.from_bytes(data[at + 7 : at + 9], "big")
+            return (w, h) if w > 0 and h > 0 else None
+        at += 2 + length
+    return None
+
+
+def _reduction(scale: float) -> int:
+    """The largest JPEG decode reduction (1, 2, 4, 8) keeping at least twice the pixels a
+    resize by ``scale`` (target pixels per image pixel) needs."""
+    for factor in (8, 4, 2):
+        if 2.0 * scale * factor <= 1.0:
+            return factor
+    return 1
+
+
+def _check_complete(raw: np.ndarray, path: Path) -> None:
+    """Refuse a PNG or JPEG cut short (OpenCV decodes a cut JPEG with grey rows and a warning only).
+
+    A PNG must hold its IEND chunk; a JPEG its end-of-image marker after the start of its scan
+    (a marker there cannot be data, which stuffs every 0xFF; the markers before the scan are
+    skipped, since an EXIF thumbnail carries an end-of-image marker of its own). Data after the
+    end (a phone's trailer, a motion photo's video) is allowed."""
+    data = raw.tobytes()
+    if data.startswith(b"\x89PNG\r\n\x1a\n") and data.rfind(b"IEND") < 0:
+        raise InputError(path, "the PNG file is truncated or damaged (no IEND chunk)")
+    if data.startswith(b"\xff\xd8"):
+        scan = _jpeg_scan_start(data)
+        if scan is None or data.find(b"\xff\xd9", scan) < 0:
+            raise InputError(path, "the JPEG file is truncated or damaged (no end-of-image marker after its scan)")
+
+
+def _jpeg_scan_start(data: bytes) -> int | None:
+    """Offset of a JPEG's first start-of-scan segment's data, None when the markers end before it."""
+    at = 2
+    while at + 4 <= len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker == 0xFF:  # fill byte
+            at += 1
+            continue
+        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            at += 2
+            continue
+        length = int.from_bytes(data[at + 2 : at + 4], "big")
+        if marker == 0xDA:
+            return at + 2 + length
+        at += 2 + length
+    return None
+
+
+def _apply_exif_orientation(rgb: np.ndarray, raw: np.ndarray) -> np.ndarray:
+    """Rotate/flip a JPEG's pixels as its EXIF orientation tag says (1: as stored)."""
+    if raw[:2].tobytes() != b"\xff\xd8":
+        return rgb
+    orientation = _exif_orientation(raw[:65536].tobytes())
+    ops = {
+        2: lambda a: a[:, ::-1],
+        3: lambda a: a[::-1, ::-1],
+        4: lambda a: a[::-1],
+        5: lambda a: np.swapaxes(a, 0, 1),
+        6: lambda a: np.swapaxes(a, 0, 1)[:, ::-1],
+        7: lambda a: np.swapaxes(a, 0, 1)[::-1, ::-1],
+        8: lambda a: np.swapaxes(a, 0, 1)[::-1],
+    }
+    op = ops.get(orientation)
+    return rgb if op is None else op(rgb)
+
+
+def _exif_orientation(head: bytes) -> int:
+    """The EXIF orientation (1..8) of a JPEG from its first bytes, 1 when it has none."""
+    import struct
+
+    at = head.find(b"Exif\x00\x00")
+    if at < 0:
+        return 1
+    tiff = head[at + 6 :]
+    if len(tiff) < 8 or tiff[:2] not in (b"II", b"MM"):
+        return 1
+    order = "<" if tiff[:2] == b"II" else ">"
+    try:
+        ifd = struct.unpack_from(order + "I", tiff, 4)[0]
+        count = struct.unpack_from(order + "H", tiff, ifd)[0]
+        for k in range(count):
+            tag, kind, _, value = struct.unpack_from(order + "HHI4s", tiff, ifd + 2 + 12 * k)
+            if tag == 0x0112:
+                v = struct.unpack_from(order + ("H" if kind == 3 else "I"), value)[0]
+                return int(v) if 1 <= v <= 8 else 1
+    except struct.error:
+        return 1
+    return 1
+
+
+def load_frame_image(
+    path: str | Path,
+    *,
+    width: int,
+    height: int,
+    fov_y_deg: float | None = None,
+    frame_fov_y_deg: float | None = None,
+    frame_fov_x_deg: float | None = None,
+) -> np.ndarray:
+    """Read a camera image (see :func:`read_image`), any size, as ``(height, width, 3)`` uint8 RGB.
+
+    With ``fov_y_deg`` (the scenario camera's vertical field of view) the frame is mapped onto
+    the camera's field of view by :func:`fit_to_camera` (``frame_fov_y_deg`` / ``frame_fov_x_deg``
+    the frame's own, default the camera's lens), so that another aspect ratio is cropped or
+    padded rather than squeezed; a frame that sees less than :data:`MIN_COVERAGE` of the
+    camera's width or height is refused. Without it the image is resized to the camera size
+    (its aspect ratio not kept). Raises :class:`~models.errors.InputError` naming the file.
+    """
+    return load_frame(
+        path,
+        width=width,
+        height=height,
+        fov_y_deg=fov_y_deg,
+        frame_fov_y_deg=frame_fov_y_deg,
+        frame_fov_x_deg=frame_fov_x_deg,
+    )[0]
+
+
+def load_frame(
+    path: str | Path,
+    *,
+    width: int,
+    height: int,
+    fov_y_deg: float | None = None,
+    frame_fov_y_deg: float | None = None,
+    frame_fov_x_deg: float | None = None,
+) -> tuple[np.ndarray, FrameFit | None]:
+    """:func:`load_frame_image` and its :class:`FrameFit` (None when only resized)."""
+    path = Path(path)
+    fovs = {"frame_fov_y_deg": frame_fov_y_deg, "frame_fov_x_deg": frame_fov_x_deg}
+
+    shown: list[tuple[int, int]] = []  # the file's (width, height) when decoded reduced
+
+    def reduce(w: int, h: int) -> int:
+        shown.append((w, h))
+        if fov_y_deg is None:
+            return _reduction(max(width / w, height / h))
+        return _reduction(max(_scales(w, h, height=height, fov_y_deg=fov_y_deg, **fovs)))
+
+    rgb = read_image(path, reduce=reduce)
+    if fov_y_deg is None:
+        if rgb.shape[:2] != (height, width):
+            shrinking = rgb.shape[0] > height
+            rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)
+        return np.ascontiguousarray(rgb), None
+    w, h = shown[0] if shown else (rgb.shape[1], rgb.shape[0])
+    try:
+        out, fit = fit_to_camera(
+            rgb,
+            width=width,
+            height=height,
+            fov_y_deg=fov_y_deg,
+            frame_fov_y_deg=frame_fov_y_deg,
+            frame_fov_x_deg=frame_fov_x_deg,
+        )
+    except ValueError as exc:  # pragma: no cover - the schema bounds the fields of view
+        raise InputError(path, str(exc)) from None
+    rows, cols = fit.coverage
+    if min(rows, cols) < MIN_COVERAGE:
+        raise InputError(
+            path,
+            f"the image ({w}x{h} pixels) sees only {100 * cols:.0f} % of the camera's width and "
+            f"{100 * rows:.0f} % of its height (at least {100 * MIN_COVERAGE:.0f} % of each needed): "
+            "check sensor.fov_y_deg / sensor.fov_x_deg against camera.fov_y_deg",
+        )
+    if frame_fov_y_deg is None and frame_fov_x_deg is None and abs(w * height - h * width) > max(w, h, width, height):
+        key = (w, h, width, height)
+        if key not in _warned_aspect:
+            _warned_aspect.add(key)
+            log.warning(
+                "camera images of %dx%d pixels (aspect %.3f) against a %dx%d camera (aspect %.3f): "
+                "taken with the camera's vertical field of view (%g deg) and cropped or padded; set "
+                "sensor.fov_y_deg (or sensor.fov_x_deg) when the lens differs",
+                w,
+                h,
+                w / h,
+                width,
+                height,
+                width / height,
+                fov_y_deg,
+            )
+    return out, fit
 
 
 def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
-    """The scenario's ``sensor.frames``, read and resized to the camera size.
+    """The scenario's ``sensor.frames``, read and mapped onto the camera (:func:`load_frame`).
 
-    Raises :class:`~models.errors.ScenarioError` naming the scenario, the field and the file."""
+    The frames' field of view is ``sensor.fov_y_deg`` / ``sensor.fov_x_deg`` (default: the
+    camera's). Raises :class:`~models.errors.ScenarioError` naming the scenario, the field and
+    the file."""
     cam = scenario.camera
+    sensor = scenario.sensor
     frames = []
-    for i, spec in enumerate((scenario.sensor.frames if scenario.sensor else None) or []):
+    for i, spec in enumerate((sensor.frames if sensor else None) or []):
+        assert sensor is not None
         try:
-            image = load_frame_image(spec.image, width=cam.width, height=cam.height)
+            image, fit = load_frame(
+                spec.image,
+                width=cam.width,
+                height=cam.height,
+                fov_y_deg=cam.fov_y_deg,
+                frame_fov_y_deg=sensor.fov_y_deg,
+                frame_fov_x_deg=sensor.fov_x_deg,
+            )
         except InputError as err:  # name the scenario and the field too (as the pre-run check does)
             raise ScenarioError(scenario.path, f"sensor.frames[{i}].image", str(err)) from None
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
-        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time))
+        columns = fit.valid_cols if fit is not None and fit.coverage[1] < 1.0 - 1e-6 else None
+        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time, columns))
     return frames
 
 

@@ -334,10 +334,34 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     return b.astype(np.float64), h
 
 
-def skyline_from_image(image: NDArray, *, fov_y_deg: float, step_deg: float = DEFAULT_STEP_DEG) -> NDArray[np.float32]:
-    """The profile (n,) of a camera image (H, W, 3) uint8 RGB (module docstring)."""
-    b, rows = image_boundary(image)
-    return boundary_to_profile(b, rows, fov_y_deg=fov_y_deg, step_deg=step_deg)
+def skyline_from_image(
+    image: NDArray,
+    *,
+    fov_y_deg: float,
+    step_deg: float = DEFAULT_STEP_DEG,
+    columns: tuple[int, int] | list[int] | None = None,
+) -> NDArray[np.float32]:
+    """The profile (n,) of a camera image (H, W, 3) uint8 RGB (module docstring).
+
+    ``columns``: the [first, last) image columns that hold the scene (a narrower camera frame
+    padded to the camera's width, :func:`models.sensor.fit_to_camera`); the bins outside them
+    are NaN (no horizon seen there), None: every column.
+    """
+    if columns is None:
+        b, rows = image_boundary(image)
+        return boundary_to_profile(b, rows, fov_y_deg=fov_y_deg, step_deg=step_deg)
+    img = np.asarray(image)
+    height, width = img.shape[:2]
+    first, last = max(0, int(columns[0])), min(width, int(columns[1]))
+    if last - first < 2:
+        raise ValueError(f"columns must hold at least 2 of the image's {width} columns, not {list(columns)}")
+    # the horizon of the columns that see the scene alone (the padding would shape the class models)
+    b, rows = image_boundary(img[:, first:last])
+    cols = np.arange(last - first, dtype=np.float64)
+    inner = np.interp((cols + 0.5) * b.size / (last - first) - 0.5, np.arange(b.size, dtype=np.float64), b)
+    full = np.full(width, np.nan)
+    full[first:last] = inner * height / rows
+    return boundary_to_profile(full, height, fov_y_deg=fov_y_deg, step_deg=step_deg)
 
 
 def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np.float64]:

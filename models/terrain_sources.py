@@ -24,9 +24,21 @@ if TYPE_CHECKING:
     from models.georef import MapFrame
     from models.scenario import Scenario, TerrainSpec
 
-__all__ = ["load_terrain", "scenario_terrain", "terrain_frame", "is_raster", "MAX_ABS_HEIGHT_M"]
+__all__ = ["load_terrain", "scenario_terrain", "terrain_frame", "is_raster", "despike", "MAX_ABS_HEIGHT_M"]
 
 log = logging.getLogger(__name__)
+
+_warned: set[str] = set()
+
+
+def _warn_once(msg: str, *args: object) -> None:
+    """``log.warning`` once per process for each message (the pre-run check and the agents
+    that read the same map would each say it again)."""
+    text = msg % args
+    if text not in _warned:
+        _warned.add(text)
+        log.warning("%s", text)
+
 
 #: ground heights beyond this (metres, either sign) are taken for a broken file
 MAX_ABS_HEIGHT_M = 1e5
@@ -37,7 +49,7 @@ def is_raster(path: Path) -> bool:
     return Path(path).suffix.lower() != ".npy"
 
 
-def _load_npy(path: Path, cell_size: float) -> Terrain:
+def _load_npy(path: Path, cell_size: float, z_scale: float | None = None) -> Terrain:
     try:
         heights = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as exc:  # EOFError: an empty file
@@ -46,16 +58,77 @@ def _load_npy(path: Path, cell_size: float) -> Terrain:
         raise InputError(path, f"DEM must be a 2-D array of at least 2x2 cells, got shape {np.shape(heights)}")
     if not (np.issubdtype(heights.dtype, np.integer) or np.issubdtype(heights.dtype, np.floating)):
         raise InputError(path, f"DEM heights must be real numbers, not {heights.dtype}")
-    if not np.all(np.isfinite(heights)):
-        raise InputError(path, "DEM heights must be finite numbers (found NaN or inf)")
-    return Terrain(heights=heights.astype(np.float64), cell_size=cell_size)
+    finite = np.isfinite(heights)
+    if not np.all(finite):
+        r, c = map(int, np.argwhere(~finite)[0])
+        raise InputError(
+            path,
+            f"DEM heights must be finite numbers (found NaN or inf in {int((~finite).sum())} cells, the first at "
+            f"row {r}, col {c}); fill the holes, or give the DEM as a GeoTIFF with a nodata value "
+            "(terrain.nodata: fill fills them)",
+        )
+    scale = 1.0 if z_scale is None else z_scale
+    return Terrain(heights=heights.astype(np.float64) * scale, cell_size=cell_size)
 
 
 def _load_raster(path: Path, spec: TerrainSpec) -> Terrain:
-    from models.georaster import read_raster_dem
+    from models.georaster import raster_height_units, read_raster_dem
 
     heights, grid = read_raster_dem(path, cell_size=spec.cell_size, nodata=spec.nodata)
+    z_scale = spec.z_scale
+    if z_scale is None:
+        stated, why = raster_height_units(path)
+        if stated is not None:
+            z_scale = stated
+            if stated != 1.0:
+                log.info("%s: heights converted to metres (x %g): %s", path, stated, why)
+        else:
+            z_scale = 1.0
+            if why:
+                _warn_once(
+                    "%s: heights taken as metres, but %s: set terrain.z_scale (0.3048 for feet, "
+                    "0.3048006096 for US survey feet) if they are not",
+                    path,
+                    why,
+                )
+    if z_scale != 1.0:
+        heights = heights * z_scale
     return Terrain(heights=heights, cell_size=grid.cell_size, frame=grid.frame)
+
+
+#: a DEM cell further than this from the median of its eight neighbours (and than
+#: SPIKE_STEPS times the DEM's 99th-percentile neighbour step) is a spike or a pit
+SPIKE_MIN_M = 50.0
+SPIKE_STEPS = 5.0
+
+
+def despike(heights: np.ndarray, *, path: Path, policy: str, cell_size: float) -> np.ndarray:
+    """``heights`` (rows, cols) metres, row 0 = south, with single-cell spikes and pits
+    ``"fill"``-ed by the median of their eight neighbours (a warning says how many and
+    where), ``"keep"``-ed, or ``"refuse"``-d (an :class:`InputError` naming the file)."""
+    if policy == "keep" or min(heights.shape) < 3:
+        return heights
+    from scipy.ndimage import median_filter
+
+    ring = np.ones((3, 3), bool)
+    ring[1, 1] = False
+    median = median_filter(heights, footprint=ring, mode="nearest")
+    off = heights - median
+    steps = np.concatenate([np.abs(np.diff(heights, axis=0)).ravel(), np.abs(np.diff(heights, axis=1)).ravel()])
+    limit = max(SPIKE_MIN_M, SPIKE_STEPS * float(np.percentile(steps, 99)))
+    bad = np.abs(off) > limit
+    n = int(bad.sum())
+    if n == 0:
+        return heights
+    r, c = map(int, np.unravel_index(int(np.argmax(np.abs(off) * bad)), heights.shape))
+    what = (
+        f"{n} cell(s) stand out from their neighbours by more than {limit:.0f} m, the worst by "
+        f"{off[r, c]:+.0f} m at x {c * cell_size:g}, y {r * cell_size:g} (local metres)"
+    )
+    if policy == "refuse":
+        raise InputError(path, f"{what}: spikes or pits; set terrain.spikes: fill or keep")
+    _warn_once("%s: %s: taken for spikes or pits, filled with their neighbours' median", path, what)
+    return np.where(bad, median, heights)
 
 
 def _cell(spec: TerrainSpec) -> float:
@@ -101,7 +174,12 @@ def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
         if is_raster(path):
             terrain = _load_raster(path, spec)
         else:
-            terrain = _load_npy(path, _cell(spec))
+            terrain = _load_npy(path, _cell(spec), spec.z_scale)
+        clean = despike(terrain.heights, path=path, policy=spec.spikes, cell_size=terrain.cell_size)
+        if clean is not terrain.heights:
+            from dataclasses import replace
+
+            terrain = replace(terrain, heights=clean)
     elif spec.procedural is not None:
         p = spec.procedural
         terrain = procedural_terrain(
@@ -111,7 +189,7 @@ def load_terrain(spec: TerrainSpec, *, base_dir: Path, seed: int) -> Terrain:
         from dataclasses import replace
 
         path = resolve(spec.contours)
-        lines, frame = read_contours(path, attribute=spec.elevation_attribute)
+        lines, frame = read_contours(path, attribute=spec.elevation_attribute, z_scale=spec.z_scale or 1.0)
         try:
             terrain = replace(contours_to_dem(lines, cell_size=_cell(spec)), frame=frame)
         except ValueError as exc:

@@ -78,6 +78,46 @@ def _png(h: int, w: int) -> Callable[[Path], None]:
     return lambda p: cv2.imwrite(str(p), np.full((h, w, 3), 120, np.uint8))
 
 
+def _cut_image(ext: str) -> Callable[[Path], None]:
+    """An image file cut in half (an interrupted copy): OpenCV alone would decode it with grey rows."""
+
+    def write(p: Path) -> None:
+        rng = np.random.default_rng(0)
+        ok, data = cv2.imencode(ext, rng.integers(0, 256, (120, 160, 3), dtype=np.uint8))
+        assert ok
+        p.write_bytes(data.tobytes()[: data.size // 2])
+
+    return write
+
+
+def _geotiff(heights=None, *, cut: bool = False, bands: int = 1, name: str = "dem.tif", **terrain) -> Mutate:
+    """A UTM GeoTIFF DEM (float32; ``bands`` 3: an RGB image), optionally cut in half."""
+
+    def apply(data: dict, tmp: Path) -> None:
+        import rasterio
+        from rasterio.transform import Affine
+
+        h = np.zeros((96, 96)) if heights is None else np.asarray(heights, float)
+        profile = dict(driver="GTiff", width=h.shape[1], height=h.shape[0], crs="EPSG:32617")
+        profile["transform"] = Affine(10.0, 0, 500000.0, 0, -10.0, 4000960.0)
+        if bands == 3:
+            profile.update(count=3, dtype="uint8", photometric="RGB")
+        else:
+            profile.update(count=1, dtype="float32")
+        with rasterio.open(tmp / name, "w", **profile) as ds:
+            ds.write(np.zeros((3, *h.shape), np.uint8) if bands == 3 else h[None].astype(np.float32))
+        if cut:
+            content = (tmp / name).read_bytes()
+            (tmp / name).write_bytes(content[: len(content) // 2])
+        data["terrain"] = {"dem": name, **terrain}
+
+    return apply
+
+
+_SPIKY = np.fromfunction(lambda r, c: 0.5 * r + 0.2 * c, (96, 96))
+_SPIKY[40, 40] = 5000.0
+
+
 def _set(path: str, value) -> Mutate:
     """Set a dotted field path (``terrain.cell_size``, ``landmarks.0.x``) to ``value``."""
 
@@ -158,7 +198,28 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("contours-not-json", _contours(None, raw="{not json"), "not valid GeoJSON"),
     ("contours-not-collection", _contours([1, 2, 3]), "FeatureCollection"),
     ("contours-no-features", _contours(_fc()), "at least one feature"),
-    ("contours-no-elevation", _contours(_fc(_line([[0, 0], [900, 0]], None))), "properties.elevation"),
+    ("contours-no-elevation", _contours(_fc(_line([[0, 0], [900, 0]], None))), "c.geojson: no contour heights: "),
+    (
+        "contours-3d-not-level",
+        _contours(
+            _fc(
+                {
+                    "type": "Feature",
+                    "properties": {},
+                    "geometry": {"type": "LineString", "coordinates": [[0, 0, 1], [900, 0, 50]]},
+                }
+            )
+        ),
+        "features[0]: its z varies along the line (1..50): not a contour line",
+    ),
+    (
+        "contours-attribute-missing",
+        lambda d, t: (
+            _contours(_fc(_line([[0, 0], [900, 0]], 5), _line([[0, 90], [900, 90]], 9)))(d, t),
+            d["terrain"].update(elevation_attribute="hoehe"),
+        ),
+        "c.geojson: no attribute 'hoehe' with the contour heights (terrain.elevation_attribute); the file has: elevation",
+    ),
     ("contours-text-elevation", _contours(_fc(_line([[0, 0], [900, 0]], "high"))), "properties.elevation"),
     (
         "contours-one-elevation",
@@ -248,6 +309,23 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
         "not a readable image",
     ),
     ("frame-1x1", _frame_file(_png(1, 1)), "image is 1x1 pixels; at least 8x8 needed"),
+    ("frame-cut-png", _frame_file(_cut_image(".png")), "f0.png: the PNG file is truncated or damaged"),
+    ("frame-cut-jpg", _frame_file(_cut_image(".jpg"), name="f0.jpg"), "f0.jpg: the JPEG file is truncated or damaged"),
+    ("frame-slit", _frame_file(_png(480, 120)), "sensor.frames[0].image: "),
+    (
+        "frame-narrow-lens",
+        lambda d, t: (_frame_file(_png(120, 160))(d, t), d["sensor"].update(fov_y_deg=10.0)),
+        "sees only 21 % of the camera's width and 21 % of its height",
+    ),
+    ("sensor-fov-simulated", _set("sensor.simulate.fov_y_deg", 50), "sensor.simulate.fov_y_deg: unknown field"),
+    ("sensor-fov-no-frames", _set("sensor.fov_y_deg", 50), "fov_y_deg and fov_x_deg describe the images of"),
+    ("sensor-fov-x-180", _set("sensor.fov_x_deg", 180), "sensor.fov_x_deg: must be < 180"),
+    # raster DEMs as users have them
+    ("dem-tif-cut", _geotiff(cut=True), "terrain.dem: "),
+    ("dem-tif-rgb", _geotiff(bands=3), "dem.tif: the raster is a colour image (3 band(s): red, green, blue)"),
+    ("dem-spikes-refused", _geotiff(_SPIKY, spikes="refuse"), "1 cell(s) stand out from their neighbours by more than"),
+    ("dem-spikes-unknown", _geotiff(_SPIKY, spikes="smooth"), "terrain.spikes: must be one of"),
+    ("dem-z-scale-zero", _geotiff(z_scale=0), "terrain.z_scale: must be > 0"),
     (
         "frame-truth-inf",
         _frame_file(_png(120, 160), truth={"x": float("inf"), "y": 1, "heading_deg": 0}),
@@ -475,6 +553,9 @@ _SUBPROCESS_SCENARIOS = [
     "contours-one-elevation",
     "landmark-outside",
     "frame-1x1",
+    "frame-cut-jpg",
+    "frame-slit",
+    "dem-tif-cut",
     "query-timeout-inf",
     "cell-size-inf",
     "jitter-inf",

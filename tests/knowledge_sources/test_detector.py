@@ -19,9 +19,11 @@ def _visible_landmark(small_rendered: dict) -> tuple[levels.Viewframe, dict]:
     return vf, next(lm for lm in mp.landmarks if lm["id"] == best[1])
 
 
-def _ask(bb: MemoryBlackboard, vf: levels.Viewframe, lm: dict, image: np.ndarray, *, to: str) -> levels.Query:
+def _ask(
+    bb: MemoryBlackboard, vf: levels.Viewframe, lm: dict, image: np.ndarray, *, to: str, columns: list | None = None
+) -> levels.Query:
     bb.post(levels.VIEWFRAME, vf.to_body(), id=vf.id())
-    levels.post(bb.user, levels.SensorFrame(frame=0, image=image, source="test"))
+    levels.post(bb.user, levels.SensorFrame(frame=0, image=image, source="test", columns=columns))
     q = levels.Query(
         frame=0, number=1, landmark=lm["id"], landmark_index=lm["index"], kind=lm["kind"], viewframe=vf.index, p=0.5
     )
@@ -149,3 +151,25 @@ def test_the_map_places_every_visible_landmark(small_rendered: dict) -> None:
         assert set(placements[k]) == set(seen)
         for el, az, size in placements[k].values():
             assert abs(el) <= 22.5 and abs(az) <= 30.0 and size > 0
+
+
+def test_no_answer_where_a_padded_camera_image_sees_nothing(small_rendered: dict) -> None:
+    """A narrower camera image padded to the camera's width (sensor_frame.columns): a landmark
+    that the candidate shows outside those columns is neither present nor absent there."""
+    vf, lm = _visible_landmark(small_rendered)
+    cols = np.flatnonzero((vf.mask == lm["index"]).any(axis=0))
+    width = vf.image.shape[1]
+    answers = {}
+    for name, columns in (
+        ("beside", [int(cols.max()) + 1, width] if cols.max() + 1 < width else [0, int(cols.min())]),
+        ("over", [max(0, int(cols.min()) - 2), min(width, int(cols.max()) + 3)]),
+    ):
+        bb = MemoryBlackboard()
+        bb.add(LandmarkDetectorAgent("detector-x"))
+        _ask(bb, vf, lm, vf.image, to="detector-x", columns=columns)
+        bb.run()
+        (h,) = bb.hypotheses(levels.ANSWER)
+        answers[name] = levels.Answer.from_hypothesis(h)
+    assert answers["beside"].present is None and answers["beside"].llr is None
+    assert "outside the columns" in answers["beside"].reason
+    assert answers["over"].present is True

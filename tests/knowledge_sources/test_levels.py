@@ -481,3 +481,13 @@ def test_a_bad_map_body_names_its_field(change: dict, field: str) -> None:
     with pytest.raises(levels.MessageError) as info:
         levels.Map.from_body(body, hypothesis_id="map")
     assert (info.value.level, info.value.field, info.value.hypothesis_id) == ("map", field, "map")
+
+
+def test_sensor_frame_columns_are_checked_against_the_image():
+    image = np.zeros((12, 16, 3), np.uint8)
+    ok = levels.SensorFrame(frame=0, image=image, source="f.png", columns=[4, 12])
+    assert levels.SensorFrame.from_body(ok.to_body()).columns == [4, 12]
+    assert levels.SensorFrame(frame=0, image=image, source="f.png").columns is None
+    for bad in ([12, 4], [0, 17], [-1, 8], [1.5, 8], ["a", 8]):
+        with pytest.raises(levels.MessageError, match="columns"):
+            levels.SensorFrame(frame=0, image=image, source="f.png", columns=bad)

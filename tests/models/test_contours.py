@@ -146,9 +146,18 @@ BAD = [
     ({"type": "FeatureCollection", "features": []}, "at least one feature"),
     (
         {"features": [{"geometry": {"type": "LineString", "coordinates": [[0, 0], [1, 1]]}, "properties": {}}]},
-        r"features\[0\]: needs a geometry and a numeric properties.elevation",
+        r"no contour heights: no attribute named like an elevation .* and no z coordinates; "
+        r"name it with terrain.elevation_attribute \(the file has: none\)",
     ),
-    ({"features": [_line([[0, 0], [1, 1]], elevation="high")]}, r"features\[0\]: needs a geometry"),
+    (
+        {"features": [_line([[0, 0], [1, 1]], elevation="high")]},
+        r"features\[0\]: needs a numeric properties.elevation, not 'high'",
+    ),
+    ({"features": [{"type": "Feature", "properties": {"elevation": 1}}]}, r"features\[0\]: has no geometry"),
+    (  # 3-D lines without an attribute: z must be one level per line
+        {"features": [{"properties": {}, "geometry": {"type": "LineString", "coordinates": [[0, 0, 5], [1, 1, 9]]}}]},
+        r"features\[0\]: its z varies along the line \(5..9\): not a contour line",
+    ),
     ({"features": [_line([[0, 0], [1, 1]]), _line([[0, 0]], 20.0)]}, r"features\[1\]: a line needs at least 2"),
     ({"features": [_line([0, 0], kind="Point")]}, r"features\[0\]: geometry must be a LineString"),
     ({"features": [_line([["a", 0], [1, 1]])]}, r"features\[0\]: coordinates must be numbers"),
@@ -217,8 +226,14 @@ def test_contour_attribute_errors_list_the_fields(tmp_path):
     path = write_contour_vector(
         tmp_path / "c.gpkg", [(np.array([[0.0, 0], [10, 10]]), 5.0)], crs=UTM, attribute="hoehe"
     )
-    with pytest.raises(InputError, match=r"c.gpkg: no attribute 'elevation'.*the file has: id, hoehe"):
+    with pytest.raises(InputError, match=r"c.gpkg: no contour heights: .*the file has: id, hoehe\)"):
         load_contours(path)
+    assert load_contours(path, attribute="hoehe")[0][1] == 5.0
+    assert load_contours(path, attribute="HOEHE")[0][1] == 5.0  # another case: the one there is
+    with pytest.raises(
+        InputError, match=r"c.gpkg: no attribute 'hohe' .*\(terrain.elevation_attribute\); the file has: id, hoehe"
+    ):
+        load_contours(path, attribute="hohe")
     (tmp_path / "junk.shp").write_bytes(b"nope")
     with pytest.raises(InputError, match=r"junk.shp: cannot read contour lines \(OGR\)"):
         load_contours(tmp_path / "junk.shp")
