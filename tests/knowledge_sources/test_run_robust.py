@@ -242,7 +242,9 @@ def test_an_input_error_met_during_a_run_exits_2_with_one_line(small_data, tmp_p
     finally:
         if hasattr(spoil, "proc"):
             spoil.proc.wait(timeout=30)
-    assert str(err.value) == f"{path}: sensor.frames[0].image: {image}: not a readable image (PNG or JPEG expected)"
+    assert (
+        str(err.value) == f"{path}: sensor.frames[0].image: {image}: not a readable image (PNG, JPEG or TIFF expected)"
+    )
 
 
 #: a viewframe reference an agent cannot follow: the entry is not on this host (another machine

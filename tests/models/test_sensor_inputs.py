@@ -109,11 +109,22 @@ def test_jpeg_exif_orientation_is_applied(tmp_path, orientation, stored):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("orientation", [1, 6])
-def test_a_huge_jpeg_is_decoded_reduced_to_what_the_camera_needs(tmp_path, orientation):
+def test_a_huge_jpeg_is_decoded_reduced_to_what_the_camera_needs(tmp_path, orientation, monkeypatch):
     """A 6000 x 4000 photo (72 MB of pixels) for a 160 x 120 camera: decoded at 1/8 (libjpeg's
     DCT scaling), as fast as a small image, and the same camera image as a full decode gives."""
-    import resource
     import time
+
+    import models.sensor as sensor
+
+    decoded: list[tuple[int, tuple[int, ...]]] = []  # (flags, decoded shape) of every decode
+    real = cv2.imdecode
+
+    def spy(buf, flags):
+        out = real(buf, flags)
+        decoded.append((flags, out.shape))
+        return out
+
+    monkeypatch.setattr(sensor.cv2, "imdecode", spy)
 
     rng = np.random.default_rng(4)
     scene = cv2.resize(_scene(400, 600), (6000, 4000), interpolation=cv2.INTER_LINEAR)
@@ -125,6 +136,8 @@ def test_a_huge_jpeg_is_decoded_reduced_to_what_the_camera_needs(tmp_path, orien
     t0 = time.perf_counter()
     img, fit = load_frame(tmp_path / "big.jpg", width=W, height=H, fov_y_deg=45.0)
     elapsed = time.perf_counter() - t0
+    (flags, shape), *_ = decoded
+    assert flags & ~cv2.IMREAD_IGNORE_ORIENTATION == cv2.IMREAD_REDUCED_COLOR_8 and max(shape) == 750
     full = read_image(tmp_path / "big.jpg")  # no reduction
     assert full.shape == (4000, 6000, 3)
     want, _ = fit_to_camera(full, width=W, height=H, fov_y_deg=45.0)
@@ -132,7 +145,8 @@ def test_a_huge_jpeg_is_decoded_reduced_to_what_the_camera_needs(tmp_path, orien
     assert np.abs(img.astype(int) - want).mean() < 1.0
     assert _close(img[5, 80], SKY, 10) and _close(img[110, 80], GROUND, 10)
     assert elapsed < 1.0  # about 0.05 s on the 2-core test machine; a full decode about 0.3 s
-    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss < 2_000_000  # KB: well under 2 GB
+    # (the peak memory of a decode at 1/8 is the reduced image's: the flags above say so; this
+    # process's own peak, ru_maxrss, is its whole life's and says nothing in a test suite)
 
 
 def test_a_huge_png_is_read(tmp_path):
