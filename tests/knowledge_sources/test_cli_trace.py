@@ -167,11 +167,15 @@ def test_perfetto_export_follows_the_trace_event_format(trace, capsys, tmp_path)
     assert len(flows) == sum(len(r.get("links") or ()) for r in posts) > 0
     for pair in flows.values():
         assert set(pair) == {"s", "f"} and pair["s"]["ts"] <= pair["f"]["ts"] and pair["f"]["bp"] == "e"
-    # a slice's span is the activation's: its end is the finish record's time
+    # a slice's span is the activation's: its end is the finish record's time, its start that
+    # minus the activation's duration (compared as sorted lists: activations of two agents may
+    # start within a microsecond, so "the first slice" need not be the earliest-starting one)
     t0 = min(r["t"] for r in records)
-    slice0 = next(e for e in events if e["ph"] == "X")
-    fin = min(finished, key=lambda r: r["t"] - r["duration_s"])
-    assert slice0["ts"] + slice0["dur"] == pytest.approx((fin["t"] - t0) * 1e6, abs=1.0)
+    slices = [e for e in events if e["ph"] == "X"]
+    ends = sorted(e["ts"] + e["dur"] for e in slices)
+    assert ends == pytest.approx(sorted((r["t"] - t0) * 1e6 for r in finished), abs=1.0)
+    starts = sorted(e["ts"] for e in slices)
+    assert starts == pytest.approx(sorted((r["t"] - r["duration_s"] - t0) * 1e6 for r in finished), abs=1.0)
 
 
 @pytest.mark.parametrize("content", [None, b"\xc1garbage"])
