@@ -100,7 +100,7 @@ def measure(scenario_path: str, sizes: list[tuple[int, int]], *, seed: int, jitt
                     )
                     fitted, fit = fit_to_camera(image, width=cam.width, height=cam.height, fov_y_deg=cam.fov_y_deg)
                     coverage = fit.coverage
-                    columns = fit.valid_cols if fit.coverage[1] < 1 else None
+                    columns = fit.columns  # as the camera agent has them (models.sensor.frames_from_files)
                     for way, img, cols in (
                         ("squeeze", squeezed, None),
                         ("fit", fitted, None),

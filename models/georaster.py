@@ -32,6 +32,7 @@ from rasterio.enums import MaskFlags
 
 from models.errors import InputError
 from models.georef import MapFrame, is_metric, parse_crs, working_crs
+from models.logs import warn_once
 
 __all__ = [
     "RasterGrid",
@@ -45,18 +46,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-_warned: set[str] = set()
-
-
-def _warn_once(msg: str, *args: object) -> None:
-    """``log.warning`` once per process for each message (the pre-run check and the agents
-    that read the same map would each say it again)."""
-    text = msg % args
-    if text not in _warned:
-        _warned.add(text)
-        log.warning("%s", text)
-
 
 #: suffixes that are not read as rasters (``terrain.dem`` keeps today's .npy contract)
 RASTER_SUFFIXES_NOT = (".npy",)
@@ -134,7 +123,7 @@ def _check_bands(ds, path: Path) -> None:
             path, f"the raster is a colour image ({what}), not heights: give the DEM (one band of elevations)"
         )
     if ds.count > 1:
-        _warn_once("%s: %d bands: band 1 is read as the heights", path, ds.count)
+        warn_once(log, "%s: %d bands: band 1 is read as the heights", path, ds.count)
 
 
 def raster_height_units(path: str | Path) -> tuple[float | None, str]:
@@ -275,7 +264,8 @@ def read_raster_dem(
     if not tagged:  # no nodata value named: the usual sentinels are holes, not heights
         sentinel = np.isin(raw, NODATA_SENTINELS) | (np.abs(raw) >= _NODATA_MAGNITUDE)
         if sentinel.any():
-            _warn_once(
+            warn_once(
+                log,
                 "%s names no nodata value, but %d cells hold %s: taken as nodata",
                 path,
                 int(sentinel.sum()),
@@ -293,7 +283,8 @@ def read_raster_dem(
                 f"{n_bad} of {invalid.size} cells are nodata (the first at raster row {r}, "
                 f"col {c}); set terrain.nodata: fill to fill them from their nearest neighbours",
             )
-        _warn_once(
+        warn_once(
+            log,
             "%s: %d of %d nodata cells (%.1f %%) filled with the nearest valid height",
             path,
             n_bad,

@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from models.errors import InputError, ScenarioError
+from models.logs import warn_once
 from models.scenario import MIN_IMAGE_PX, DriveSpec, Scenario, SimulateSpec
 
 __all__ = [
@@ -176,6 +177,12 @@ class FrameFit:
         """True when the frame sees less than the camera in some direction (part of it padded)."""
         return min(self.coverage) < 1.0 - 1e-6
 
+    @property
+    def columns(self) -> tuple[int, int] | None:
+        """:attr:`valid_cols` when the frame sees less than the camera's width (some columns
+        padded: :attr:`SensorFrame.columns`), else None (every column is the scene's)."""
+        return self.valid_cols if self.coverage[1] < 1.0 - 1e-6 else None
+
 
 def fit_to_camera(
     image: np.ndarray,
@@ -253,8 +260,6 @@ def _scales(
 #: a camera frame must see at least this fraction of the camera's width and of its height
 MIN_COVERAGE = 0.5
 
-_warned_aspect: set[tuple[int, int, int, int]] = set()
-
 
 def _to_rgb8(data: np.ndarray, path: Path) -> np.ndarray:
     """A decoded image (gray, gray + alpha, BGR, BGRA; 8 or 16 bit or float) as (H, W, 3) uint8 RGB."""
@@ -314,10 +319,12 @@ def read_image(path: str | Path, *, reduce: Callable[[int, int], int] | None = N
     _check_complete(raw, path)
     # IMREAD_UNCHANGED keeps 16 bits and alpha but ignores EXIF orientation: apply it below
     flags, size = cv2.IMREAD_UNCHANGED, None
-    if reduce is not None and raw[:2].tobytes() == b"\xff\xd8":
+    jpeg = raw[:2].tobytes() == b"\xff\xd8"
+    orientation = _exif_orientation(raw[:65536].tobytes()) if jpeg else 1
+    if reduce is not None and jpeg:
         size = _jpeg_size(raw)
         if size is not None:
-            shown = size[::-1] if _exif_orientation(raw[:65536].tobytes()) >= 5 else size
+            shown = size[::-1] if orientation >= 5 else size
             factor = reduce(*shown) if min(size) >= 8 * MIN_IMAGE_PX else 1
             if factor in _REDUCED:
                 flags = _REDUCED[factor] | cv2.IMREAD_IGNORE_ORIENTATION
@@ -329,7 +336,7 @@ def read_image(path: str | Path, *, reduce: Callable[[int, int], int] | None = N
             path, f"image is {data.shape[1]}x{data.shape[0]} pixels; at least {MIN_IMAGE_PX}x{MIN_IMAGE_PX} needed"
         )
     rgb = _to_rgb8(data, path)
-    return np.ascontiguousarray(_apply_exif_orientation(rgb, raw))
+    return np.ascontiguousarray(_oriented(rgb, orientation))
 
 
 _REDUCED = {2: cv2.IMREAD_REDUCED_COLOR_2, 4: cv2.IMREAD_REDUCED_COLOR_4, 8: cv2.IMREAD_REDUCED_COLOR_8}
@@ -400,11 +407,8 @@ def _jpeg_scan_start(data: bytes) -> int | None:
     return None
 
 
-def _apply_exif_orientation(rgb: np.ndarray, raw: np.ndarray) -> np.ndarray:
-    """Rotate/flip a JPEG's pixels as its EXIF orientation tag says (1: as stored)."""
-    if raw[:2].tobytes() != b"\xff\xd8":
-        return rgb
-    orientation = _exif_orientation(raw[:65536].tobytes())
+def _oriented(rgb: np.ndarray, orientation: int) -> np.ndarray:
+    """Rotate/flip an image's pixels as an EXIF orientation (1..8) says (1: as stored)."""
     ops = {
         2: lambda a: a[:, ::-1],
         3: lambda a: a[::-1, ::-1],
@@ -518,21 +522,19 @@ def load_frame(
             "check sensor.fov_y_deg / sensor.fov_x_deg against camera.fov_y_deg",
         )
     if frame_fov_y_deg is None and frame_fov_x_deg is None and abs(w * height - h * width) > max(w, h, width, height):
-        key = (w, h, width, height)
-        if key not in _warned_aspect:
-            _warned_aspect.add(key)
-            log.warning(
-                "camera images of %dx%d pixels (aspect %.3f) against a %dx%d camera (aspect %.3f): "
-                "taken with the camera's vertical field of view (%g deg) and cropped or padded; set "
-                "sensor.fov_y_deg (or sensor.fov_x_deg) when the lens differs",
-                w,
-                h,
-                w / h,
-                width,
-                height,
-                width / height,
-                fov_y_deg,
-            )
+        warn_once(
+            log,
+            "camera images of %dx%d pixels (aspect %.3f) against a %dx%d camera (aspect %.3f): "
+            "taken with the camera's vertical field of view (%g deg) and cropped or padded; set "
+            "sensor.fov_y_deg (or sensor.fov_x_deg) when the lens differs",
+            w,
+            h,
+            w / h,
+            width,
+            height,
+            width / height,
+            fov_y_deg,
+        )
     return out, fit
 
 
@@ -559,8 +561,7 @@ def frames_from_files(scenario: Scenario) -> list[SensorFrame]:
         except InputError as err:  # name the scenario and the field too (as the pre-run check does)
             raise ScenarioError(scenario.path, f"sensor.frames[{i}].image", str(err)) from None
         truth = None if spec.truth is None else (spec.truth.x, spec.truth.y, spec.truth.heading_deg)
-        columns = fit.valid_cols if fit is not None and fit.coverage[1] < 1.0 - 1e-6 else None
-        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time, columns))
+        frames.append(SensorFrame(i, image, truth, str(spec.image), spec.time, None if fit is None else fit.columns))
     return frames
 
 

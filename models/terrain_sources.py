@@ -18,6 +18,7 @@ import numpy as np
 
 from models.contours import contours_to_dem, read_contours
 from models.errors import InputError, ScenarioError
+from models.logs import warn_once
 from models.terrain import Terrain, procedural_terrain, sample_terrain
 
 if TYPE_CHECKING:
@@ -27,18 +28,6 @@ if TYPE_CHECKING:
 __all__ = ["load_terrain", "scenario_terrain", "terrain_frame", "is_raster", "despike", "MAX_ABS_HEIGHT_M"]
 
 log = logging.getLogger(__name__)
-
-_warned: set[str] = set()
-
-
-def _warn_once(msg: str, *args: object) -> None:
-    """``log.warning`` once per process for each message (the pre-run check and the agents
-    that read the same map would each say it again)."""
-    text = msg % args
-    if text not in _warned:
-        _warned.add(text)
-        log.warning("%s", text)
-
 
 #: ground heights beyond this (metres, either sign) are taken for a broken file
 MAX_ABS_HEIGHT_M = 1e5
@@ -85,7 +74,8 @@ def _load_raster(path: Path, spec: TerrainSpec) -> Terrain:
         else:
             z_scale = 1.0
             if why:
-                _warn_once(
+                warn_once(
+                    log,
                     "%s: heights taken as metres, but %s: set terrain.z_scale (0.3048 for feet, "
                     "0.3048006096 for US survey feet) if they are not",
                     path,
@@ -127,7 +117,7 @@ def despike(heights: np.ndarray, *, path: Path, policy: str, cell_size: float) -
     )
     if policy == "refuse":
         raise InputError(path, f"{what}: spikes or pits; set terrain.spikes: fill or keep")
-    _warn_once("%s: %s: taken for spikes or pits, filled with their neighbours' median", path, what)
+    warn_once(log, "%s: %s: taken for spikes or pits, filled with their neighbours' median", path, what)
     return np.where(bad, median, heights)
 
 

@@ -50,10 +50,11 @@ def _run(path, out, capsys) -> dict:
 def test_16_by_9_frames_are_localized_as_the_cameras_own(small_data, tmp_path, capsys, monkeypatch, caplog):
     """1280 x 720 frames of the camera's lens: mapped onto the 4:3 camera they are localized as
     the camera's own frames; squeezed (the old reading) their headings are off."""
+    import models.logs
     import models.sensor
 
     path = _frames_scenario(small_data, tmp_path, (1280, 720))
-    monkeypatch.setattr(models.sensor, "_warned_aspect", set())
+    monkeypatch.setattr(models.logs, "_said", set())
     mapped = _run(path, tmp_path / "mapped.json", capsys)
     assert "camera images of 1280x720 pixels" in caplog.text  # no lens named: the warning, once
     assert mapped["localized"] == 8 and mapped["top1_frame_only"] >= 7 / 8

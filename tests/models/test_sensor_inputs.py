@@ -265,9 +265,9 @@ def test_mapped_16_by_9_frames_rank_their_own_route_point_first(renders, tmp_pat
 
 
 def test_frames_on_file_warn_once_about_another_aspect_ratio(tmp_path, caplog, monkeypatch):
-    import models.sensor
+    import models.logs
 
-    monkeypatch.setattr(models.sensor, "_warned_aspect", set())
+    monkeypatch.setattr(models.logs, "_said", set())
     for k in range(3):
         _write_bgr(tmp_path / f"f{k}.png", _scene(720, 1280))
     frames = [{"image": f"f{k}.png"} for k in range(3)]
@@ -276,7 +276,7 @@ def test_frames_on_file_warn_once_about_another_aspect_ratio(tmp_path, caplog, m
     assert [f.image.shape for f in got] == [(H, W, 3)] * 3
     assert caplog.text.count("camera images of 1280x720") == 1 and "sensor.fov_y_deg" in caplog.text
     caplog.clear()
-    monkeypatch.setattr(models.sensor, "_warned_aspect", set())
+    monkeypatch.setattr(models.logs, "_said", set())
     with caplog.at_level(logging.WARNING, logger="models.sensor"):
         frames_from_files(_scenario(tmp_path, frames, fov_y_deg=45.0))  # the lens named: no warning
     assert "camera images of" not in caplog.text
