@@ -82,9 +82,8 @@ class AssociativeIndexer(RouteRanker):
         keep_images: bool | None = None,
         **options: Any,
     ) -> None:
-        from models.viewframe_cache import default_cache_root
-
-        super().__init__(name, tracked=tracked, **options)
+        keep = self.from_messages_default(keep_images)
+        super().__init__(name, tracked=tracked, from_messages=keep, **options)
         if shards < 1 or not 0 <= shard < shards:
             raise ValueError(f"shard must be in [0, shards), got shard={shard}, shards={shards}")
         if block is not None and int(block) < 1:
@@ -99,13 +98,9 @@ class AssociativeIndexer(RouteRanker):
         self._index: ViewframeIndex | None = None
         #: the images are kept as their messages arrive (else, on a miss, read from the map's cache
         #: entry, or back from the board)
-        self.keep_images = default_cache_root() is None if keep_images is None else bool(keep_images)
+        self.keep_images = keep
         #: the shard's index was loaded from a stored copy (set by build)
         self.loaded = False
-        if not self.keep_images:
-            # the viewframe level is not even subscribed to: each shard would otherwise receive
-            # (and check the tag of) every viewframe message of the route, its own or not
-            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""

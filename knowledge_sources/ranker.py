@@ -32,13 +32,31 @@ class RouteRanker(KnowledgeSource):
     window (``(first, last)`` route points, or None: rank all) and records it in ``windows``. A
     ranker never waits for a track: a dead or late tracker costs the window, never a ranking.
 
-    Options: ``tracked`` (default False); the rest go to :class:`KnowledgeSource`.
+    What a ranker needs of the viewframes may come from the viewframe cache entry the ``map``
+    names instead of their messages: with ``from_messages`` False it does not consume the
+    viewframe level at all (not subscribed: on a long route its messages are most of what is
+    posted, each ranker would otherwise receive and check every one); :meth:`from_messages_default`
+    is the subclasses' default.
+
+    Options: ``tracked`` (default False), ``from_messages`` (default True); the rest go to
+    :class:`KnowledgeSource`.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.VIEWFRAME, levels.MAP, levels.SENSOR_FRAME, levels.TRACK)
 
-    def __init__(self, name: str, *, tracked: bool = False, **options: Any) -> None:
+    @staticmethod
+    def from_messages_default(option: bool | None) -> bool:
+        """Whether a ranker keeps what it needs of the viewframes from their messages: ``option``,
+        or when None, only without a viewframe cache in this process (with one, the map will most
+        likely name an entry to read them from: :func:`models.viewframe_cache.default_cache_root`)."""
+        from models.viewframe_cache import default_cache_root
+
+        return default_cache_root() is None if option is None else bool(option)
+
+    def __init__(self, name: str, *, tracked: bool = False, from_messages: bool = True, **options: Any) -> None:
         super().__init__(name, **options)
+        if not from_messages:
+            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
         self.tracked = bool(tracked)
         self._windows: TrackWindows | None = None  # the track window rule, set once the map is built
         self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map

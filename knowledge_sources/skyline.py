@@ -77,9 +77,8 @@ class SkylineRanker(RouteRanker):
         keep_profiles: bool | None = None,
         **options: Any,
     ) -> None:
-        from models.viewframe_cache import default_cache_root
-
-        super().__init__(name, tracked=tracked, **options)
+        keep = self.from_messages_default(keep_profiles)
+        super().__init__(name, tracked=tracked, from_messages=keep, **options)
         if not 0 < float(fov_y_deg) < 180:
             raise ValueError(f"fov_y_deg must be in (0, 180), got {fov_y_deg}")
         if not float(step_deg) > 0 or not float(truncate_deg) > 0:
@@ -103,9 +102,7 @@ class SkylineRanker(RouteRanker):
         self._labels: np.ndarray | None = None
         self._coarse: CoarseSkylines | None = None
         #: the skylines are kept as their messages arrive (else read from the map's cache entry, or back from the board)
-        self.keep_profiles = default_cache_root() is None if keep_profiles is None else bool(keep_profiles)
-        if not self.keep_profiles:  # the viewframe level is not subscribed to (see the class docstring)
-            self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
+        self.keep_profiles = keep
 
     def keep(self, viewframe: levels.Viewframe) -> None:
         if self.keep_profiles:
