@@ -409,20 +409,31 @@ class MotionModel:
         boxes = [(w, float(a)) for w, a in ((fwd, a_skip), (cruise, k[back + 1] - a_skip)) if a > 0]
         return float(k[back]), boxes, back, float(k[0]) if back else 0.0
 
-    def _ahead(self, n: int, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(reach, scale, stay, lo)`` of a forward box of ``width`` cells on ``n`` cells (cached): from
-        cell j the box's moves reach ``reach[j]`` cells ahead, up to the route's last point, each
-        of them ``scale[j] = width / reach[j]`` times as likely as on open route (0 where the box
-        has no move: at the last point and beyond, its moves are a stop, ``stay[j] = width``);
-        ``lo[i] = max(i - width, 0)`` for the cells up to the last point's."""
+    def _ahead(self, n: int, width: int) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """``(e, reach, scale, lo)`` of a forward box of ``width`` cells on ``n`` cells (cached):
+        ``e`` the cell of the route's last point; from cell j the box's moves reach ``reach[j]``
+        cells ahead, up to it, each of them ``scale[j] = width / reach[j]`` times as likely as on
+        open route (0 from ``e`` on: there the box's moves are a stop); ``lo[i] = max(i - width,
+        0)`` for the cells up to ``e``."""
         key = ("ahead", n, width)
         got = self._cache.get(key)
         if got is None:
             e = min(self.end_cell, n - 1)
             reach = np.clip(e - np.arange(n), 0, width)
             scale = np.divide(float(width), reach, out=np.zeros(n), where=reach > 0)
-            lo = np.maximum(np.arange(e + 1) - width, 0)
-            got = (reach, scale, np.where(reach == 0, float(width), 0.0), lo)
+            got = (e, reach, scale, np.maximum(np.arange(e + 1) - width, 0))
+            self._cache[key] = got
+        return got
+
+    def _behind(self, n: int, back: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(hi, lo, stay)`` of the reverse box of ``back`` cells on ``n`` cells (cached): cell i
+        receives from cells i + 1 .. ``hi[i] - 1`` and sends to ``lo[i]`` .. i - 1; ``stay[i]``
+        of its moves would pass the first point (a stop)."""
+        key = ("behind", n, back)
+        got = self._cache.get(key)
+        if got is None:
+            idx = np.arange(n)
+            got = (np.minimum(idx + back + 1, n), np.maximum(idx - back, 0), np.maximum(back - idx, 0).astype(float))
             self._cache[key] = got
         return got
 
@@ -439,20 +450,20 @@ class MotionModel:
         """
         stop, boxes, back, a_back = self._boxes(dt)
         n = belief.size
-        idx = np.arange(n)
         out = stop * belief
         c = np.zeros(n + 1)
         for width, weight in boxes:
-            _, scale, stay, lo = self._ahead(n, width)
+            e, _, scale, lo = self._ahead(n, width)
             # a cell up to the last point's receives from cells i - width .. i - 1 (their moves all
             # reach it); the cells beyond it from none
             np.cumsum(belief * scale, out=c[1:])
-            out[: lo.size] += weight * (c[: lo.size] - c[lo])
-            out += weight * stay * belief
+            out[: e + 1] += weight * (c[: e + 1] - c[lo])
+            out[e:] += weight * width * belief[e:]  # at the last point and beyond, a forward move is a stop
         if back:
+            hi, _, stay = self._behind(n, back)
             np.cumsum(belief, out=c[1:])
-            out += a_back * (c[np.minimum(idx + back + 1, n)] - c[1:])  # from cells i + 1 .. i + back
-            out += a_back * np.maximum(back - idx, 0) * belief  # a reversal past the first point is a stop
+            out += a_back * (c[hi] - c[1:])  # from cells i + 1 .. i + back
+            out += a_back * stay * belief  # a reversal past the first point is a stop
         out *= (1.0 - self.p_kidnap) / max(out.sum(), 1e-300)
         out += self.p_kidnap / n
         return out
@@ -466,12 +477,13 @@ class MotionModel:
         np.cumsum(message, out=m[1:])
         out = stop * message
         for width, weight in boxes:
-            reach, scale, stay, _ = self._ahead(n, width)
+            e, reach, scale, _ = self._ahead(n, width)
             out += weight * scale * (m[idx + reach + 1] - m[idx + 1])  # cells j + 1 .. j + reach
-            out += weight * stay * message
+            out[e:] += weight * width * message[e:]
         if back:
-            out += a_back * (m[idx] - m[np.maximum(idx - back, 0)])  # cells j - back .. j - 1
-            out += a_back * np.maximum(back - idx, 0) * message
+            _, lo, stay = self._behind(n, back)
+            out += a_back * (m[:n] - m[lo])  # cells j - back .. j - 1
+            out += a_back * stay * message
         return (1.0 - self.p_kidnap) * out + self.p_kidnap * message.mean()
 
 
