@@ -14,6 +14,7 @@ from knowledge_sources import levels
 from knowledge_sources.indexer import AssociativeIndexer
 from models.index_store import INDEX_FOLDER
 from tests.knowledge_sources.rankers import frames_from_viewframes, post_map, repost, track
+from tests.models.resident import needs_smaps, resident_kb
 
 
 @pytest.mark.parametrize("shards", [1, 2])
@@ -217,20 +218,7 @@ def test_images_are_kept_as_they_come_only_without_a_viewframe_cache(monkeypatch
     assert AssociativeIndexer("indexer-0", keep_images=not keeps).keep_images is not keeps
 
 
-def _resident_kb(array: np.ndarray) -> int:
-    """Resident KB of this process's mapping that holds ``array`` (/proc/self/smaps)."""
-    address, inside = int(array.ctypes.data), False
-    for line in Path("/proc/self/smaps").read_text().splitlines():
-        head = line.split()[0]
-        if "-" in head and not head.endswith(":"):
-            lo, hi = (int(v, 16) for v in head.split("-"))
-            inside = lo <= address < hi
-        elif inside and head == "Rss:":
-            return int(line.split()[1])
-    raise AssertionError(f"no mapping holds {address:#x}")
-
-
-@pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="Linux /proc needed")
+@needs_smaps
 def test_a_stored_index_leaves_none_of_its_rows_resident_after_a_ranking(small_rendered: dict, tmp_path: Path) -> None:
     """A loaded shard's ranking rows are memory-mapped from the stored index: each ranking gives
     the pages it read back (the page cache keeps them), so a long route's rows do not all stay
@@ -241,7 +229,7 @@ def test_a_stored_index_leaves_none_of_its_rows_resident_after_a_ranking(small_r
     assert ix.loaded
     rows = ix._index.memory.ranking_matrix
     assert rows.nbytes > 8 * 4096  # several pages, every one read by the full rankings
-    assert _resident_kb(rows) == 0
+    assert resident_kb(int(rows.ctypes.data)) == 0
     _ = float(np.asarray(rows).sum())  # read without a ranking: resident (the test can see it)
-    assert _resident_kb(rows) > 0
+    assert resident_kb(int(rows.ctypes.data)) > 0
     assert all(r.viewframes == want[k].viewframes for k, r in got.items())

@@ -18,6 +18,7 @@ from models.scenario import scenario_from_dict
 from models.viewframe_cache import ViewframeCache, cache_key, default_cache_root
 from models.world import World
 from tests.models import children
+from tests.models.resident import needs_smaps, resident_kb
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -387,20 +388,7 @@ def test_a_malformed_stored_description_is_a_value_error(data) -> None:
         StoredDescription(data)
 
 
-def _resident_kb(address: int) -> int:
-    """Resident KB of this process's mapping that holds ``address`` (/proc/self/smaps)."""
-    inside = False
-    for line in Path("/proc/self/smaps").read_text().splitlines():
-        head = line.split()[0]
-        if "-" in head and not head.endswith(":"):
-            lo, hi = (int(v, 16) for v in head.split("-"))
-            inside = lo <= address < hi
-        elif inside and head == "Rss:":
-            return int(line.split()[1])
-    raise AssertionError(f"no mapping holds {address:#x}")
-
-
-@pytest.mark.skipif(not Path("/proc/self/smaps").exists(), reason="Linux /proc needed")
+@needs_smaps
 def test_reading_pixels_leaves_none_of_the_entry_resident(entry) -> None:
     """read_pixels copies the row and gives the mapped pages back (with the neighbours a page
     fault maps too): having read every row, none of the entry's image map is resident here."""
@@ -410,9 +398,9 @@ def test_reading_pixels_leaves_none_of_the_entry_resident(entry) -> None:
     stacked = viewframe_cache._open[folder]._stacked["image"]
     address = int(np.frombuffer(stacked._mmap, dtype=np.uint8, count=1).ctypes.data)
     assert stacked.nbytes > 8 * 4096  # a map of several pages, touched by every read
-    assert _resident_kb(address) == 0
+    assert resident_kb(address) == 0
     _ = np.array(stacked[1])  # read without read_pixels: resident (the test can see it)
-    assert _resident_kb(address) > 0
+    assert resident_kb(address) > 0
 
 
 def test_an_entrys_stacked_field_is_read_memory_mapped_or_none_with_a_warning(tmp_path, caplog):
