@@ -55,7 +55,6 @@ def samples(width: int, height: int, viewframes: int) -> dict[str, levels.Messag
         "viewframe (ref)": levels.Viewframe(  # the pixels in the cache entry it names (a warm run's)
             index=3,
             pose=[1.0, 2.0, 2.0, 90.0, 0.0],
-            description={"visible": ["H1", "T1"], "relations": [["H1", "left-of", "T1"]]},
             skyline=np.zeros(width // 2, np.float32),
             entry="/home/user/.cache/mapinterp/" + "0" * 64,
             entry_count=viewframes,

@@ -382,13 +382,19 @@ class Viewframe(Message):
     id_pattern: ClassVar[str] = "vf-<index:06d>"
     index: int = field(metadata=_doc("viewframe index k (its route point)"))
     pose: list = field(metadata=_doc("[x, y, z, heading_deg, pitch_deg], world metres and degrees", length=5))
-    description: dict = field(metadata=_doc("symbolic description (SymbolicDescription.to_dict)"))
     skyline: np.ndarray = field(
         metadata=_doc(
             "(n,) float32 horizon elevation per azimuth bin, degrees, NaN: none (models.skyline)",
             dtype="float32",
             ndim=1,
         )
+    )
+    description: dict | None = field(
+        default=None,
+        metadata=_doc(
+            "symbolic description (SymbolicDescription.to_dict); null when the pixels are in the cache "
+            "entry named by entry (the description is in the entry too; the map carries what the agents use of it)"
+        ),
     )
     image: np.ndarray | None = field(
         default=None,
@@ -431,15 +437,22 @@ class Viewframe(Message):
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         if self.entry is None:
-            for name in ("image", "mask"):
+            for name in ("image", "mask", "description"):
                 if getattr(self, name) is None:
-                    raise MessageError(self.level, name, "missing: a viewframe without an entry carries its pixels")
+                    what = "its description" if name == "description" else "its pixels"
+                    raise MessageError(self.level, name, f"missing: a viewframe without an entry carries {what}")
             if self.entry_count is not None:
                 raise MessageError(self.level, "entry_count", "given without an entry")
             return
         for name in ("image", "mask", "background"):
             if getattr(self, name) is not None:
                 raise MessageError(self.level, name, "a viewframe naming a cache entry carries no pixel arrays")
+        if self.description is not None:
+            raise MessageError(
+                self.level,
+                "description",
+                "a viewframe naming a cache entry carries no description (it is in the entry)",
+            )
         if not self.entry.startswith("/"):
             raise MessageError(self.level, "entry", f"must be an absolute path, got {self.entry!r}")
         if self.entry_count is None or not 0 <= self.index < self.entry_count:
@@ -450,28 +463,23 @@ class Viewframe(Message):
     @classmethod
     def of(cls, viewframe: models_viewframes.Viewframe, *, entry: str | None = None, count: int | None = None) -> Self:
         """The message of a rendered viewframe (:class:`models.viewframes.Viewframe`): its pose as
-        a list, its symbolic description as plain data, its skyline; the depth map stays behind (no
-        agent reads it). Without ``entry``, the pixels inline: its image and background as
-        C-contiguous arrays, its mask as int16. With ``entry`` (the absolute path of the cache
-        entry the viewframe was read from, holding ``count`` viewframes; the viewframe's row is its
-        index), no pixel arrays: a reader gets them with :meth:`pixels`."""
+        a list, its skyline; the depth map stays behind (no agent reads it). Without ``entry``, the
+        pixels inline: its image and background as C-contiguous arrays, its mask as int16, and its
+        symbolic description as plain data. With ``entry`` (the absolute path of the cache entry
+        the viewframe was read from, holding ``count`` viewframes; the viewframe's row is its
+        index), no pixel arrays and no description (both are in the entry; no agent reads the
+        description from a message: the ``map`` carries what they use of it): a reader gets the
+        pixels with :meth:`pixels`."""
         p = viewframe.pose
         pose = [p.x, p.y, p.z, p.heading_deg, p.pitch_deg]
-        index, description = int(viewframe.index), viewframe.description.to_dict()
+        index = int(viewframe.index)
         if entry is not None:
-            return cls(
-                index=index,
-                pose=pose,
-                description=description,
-                skyline=viewframe.skyline,
-                entry=entry,
-                entry_count=count,
-            )
+            return cls(index=index, pose=pose, skyline=viewframe.skyline, entry=entry, entry_count=count)
         background = viewframe.background
         return cls(
             index=index,
             pose=pose,
-            description=description,
+            description=viewframe.description.to_dict(),
             skyline=viewframe.skyline,
             image=np.ascontiguousarray(viewframe.image),
             mask=viewframe.mask.astype(np.int16),
@@ -492,8 +500,7 @@ class Viewframe(Message):
 
     def reference(self) -> PixelsRef | None:
         """Where this viewframe's pixels are when it names a cache entry (None: inline): all an
-        agent need keep of it to read them later (a decoded message is about 18 KB, mostly its
-        description; a reference about 100 bytes)."""
+        agent need keep of it to read them later (about 100 bytes)."""
         if self.entry is None:
             return None
         assert self.entry_count is not None  # __post_init__

@@ -17,12 +17,14 @@ log = logging.getLogger(__name__)
 class MapRenderer(KnowledgeSource):
     """Builds the environment model F*, renders a viewframe at every route point and posts each
     with its symbolic description, then posts the ``map`` hypothesis (count, priors P(L),
-    landmarks, route, visible landmarks per viewframe) that tells the others the map is complete.
+    landmarks, route, visible landmarks per viewframe and where they appear: what the agents use
+    of the descriptions) that tells the others the map is complete.
 
     When the viewframes are in a viewframe cache entry (:attr:`models.world.World.entry`), each
-    ``viewframe`` message names the entry instead of carrying the image, mask and background
-    (the readers get them with :meth:`knowledge_sources.levels.Viewframe.pixels`), unless the
-    scenario says ``render: {inline: true}`` or the option ``inline`` is true (``mapinterp run
+    ``viewframe`` message names the entry instead of carrying the image, mask, background and
+    description (the readers get the pixels with :meth:`knowledge_sources.levels.Viewframe.pixels`;
+    the descriptions are in the entry's ``meta.json``), unless the scenario says
+    ``render: {inline: true}`` or the option ``inline`` is true (``mapinterp run
     --inline-viewframes``: :func:`knowledge_sources.mission.agent_plan` passes it).
     """
 
@@ -67,8 +69,9 @@ class MapRenderer(KnowledgeSource):
                 levels.Viewframe.of(vf, entry=entry, count=len(viewframes)) if by_reference else levels.Viewframe.of(vf)
             )
             poses.append(message.pose)
-            nodes = message.description["nodes"]
-            shown = message.description["visible"]
+            # by reference the message carries no description (it is in the entry): from the viewframe
+            description = vf.description.to_dict() if message.description is None else message.description
+            nodes, shown = description["nodes"], description["visible"]
             visible[int(vf.index)] = {n: int(nodes[n]["pixels"]) for n in shown}
             placements[int(vf.index)] = {n: _placement(nodes[n], vf.image.shape, fov_y_deg) for n in shown}
             levels.post(
@@ -84,7 +87,7 @@ class MapRenderer(KnowledgeSource):
                 # sent (the read barrier), so the node's queue holds at most a batch of viewframes; a
                 # renderer reading a filled cache outruns the node, whose queue of 150 KB messages
                 # (inline) otherwise grew by gigabytes on a route of 10,000 viewframes (by reference
-                # a message is about 3 KB, and the subscribers' queues stay short too)
+                # a message is about 0.6 KB, and the subscribers' queues stay short too)
                 board.get(levels.viewframe_id(k))
         levels.post(
             board,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -26,12 +27,34 @@ SMALL = {
 
 def inline_viewframe(vf: Any) -> Any:
     """The viewframe message ``vf`` (:class:`knowledge_sources.levels.Viewframe`) with its pixels
-    inline, read from its cache entry when it names one (the map renderer posts them by reference
-    when the viewframes come from the cache, as in the tests)."""
+    and description inline, read from its cache entry when it names one (the map renderer posts
+    them by reference when the viewframes come from the cache, as in the tests)."""
     import dataclasses
 
+    if vf.entry is None:
+        return vf
     px = vf.pixels(agent="test")
-    return dataclasses.replace(vf, image=px.image, mask=px.mask, background=px.background, entry=None, entry_count=None)
+    description = dict(_entry_descriptions(vf.entry)[vf.index])
+    return dataclasses.replace(
+        vf,
+        image=px.image,
+        mask=px.mask,
+        background=px.background,
+        description=description,
+        entry=None,
+        entry_count=None,
+    )
+
+
+@functools.lru_cache(maxsize=4)
+def _entry_descriptions(entry: str) -> tuple[dict, ...]:
+    """The symbolic descriptions (plain data) of every viewframe of the cache entry folder ``entry``."""
+    from models.viewframe_cache import ViewframeCache
+
+    folder = Path(entry)
+    viewframes = ViewframeCache(folder.parent).read(folder.name)
+    assert viewframes is not None, f"{entry}: not a readable viewframe cache entry"
+    return tuple(vf.description.to_dict() for vf in viewframes)
 
 
 @pytest.fixture

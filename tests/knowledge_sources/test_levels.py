@@ -334,7 +334,8 @@ def test_a_rendered_viewframe_becomes_its_message_and_survives_the_codec(rendere
         msg = levels.Viewframe.of(vc, entry=entry, count=len(cached)) if by_reference else levels.Viewframe.of(vf)
         assert msg.id() == levels.viewframe_id(vf.index)
         assert msg.pose == [vf.pose.x, vf.pose.y, vf.pose.z, vf.pose.heading_deg, vf.pose.pitch_deg]
-        assert msg.description == vf.description.to_dict()
+        # inline the description travels with the pixels; by reference both stay in the entry
+        assert msg.description == (None if by_reference else vf.description.to_dict())
         wire = encode(msg.to_body())
         back = levels.Viewframe.from_body(decode(wire))
         np.testing.assert_array_equal(back.skyline, vf.skyline)
@@ -357,9 +358,17 @@ _MASK = np.full((4, 6), -1, np.int16)
 BAD_VIEWFRAMES = {
     "inline-without-image": ({"mask": _MASK}, "image: missing"),
     "inline-without-mask": ({"image": _IMAGE}, "mask: missing"),
+    "inline-without-description": (
+        {"image": _IMAGE, "mask": _MASK, "description": None},
+        "description: missing: a viewframe without an entry carries its description",
+    ),
     "count-without-entry": ({"image": _IMAGE, "mask": _MASK, "entry_count": 3}, "entry_count: given without"),
     "entry-and-image": ({"image": _IMAGE, "entry": "/e", "entry_count": 3}, "image: a viewframe naming a cache"),
     "entry-and-background": ({"background": _IMAGE, "entry": "/e", "entry_count": 3}, "background: a viewframe"),
+    "entry-and-description": (
+        {"description": {"visible": []}, "entry": "/e", "entry_count": 3},
+        "description: a viewframe naming a cache entry carries no description",
+    ),
     "relative-entry": ({"entry": "cache/e", "entry_count": 3}, "entry: must be an absolute path"),
     "entry-without-count": ({"entry": "/e"}, "entry_count: must be a count above the index 2"),
     "row-beyond-count": ({"entry": "/e", "entry_count": 2}, "entry_count: must be a count above the index 2"),
@@ -368,7 +377,15 @@ BAD_VIEWFRAMES = {
 
 @pytest.mark.parametrize(("extra", "problem"), BAD_VIEWFRAMES.values(), ids=BAD_VIEWFRAMES.keys())
 def test_a_viewframe_is_inline_or_a_reference_never_both_nor_neither(extra, problem) -> None:
-    body = {"index": 2, "pose": [0.0] * 5, "description": {}, "skyline": np.zeros(3, np.float32), **extra}
+    """Inline a viewframe carries its pixels and description; by reference neither (both in the entry)."""
+    inline = "entry" not in extra
+    body = {
+        "index": 2,
+        "pose": [0.0] * 5,
+        "skyline": np.zeros(3, np.float32),
+        **({"description": {}} if inline else {}),
+    }
+    body.update(extra)
     with pytest.raises(levels.MessageError, match=f"level viewframe hypothesis vf-000002: {problem}"):
         levels.Viewframe.from_body(body, hypothesis_id="vf-000002")
 

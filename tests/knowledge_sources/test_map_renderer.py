@@ -35,10 +35,17 @@ def test_posts_every_viewframe_then_the_map(small_rendered: dict) -> None:
     seen = mp.seen()
     assert set(seen) == set(range(n)) and any(seen.values())
     # what the map says is visible is what the viewframe masks show, with the descriptions' pixels
+    # (by reference the messages carry no description: the entry's, as the map renderer read them)
+    from models.world import World
+
+    with World.from_scenario(small_rendered["path"]) as world:
+        described = {vf.index: vf.description.to_dict() for vf in world.viewframes}
     for v in vfs:
+        assert v.description is None and v.entry == mp.entry
         shown = {mp.landmarks[i]["id"] for i in set(v.pixels(agent="test").mask.ravel().tolist()) - {-1}}
         assert set(seen[v.index]) <= shown
-        assert seen[v.index] == {lm: v.description["nodes"][lm]["pixels"] for lm in v.description["visible"]}
+        d = described[v.index]
+        assert seen[v.index] == {lm: d["nodes"][lm]["pixels"] for lm in d["visible"]}
     assert set(mp.priors) == {lm["id"] for lm in SMALL["landmarks"]}
     assert all(0.0 <= p <= 1.0 for p in mp.priors.values())
     assert mp_h.links == (levels.scenario_id(),)
@@ -130,14 +137,20 @@ def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_aske
             else (getattr(mp, name) == getattr(first, name))
         ), name
     reference = {h.id: levels.Viewframe.from_hypothesis(h).pixels(agent="test") for h in small_rendered["viewframes"]}
+    from models.world import World
+
+    with World.from_scenario(small_rendered["path"]) as world:  # the descriptions, from the tests' cache entry
+        described = {vf.index: vf.description.to_dict() for vf in world.viewframes}
     for h in bb.hypotheses(levels.VIEWFRAME):
         vf = levels.Viewframe.from_hypothesis(h)
         if inline:
             assert vf.entry is None and vf.image is not None and vf.mask is not None
+            assert vf.description == described[vf.index]  # inline, the description travels too
         else:
             assert (vf.entry, vf.entry_count) == (mp.entry, mp.viewframes)
-            assert (vf.image, vf.mask, vf.background) == (None, None, None)
-            assert len(encode(h.body)) < 4096  # pose, description and skyline only
+            assert (vf.image, vf.mask, vf.background, vf.description) == (None, None, None, None)
+            # pose, skyline and the entry's name only: no description (it is in the entry)
+            assert len(encode(h.body)) < 200 + vf.skyline.nbytes + len(vf.entry)
         px, ref = vf.pixels(agent="test"), reference[h.id]
         for name in ("image", "mask", "background"):
             a, b = getattr(px, name), getattr(ref, name)

@@ -289,9 +289,7 @@ def test_a_viewframe_reference_an_agent_cannot_read_stops_the_run_naming_it(
         else:
             rt.add("knowledge_sources.detector:LandmarkDetectorAgent", name=agent, options=options)
         for v in vfs:
-            forged = levels.Viewframe(
-                index=v.index, pose=v.pose, description=v.description, skyline=v.skyline, entry=entry, entry_count=count
-            )
+            forged = levels.Viewframe(index=v.index, pose=v.pose, skyline=v.skyline, entry=entry, entry_count=count)
             rt.post(levels.VIEWFRAME, forged.to_body(), id=forged.id())
         if agent == "indexer-0":
             rt.post(levels.MAP, {**small_rendered["map"].body, "entry": entry}, id=levels.map_id())
