@@ -12,7 +12,8 @@ so there is one way from a scenario file to its viewframes and its camera frames
 Each part is built on first use and kept: camera frames read from files need no renderer, and
 a world that only simulates frames renders no viewframes. Viewframes come from the viewframe
 cache when it holds them (:mod:`models.viewframe_cache`; then no renderer is opened for them) and
-are stored there after rendering. The camera emulator holds an
+are stored there after rendering; :meth:`World.summary` gives what a map needs of them (poses,
+the landmarks visible in each) from the cache entry without reading them. The camera emulator holds an
 offscreen renderer: close the world (or use it as a context manager) to release it. World
 coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emulator`.
 """
@@ -23,7 +24,7 @@ import logging
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple, cast
 
 from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel, build_environment
@@ -32,7 +33,7 @@ from models.sensor import SensorFrame, frames_from_files, simulate_frames
 from models.symbolic import landmark_priors
 from models.terrain import Terrain
 from models.terrain_sources import scenario_terrain
-from models.viewframe_cache import ViewframeCache, cache_key
+from models.viewframe_cache import EntrySummary, ViewframeCache, cache_key, entry_summary
 from models.viewframes import Viewframe, render_viewframes, render_viewframes_parallel, route_poses
 
 __all__ = ["World"]
@@ -77,6 +78,8 @@ class World:
         #: None until they are built, and when they were rendered without a cache
         self.entry: Path | None = None
         self._emulator: CameraEmulator | None = None
+        self._key: str | None = None
+        self._summary: EntrySummary | None = None
 
     @classmethod
     def from_scenario(cls, scenario: Scenario | str | Path, **options: Any) -> World:
@@ -116,8 +119,7 @@ class World:
         rendered arrays are never all in memory (without a cache they are)."""
         key = None
         if self.cache is not None:
-            # the terrain alone, not the environment's meshes: a hit renders nothing
-            key = cache_key(self.scenario, self.terrain, lod=self._lod)
+            key = self._cache_key()
             cached = self.cache.load(key)
             if cached is not None:
                 if self._progress is not None:
@@ -146,6 +148,35 @@ class World:
             return self._render(sink=None)
         self.entry = cache.path(key)
         return back
+
+    def _cache_key(self) -> str:
+        """The viewframe cache key of this world's viewframes (computed once): of the terrain alone,
+        not the environment's meshes, so a hit renders nothing."""
+        if self._key is None:
+            self._key = cache_key(self.scenario, self.terrain, lod=self._lod)
+        return self._key
+
+    def summary(self) -> EntrySummary | None:
+        """What a map needs of the viewframes (:class:`models.viewframe_cache.EntrySummary`: the
+        index and pose of each, the landmarks visible in each with their pixels and centroids),
+        from the viewframe cache entry that holds them, without reading the viewframes or parsing
+        their descriptions (:func:`models.viewframe_cache.entry_summary`); it sets :attr:`entry`.
+        None without a cache, when the cache does not hold them, or when the entry cannot be
+        summarised: then :attr:`viewframes` reads (or renders) them."""
+        if self._summary is not None:
+            return self._summary
+        if self.cache is None:
+            return None
+        key = self._cache_key()
+        if key not in self.cache:
+            return None
+        summary = entry_summary(self.cache.path(key))
+        if summary is None:
+            return None
+        self.cache.hits += 1
+        self.entry = self.cache.path(key)
+        self._summary = summary
+        return summary
 
     def _render(self, *, sink: Callable[[int, Viewframe], None] | None) -> list[Viewframe]:
         """Every route point's viewframe, rendered (see :attr:`viewframes`); with ``sink``, each is
@@ -184,6 +215,9 @@ class World:
     def priors(self) -> dict[str, float]:
         """The a-priori landmark probabilities P(L) over the viewframes, by landmark id."""
         ids = [lm.id for lm in self.scenario.landmarks]
+        if self._summary is not None and "viewframes" not in self.__dict__:  # not read: from the summary
+            seen = [_Seen(visible) for visible in self._summary.visible()]
+            return landmark_priors(cast(list[Any], seen), landmark_ids=ids)
         return landmark_priors([vf.description for vf in self.viewframes], landmark_ids=ids)
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -198,3 +232,10 @@ class World:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _Seen(NamedTuple):
+    """The landmark ids a viewframe shows: all :func:`models.symbolic.landmark_priors` reads of a
+    description (its ``visible``)."""
+
+    visible: list[str]

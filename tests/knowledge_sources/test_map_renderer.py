@@ -173,3 +173,58 @@ def test_inline_viewframes_is_passed_to_the_map_renderer_as_its_option(small) ->
     assert opts == {"inline": True}
     assert "inline=true" in command_line(factory, "map-renderer", opts, run_id="r", connect="tcp/127.0.0.1:1")
     assert {name: opts for _, name, opts in agent_plan(scenario)}["map-renderer"] == {}
+
+
+def _identical(a, b) -> bool:
+    """Bodies equal bit for bit: the same keys in the same order, arrays of the same dtype and bytes."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (
+            isinstance(a, np.ndarray)
+            and isinstance(b, np.ndarray)
+            and (a.dtype, a.shape) == (b.dtype, b.shape)
+            and a.tobytes() == b.tobytes()
+        )
+    if isinstance(a, dict):
+        return isinstance(b, dict) and list(a) == list(b) and all(_identical(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return isinstance(b, list) and len(a) == len(b) and all(_identical(x, y) for x, y in zip(a, b))
+    return type(a) is type(b) and a == b
+
+
+def test_from_a_filled_cache_the_map_comes_from_the_entrys_summary_as_it_would_from_its_viewframes(
+    tmp_path, monkeypatch
+) -> None:
+    """A warm run posts from the cache entry's summary without parsing the descriptions (meta.json
+    is not parsed at all); every viewframe message and the map are bit for bit what the renderer
+    posts from the viewframes (rendering on a miss, or reading them), and so from an entry
+    written before summaries (its summary made from its meta.json, and written beside it)."""
+    import yaml
+
+    from models import viewframe_cache
+    from models.world import World
+
+    monkeypatch.setenv("MAPINTERP_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(SMALL))
+
+    def run() -> tuple[dict, dict]:
+        bb = MemoryBlackboard()
+        bb.add(MapRenderer("map-renderer"))
+        levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))
+        bb.run()
+        return bb.user.get(levels.map_id()).body, {h.id: h.body for h in bb.hypotheses(levels.VIEWFRAME)}
+
+    rendered = run()  # a miss: rendered into the cache, posted from the viewframes
+    (entry,) = (tmp_path / "cache").iterdir()
+    with monkeypatch.context() as m:
+        m.setattr(viewframe_cache.json, "loads", lambda *a, **k: pytest.fail("meta.json parsed"))
+        summarised = run()
+    (entry / "summary.npz").unlink()  # as an entry of the code before summaries
+    old = run()
+    assert (entry / "summary.npz").is_file()
+    monkeypatch.setattr(World, "summary", lambda self: None)
+    read = run()  # the viewframes read from the entry
+    assert len(rendered[1]) == len(SMALL["route"]) and rendered[0]["entry"] == str(entry.resolve())
+    for other in (summarised, old, read):
+        assert _identical(rendered[0], other[0])
+        assert list(rendered[1]) == list(other[1]) and all(_identical(rendered[1][k], other[1][k]) for k in other[1])

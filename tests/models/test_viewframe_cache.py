@@ -455,3 +455,111 @@ def test_release_behind_gives_back_the_last_two_batches_after_each_batch(monkeyp
     assert asked == [[0, 1, 2, 3], [0, 1, 2, 3, 4, 5, 6, 7], [2, 3, 4, 5, 6, 7, 8, 9]]
     monkeypatch.setattr(viewframe_cache, "RELEASE_EVERY", 5)  # the default, read at the call
     assert [k for k in rows if release_behind(k, rows, lambda r: ())] == [4, 9]
+
+
+# -- what a map needs of an entry, without parsing its descriptions (summary.npz) -------------------
+
+
+def _no_json(monkeypatch) -> None:
+    """Parsing meta.json in full fails from now on (its head is parsed by a JSONDecoder, not json.loads)."""
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("meta.json parsed")
+
+    monkeypatch.setattr(viewframe_cache.json, "loads", refuse)
+
+
+def _summaries_equal(a, b) -> None:
+    for name in viewframe_cache.EntrySummary._fields:
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype and x.shape == y.shape and np.array_equal(x, y), name
+
+
+def test_a_committed_entry_is_summarised_without_parsing_its_descriptions(entry, monkeypatch) -> None:
+    """The entry writer leaves summary.npz beside meta.json: the index and pose of every viewframe
+    and, per landmark visible in it (in description order), its id, pixels and centroid, read back
+    without parsing meta.json's descriptions; the same values as the rendered viewframes'."""
+    folder, rendered = entry
+    assert (folder / "summary.npz").is_file()
+    _no_json(monkeypatch)
+    got = viewframe_cache.entry_summary(folder)
+    assert got is not None
+    assert got.viewframes.tolist() == [vf.index for vf in rendered]
+    assert got.poses.tolist() == [
+        [vf.pose.x, vf.pose.y, vf.pose.z, vf.pose.heading_deg, vf.pose.pitch_deg] for vf in rendered
+    ]
+    assert got.visible() == [vf.description.visible for vf in rendered] and any(got.visible())
+    nodes = [
+        (k, lm, vf.description.to_dict()["nodes"][lm]) for k, vf in enumerate(rendered) for lm in vf.description.visible
+    ]
+    assert got.rows.tolist() == [k for k, _, _ in nodes] and got.landmarks.tolist() == [lm for _, lm, _ in nodes]
+    assert got.pixels.tolist() == [int(n["pixels"]) for _, _, n in nodes]
+    assert got.centroids.tolist() == [list(map(float, n["centroid"])) for _, _, n in nodes]
+
+
+@pytest.mark.parametrize("change", ["absent", "other-format", "other-meta-json", "damaged", "other-count"])
+def test_an_entry_without_a_usable_summary_is_summarised_from_meta_json_once(entry, tmp_path, monkeypatch, change):
+    """An entry written before summaries (none beside its meta.json), or with one of another
+    SUMMARY_FORMAT, made from another meta.json, of other shapes or damaged: summarised from its
+    meta.json (the same summary) and the summary written beside it, so the next read parses nothing."""
+    import shutil
+
+    folder, _ = entry
+    expected = viewframe_cache.entry_summary(folder)
+    assert expected is not None
+    copy = tmp_path / folder.name
+    shutil.copytree(folder, copy)
+    summary = copy / "summary.npz"
+    meta_bytes = (copy / "meta.json").stat().st_size
+    if change == "absent":
+        summary.unlink()
+    elif change == "other-format":
+        monkeypatch.setattr(viewframe_cache, "SUMMARY_FORMAT", viewframe_cache.SUMMARY_FORMAT + 1)
+        viewframe_cache._write_summary(copy, expected, meta_bytes=meta_bytes)
+        monkeypatch.undo()
+    elif change == "other-meta-json":
+        viewframe_cache._write_summary(copy, expected, meta_bytes=meta_bytes + 1)
+    elif change == "other-count":
+        viewframe_cache._write_summary(
+            copy, expected._replace(viewframes=expected.viewframes[:-1]), meta_bytes=meta_bytes
+        )
+    else:
+        summary.write_bytes(b"PK\x03\x04 not a zip")
+    got = viewframe_cache.entry_summary(copy)
+    assert got is not None
+    _summaries_equal(got, expected)
+    assert summary.is_file() and not list(copy.glob(".summary.*"))
+    _no_json(monkeypatch)  # written again: read without parsing meta.json
+    again = viewframe_cache.entry_summary(copy)
+    assert again is not None
+    _summaries_equal(again, expected)
+
+
+def test_an_entry_of_another_format_is_not_summarised(entry, tmp_path, caplog) -> None:
+    """An entry whose meta.json says another format (or is not there) has no summary: None, logged."""
+    import shutil
+
+    folder, _ = entry
+    copy = tmp_path / folder.name
+    shutil.copytree(folder, copy)
+    meta = json.loads((copy / "meta.json").read_text())
+    meta["format"] = 1
+    (copy / "meta.json").write_text(json.dumps(meta))
+    assert viewframe_cache.entry_summary(copy) is None
+    assert "format 1" in caplog.text
+    assert viewframe_cache.entry_summary(tmp_path / "nowhere") is None
+
+
+def test_a_world_summarises_its_cached_viewframes_without_reading_them(tmp_path, monkeypatch) -> None:
+    """World.summary: None on a miss; on a hit the entry's summary (and the entry, and the priors
+    the viewframes give), without reading the viewframes."""
+    cache = ViewframeCache(tmp_path)
+    scenario = scenario_from_dict(_data())
+    with World(scenario, cache=cache) as first:
+        assert first.summary() is None  # a miss: nothing to summarise yet
+        rendered, priors = first.viewframes, first.priors
+    with World(scenario, cache=cache) as world:
+        got = world.summary()
+        assert got is not None and world.entry == first.entry and cache.hits == 1
+        assert world.priors == priors and "viewframes" not in world.__dict__
+        assert got.visible() == [vf.description.visible for vf in rendered]
