@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import logging
+import os
+import threading
 import zlib
 from collections.abc import Iterator
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -15,12 +17,18 @@ from knowledge_sources import levels
 from knowledge_sources.ranker import RouteRanker
 
 if TYPE_CHECKING:
+    from models.associative import Ranking
     from models.index import ViewframeIndex
     from models.scenario import MemorySpec
 
-__all__ = ["AssociativeIndexer"]
+__all__ = ["AssociativeIndexer", "MAPPED_RANKINGS"]
 
 log = logging.getLogger(__name__)
+
+#: shards of one process ranking their stored (memory-mapped) rows at once: one per core, as
+#: many as can compute at once (AssociativeIndexer._ranked)
+MAPPED_RANKINGS = max(2, os.cpu_count() or 1)
+_MAPPED = threading.BoundedSemaphore(MAPPED_RANKINGS)
 
 
 class AssociativeIndexer(RouteRanker):
@@ -189,14 +197,27 @@ class AssociativeIndexer(RouteRanker):
         assert self._index is not None
         release_pages([self._index.memory.ranking_matrix], advice=mmap.MADV_DONTNEED)
 
+    def _ranked(self, image: np.ndarray, among: np.ndarray | None) -> Ranking:
+        """The index's ranking of ``image`` (among those viewframes, None: all). A stored (loaded)
+        index ranks while at most :data:`MAPPED_RANKINGS` shards of this process do (each maps
+        its ranking rows, 33 MB a shard of 512 viewframes, until it gives them back: 20 shards
+        ranking a camera frame at once held 665 MB of the entry's pages in the process's RSS),
+        then gives its rows back (:meth:`_release_rows`)."""
+        assert self._index is not None
+        if not self.loaded:
+            return self._index.rank(image, among=among)
+        with _MAPPED:
+            try:
+                return self._index.rank(image, among=among)
+            finally:
+                self._release_rows()
+
     def rank(self, hypothesis: Hypothesis, board: Board) -> None:
         assert self._index is not None  # frames wait until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         window = self.window(frame.frame)
         among = None if window is None else np.arange(window[0], window[1] + 1)
-        ranking = self._index.rank(frame.image, among=among)
-        if self.loaded:
-            self._release_rows()
+        ranking = self._ranked(frame.image, among)
         levels.post(
             board,
             levels.Ranking.of(

@@ -13,6 +13,7 @@ from blackboard.memory_board import MemoryBlackboard
 from knowledge_sources import levels
 from knowledge_sources.indexer import AssociativeIndexer
 from models.index_store import INDEX_FOLDER
+from tests.knowledge_sources.conftest import inline_viewframe
 from tests.knowledge_sources.rankers import frames_from_viewframes, post_map, repost, track
 from tests.models.resident import needs_smaps, resident_kb
 
@@ -113,15 +114,8 @@ def test_a_featureless_viewframe_is_named_in_the_index_and_the_shard_ranks_the_o
     for h in small_rendered["viewframes"]:
         vf = levels.Viewframe.from_hypothesis(h)
         if vf.index == 4:  # posted inline, whether the others are inline or by reference
-            px = vf.pixels(agent="test")
-            vf = dataclasses.replace(
-                vf,
-                image=np.full_like(px.image, 90),
-                mask=px.mask,
-                background=px.background,
-                entry=None,
-                entry_count=None,
-            )
+            inline = inline_viewframe(vf)
+            vf = dataclasses.replace(inline, image=np.full_like(inline.image, 90))
         levels.post(bb.user, vf)
     _map_without_entry(bb, small_rendered)
     bb.run()
@@ -233,3 +227,55 @@ def test_a_stored_index_leaves_none_of_its_rows_resident_after_a_ranking(small_r
     _ = float(np.asarray(rows).sum())  # read without a ranking: resident (the test can see it)
     assert resident_kb(int(rows.ctypes.data)) > 0
     assert all(r.viewframes == want[k].viewframes for k, r in got.items())
+
+
+def test_stored_shards_of_one_process_rank_a_few_at_a_time(small_rendered: dict, tmp_path: Path, monkeypatch) -> None:
+    """Loaded shards map their ranking rows while they rank: at most MAPPED_RANKINGS of them rank
+    at once in a process (else a camera frame ranked by every shard of a long route at once maps
+    all their rows: 665 MB at 10,000 viewframes), each giving its rows back before the next
+    starts; a shard built in memory is not held back. The rankings are unchanged."""
+    import threading
+    import time
+
+    from knowledge_sources import indexer as indexer_module
+
+    entry = _entry_copy(small_rendered, tmp_path)
+    _run_shards(small_rendered, entry, 3, viewframes=True)  # built and stored
+    loaded, want = _run_shards(small_rendered, entry, 3, viewframes=False)
+    built, _ = _run_shards(small_rendered, _entry_copy(small_rendered, tmp_path / "other"), 3, viewframes=True)
+    assert all(ix.loaded for ix in loaded) and not any(ix.loaded for ix in built)
+    monkeypatch.setattr(indexer_module, "_MAPPED", threading.BoundedSemaphore(2))
+    lock, inside, most = threading.Lock(), [0], [0]
+
+    def counted(ix):
+        plain = ix._index.rank
+
+        def rank(image, *, among=None):
+            with lock:
+                inside[0] += 1
+                most[0] = max(most[0], inside[0])
+            time.sleep(0.2)  # long enough for every thread to try at once
+            try:
+                return plain(image, among=among)
+            finally:
+                with lock:
+                    inside[0] -= 1
+
+        monkeypatch.setattr(ix._index, "rank", rank)
+
+    image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][0]).pixels(agent="test").image
+    for group, bound in ((loaded, 2), (built, 3)):
+        for ix in group:
+            counted(ix)
+        got: dict[int, object] = {}
+        threads = [
+            threading.Thread(target=lambda ix=ix, got=got: got.update({ix.shard: ix._ranked(image, None)}))
+            for ix in group
+        ]
+        inside[0] = most[0] = 0
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert most[0] == bound and len(got) == 3
+        assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
