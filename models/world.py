@@ -21,10 +21,12 @@ coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emu
 from __future__ import annotations
 
 import logging
+import threading
+import weakref
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
-from typing import Any, NamedTuple, cast
+from typing import Any, NamedTuple, TypeVar, cast
 
 from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel, build_environment
@@ -90,13 +92,40 @@ class World:
     @cached_property
     def terrain(self) -> Terrain:
         """The scenario's terrain (heights and cell size), loaded without building any mesh: the
-        viewframe cache's key and the route poses need only it."""
-        return self._terrain if self._terrain is not None else scenario_terrain(self.scenario)
+        viewframe cache's key and the route poses need only it. Shared with the other worlds of
+        the same scenario alive in this process (:func:`_shared`)."""
+        if self._terrain is not None:
+            return self._terrain
+        return _shared(self._share_key("terrain"), lambda: scenario_terrain(self.scenario))
 
     @cached_property
     def environment(self) -> EnvironmentModel:
-        """F* = T(F, L): the terrain and the placed landmarks, as meshes for rendering."""
-        return build_environment(self.scenario, terrain=self.terrain, **self._lod)
+        """F* = T(F, L): the terrain and the placed landmarks, as meshes for rendering. Shared with
+        the other worlds of the same scenario and level of detail alive in this process (the
+        camera's and the refiner's, each rendering it with its own emulator: :func:`_shared`)."""
+        if self._terrain is not None:  # a terrain of the caller's: this world's own
+            return build_environment(self.scenario, terrain=self.terrain, **self._lod)
+        return _shared(
+            self._share_key("environment"),
+            lambda: build_environment(self.scenario, terrain=self.terrain, **self._lod),
+        )
+
+    def _share_key(self, part: str) -> tuple[Any, ...]:
+        """What ``part`` ("terrain", "environment") of this world is made from: the scenario (all of
+        it, as JSON), the folder its relative paths resolve against, the size and time of the
+        terrain files it names, and for the environment the level-of-detail options."""
+        spec = self.scenario.terrain
+        files: list[tuple[str, int | None, int | None]] = []
+        for name in (spec.dem, spec.contours):
+            if name is not None:
+                path = name if name.is_absolute() else self.scenario.base_dir / name
+                try:
+                    st = path.stat()
+                    files.append((str(path), st.st_mtime_ns, st.st_size))
+                except OSError:
+                    files.append((str(path), None, None))  # loading it names the error
+        lod = tuple(sorted((str(k), repr(v)) for k, v in self._lod.items())) if part == "environment" else ()
+        return (part, self.scenario.model_dump_json(), str(self.scenario.base_dir), tuple(files), lod)
 
     @property
     def emulator(self) -> CameraEmulator:
@@ -239,3 +268,29 @@ class _Seen(NamedTuple):
     description (its ``visible``)."""
 
     visible: list[str]
+
+
+#: the terrains and environments of the worlds alive in this process, by what they are made from
+#: (World._share_key): built once, kept while a world uses them
+_SHARED: weakref.WeakValueDictionary[tuple[Any, ...], Any] = weakref.WeakValueDictionary()
+_SHARED_LOCKS: dict[tuple[Any, ...], threading.Lock] = {}
+_SHARED_GUARD = threading.Lock()
+
+_Part = TypeVar("_Part")
+
+
+def _shared(key: tuple[Any, ...], build: Callable[[], _Part]) -> _Part:
+    """The part ``key`` names, built by ``build`` unless a world alive in this process has it (the
+    map renderer, the camera and the refiner of a mission each load the scenario: one terrain of
+    1951 x 1951 cells and one environment instead of three and two, about 250 MB and 3 to 7 s
+    of a 10,000-viewframe mission's setup). A second world asking while it is built waits for it.
+    Nothing in a terrain or an environment changes once built (the tile meshes an environment
+    builds on first use are the same whoever asks first)."""
+    with _SHARED_GUARD:
+        lock = _SHARED_LOCKS.setdefault(key, threading.Lock())
+    with lock:
+        got = _SHARED.get(key)
+        if got is None:
+            got = build()
+            _SHARED[key] = got
+        return cast(_Part, got)

@@ -69,3 +69,48 @@ def test_from_scenario_loads_a_file(tmp_path):
     path.write_text(yaml.safe_dump(data))
     world = World.from_scenario(path)
     assert world.scenario.name == "world" and world.scenario.path == path
+
+
+def test_worlds_of_one_scenario_alive_at_once_share_its_terrain_and_environment(tmp_path):
+    """The map renderer, the camera and the refiner of a mission each make a world of the scenario:
+    while one is alive, the others get its terrain and environment (built once, also when asked
+    from several threads at once); a world of another scenario, of other level-of-detail options
+    or of a changed DEM file builds its own, and nothing is kept once the worlds are gone; the
+    shared environment renders what a world's own does."""
+    import gc
+    import threading
+    import weakref
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(3).normal(0.0, 5.0, (48, 48)))
+    on_dem = {"terrain": {"cell_size": 10.0, "dem": str(dem)}}
+    first, second = World(_scenario()), World(_scenario())
+    built: dict[int, object] = {}
+    threads = [
+        threading.Thread(target=lambda i=i, w=w, b=built: b.update({i: w.environment}))
+        for i, w in enumerate((first, second))
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert built[0] is built[1] and first.terrain is second.terrain and first.environment.terrain is first.terrain
+    moved = [{"id": "H1", "kind": "house", "x": 261.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}]
+    other = World(_scenario(landmarks=moved))
+    assert other.environment is not first.environment and other.terrain is not first.terrain
+    coarse = World(_scenario(), levels=2)
+    assert coarse.environment is not first.environment and coarse.terrain is first.terrain  # lod: not the terrain
+    on_file = World(_scenario(**on_dem))
+    heights = on_file.terrain.heights.copy()
+    np.save(dem, heights + 1.0)  # the file changed: another terrain
+    assert np.array_equal(World(_scenario(**on_dem)).terrain.heights, heights + 1.0)
+    with first:
+        view = first.emulator.render(first.emulator.pose_at(240.0, 310.0, 10.0))
+    gone = weakref.ref(first.environment)
+    del first, second, built, threads, other, coarse
+    gc.collect()
+    assert gone() is None  # no world uses it: not kept
+    with World(_scenario()) as own:
+        own.__dict__["environment"] = build_environment(own.scenario, terrain=own.terrain)  # its own
+        mine = own.emulator.render(own.emulator.pose_at(240.0, 310.0, 10.0))
+    assert np.array_equal(view.image, mine.image) and np.array_equal(view.depth, mine.depth)
