@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from typing import Any, ClassVar
 
@@ -29,8 +30,12 @@ class Camera(KnowledgeSource):
     mission starts when every associative indexer shard has posted ``index`` (the vehicle
     drives once its map is prepared), so no frame waits for a memory still being built. The
     frames are prepared (read, or simulated with the camera's own renderer) as soon as the
-    ``scenario`` is posted, while the map is rendered or read and indexed; a camera that missed
-    the scenario prepares them from the map's scenario path once the map is indexed.
+    ``scenario`` is posted, while the map is rendered or read and indexed, by a thread of the
+    camera's own that makes them one by one: the first frame is posted once it is made and the
+    map is up, the next ones as they are made (paced, each still after its predecessor's
+    answer), so the mission does not wait for the last simulated frame (an error making them
+    stops the run when the frames are wanted). A camera that missed the scenario prepares them
+    from the map's scenario path once the map is indexed.
 
     Paced on ``track``, a tracker that never answers a frame stops the camera there: the run
     then ends at quiescence with the later frames reported as never posted.
@@ -55,9 +60,8 @@ class Camera(KnowledgeSource):
         self.pace = pace
         self._ready: set[int] = set()
         self._started = False
-        self._frames: list[Any] = []  # paced: the frames, posted one by one
-        self._next = 0
-        self._prepared: list[Any] | None = None  # the frames, prepared when the scenario was posted
+        self._frames: _Frames | None = None  # the frames, made when the scenario was posted (or at the index)
+        self._next = 0  # paced: the next frame to post
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
@@ -72,43 +76,53 @@ class Camera(KnowledgeSource):
 
     def act(self, event: Event, board: Board) -> None:
         if event.hypothesis.level == levels.SCENARIO:
-            if self._prepared is None and not self._started:
-                self._prepared = _frames_of(levels.Scenario.from_hypothesis(event.hypothesis).path)
-                log.info("%s: %d camera frames prepared", self.name, len(self._prepared))
+            if self._frames is None and not self._started:
+                self._frames = _Frames(levels.Scenario.from_hypothesis(event.hypothesis).path, name=self.name)
             return
         if event.hypothesis.level != levels.INDEX:  # paced: an answer; the next frame once it is the last posted's
             answered = int(event.hypothesis.body["frame"])
-            if self._next < len(self._frames) and answered == self._frames[self._next - 1].index:
-                self._post(self._frames[self._next], board)
-                self._next += 1
+            if self._frames is None or self._next == 0:
+                return
+            last = self._frames.get(self._next - 1)
+            if last is not None and answered == last.index:
+                f = self._frames.get(self._next)
+                if f is not None:
+                    self._post(f, board)
+                    self._next += 1
             return
         index = levels.Index.from_hypothesis(event.hypothesis)
         self._ready.add(index.shard)
         if self._started or len(self._ready) < index.shards:
             return
         self._started = True
-        frames, self._prepared = self._prepared, None
-        if frames is None:  # the scenario's event missed (joined late): from the map's scenario path
+        if self._frames is None:  # the scenario's event missed (joined late): from the map's scenario path
             got = board.get(levels.map_id())
             if got is None:
                 raise LookupError("the map is indexed but not on the blackboard")
-            frames = _frames_of(levels.Map.from_hypothesis(got).path)
+            self._frames = _Frames(levels.Map.from_hypothesis(got).path, name=self.name)
+        frames = self._frames
         if self.pace is not None:
-            self._frames, self._next = list(frames), 1
-            if frames:
-                self._post(frames[0], board)
-            log.info(
-                "%s: posting %d camera frames, each after the %s of the one before", self.name, len(frames), self.pace
-            )
+            first = frames.get(0)
+            if first is not None:
+                self._post(first, board)
+                self._next = 1
+            log.info("%s: posting the camera frames, each after the %s of the one before", self.name, self.pace)
             return
         start = time.perf_counter()
-        for f in frames:
+        k = 0
+        while (f := frames.get(k)) is not None:
             if self.rate_hz is not None:
                 delay = start + f.index / self.rate_hz - time.perf_counter()
                 if delay > 0:
                     time.sleep(delay)  # this agent's own worker thread: nothing else waits on it
             self._post(f, board)
-        log.info("%s: posted %d camera frames", self.name, len(frames))
+            k += 1
+        log.info("%s: posted %d camera frames", self.name, k)
+
+    def shutdown(self) -> None:
+        if self._frames is not None:
+            self._frames.stop()
+        super().shutdown()
 
     def _post(self, f: Any, board: Board) -> None:
         """Post one camera frame (a :class:`models.sensor.SensorFrame`) and its truth."""
@@ -127,10 +141,51 @@ class Camera(KnowledgeSource):
             levels.post(board, levels.Truth(frame=f.index, pose=list(f.truth)), links=(posted.id,))
 
 
-def _frames_of(path: str) -> list[Any]:
-    """The camera frames of the scenario file ``path`` (:attr:`models.world.World.sensor_frames`),
-    its renderer closed once they are made."""
-    from models.world import World
+class _Frames:
+    """The camera frames of the scenario file ``path`` (:meth:`models.world.World.iter_sensor_frames`),
+    made one by one by a thread of their own (its world, and its renderer, made, used and closed
+    there) from construction on; :meth:`get` waits for a frame."""
 
-    with World.from_scenario(path) as world:
-        return list(world.sensor_frames)
+    def __init__(self, path: str, *, name: str) -> None:
+        self._made: list[Any] = []
+        self._done = False
+        self._error: Exception | None = None
+        self._stop = threading.Event()
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._make, args=(path, name), name=f"{name}-frames", daemon=True)
+        self._thread.start()
+
+    def _make(self, path: str, name: str) -> None:
+        from models.world import World
+
+        try:
+            with World.from_scenario(path) as world:
+                for f in world.iter_sensor_frames():
+                    with self._cond:
+                        self._made.append(f)
+                        self._cond.notify_all()
+                    if self._stop.is_set():
+                        return
+            log.info("%s: %d camera frames prepared", name, len(self._made))
+        except Exception as err:  # noqa: BLE001 - given to the agent, which raises it (get)
+            self._error = err
+        finally:
+            with self._cond:
+                self._done = True
+                self._cond.notify_all()
+
+    def get(self, k: int) -> Any | None:
+        """Frame ``k`` (a :class:`models.sensor.SensorFrame`) once made; None when there are not that
+        many; the error that stopped making them, raised here."""
+        with self._cond:
+            while len(self._made) <= k and not self._done:
+                self._cond.wait()
+            if k < len(self._made):
+                return self._made[k]
+            if self._error is not None:
+                raise self._error
+            return None
+
+    def stop(self) -> None:
+        """Stop making frames (after the one being made)."""
+        self._stop.set()

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,6 +46,7 @@ __all__ = [
     "frames_from_files",
     "degrade",
     "simulate_frames",
+    "iter_simulated_frames",
 ]
 
 log = logging.getLogger(__name__)
@@ -630,7 +631,20 @@ def simulate_frames(
     spec: SimulateSpec | None = None,
     rng: np.random.Generator | int | None = None,
 ) -> list[SensorFrame]:
-    """Simulated camera frames along the route.
+    """Simulated camera frames along the route: :func:`iter_simulated_frames`, as a list."""
+    return list(iter_simulated_frames(scenario, emulator, poses, spec=spec, rng=rng))
+
+
+def iter_simulated_frames(
+    scenario: Scenario,
+    emulator,
+    poses: Sequence,
+    *,
+    spec: SimulateSpec | None = None,
+    rng: np.random.Generator | int | None = None,
+) -> Iterator[SensorFrame]:
+    """Simulated camera frames along the route, each rendered as it is asked for (the same frames
+    in the same order as all at once: the random draws are made in the same order).
 
     For every ``spec.stride``-th route point ``i`` (pose ``poses[i]``), ``spec.per_point`` frames are taken at a
     position advanced by a uniform fraction in ``[0, spec.advance)`` of the leg towards point
@@ -650,13 +664,12 @@ def simulate_frames(
     rng = np.random.default_rng(rng)
     if spec.drive is not None:
         route = [(p.x, p.y) for p in poses]
-        drive = [
-            _render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
-            for k, dp in enumerate(drive_poses(route, spec.drive, rng=rng))
-        ]
+        drive = drive_poses(route, spec.drive, rng=rng)  # every pose first: its draws come first
+        for k, dp in enumerate(drive):
+            yield _render_frame(emulator, k, dp.x, dp.y, dp.heading_deg, spec, rng, dp.time)
         log.info("simulated a drive of %d camera frames for scenario %s", len(drive), scenario.name)
-        return drive
-    frames: list[SensorFrame] = []
+        return
+    made = 0
     n = len(poses)
     for i, pose in enumerate(poses):
         if i % spec.stride:
@@ -671,9 +684,9 @@ def simulate_frames(
             u = rng.uniform(0.0, spec.advance) if spec.advance > 0 else 0.0
             x, y = np.array([pose.x, pose.y]) + u * leg + rng.normal(0.0, spec.jitter_m, 2)
             heading = pose.heading_deg + rng.normal(0.0, spec.jitter_deg)
-            frames.append(_render_frame(emulator, len(frames), float(x), float(y), float(heading), spec, rng))
-    log.info("simulated %d camera frames for scenario %s", len(frames), scenario.name)
-    return frames
+            yield _render_frame(emulator, made, float(x), float(y), float(heading), spec, rng)
+            made += 1
+    log.info("simulated %d camera frames for scenario %s", made, scenario.name)
 
 
 def _render_frame(

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from functools import cached_property
 from pathlib import Path
 from typing import Any, NamedTuple, TypeVar, cast
@@ -31,7 +31,7 @@ from typing import Any, NamedTuple, TypeVar, cast
 from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel, build_environment
 from models.scenario import Scenario, load_scenario
-from models.sensor import SensorFrame, frames_from_files, simulate_frames
+from models.sensor import SensorFrame, frames_from_files, iter_simulated_frames, simulate_frames
 from models.symbolic import landmark_priors
 from models.terrain import Terrain
 from models.terrain_sources import scenario_terrain
@@ -239,6 +239,16 @@ class World:
         if sensor.frames:
             return frames_from_files(self.scenario)
         return simulate_frames(self.scenario, self.emulator, self.poses)
+
+    def iter_sensor_frames(self) -> Iterator[SensorFrame]:
+        """:attr:`sensor_frames` one by one, each simulated as it is asked for (read from files,
+        they are all read first); the same frames in the same order. Not kept (unless
+        :attr:`sensor_frames` was asked for)."""
+        sensor = self.scenario.sensor
+        if "sensor_frames" in self.__dict__ or sensor is None or sensor.frames:
+            yield from self.sensor_frames
+            return
+        yield from iter_simulated_frames(self.scenario, self.emulator, self.poses)
 
     @cached_property
     def priors(self) -> dict[str, float]:

@@ -114,3 +114,71 @@ def test_frames_are_prepared_when_the_scenario_is_posted_and_posted_once_indexed
     )
     assert len(got) == len(SMALL["route"]) and [f.frame for f in got] == [f.frame for f in want]
     assert all(np.array_equal(a.image, b.image) for a, b in zip(got, want))
+
+
+def test_the_first_frame_is_posted_as_soon_as_it_is_made_not_after_the_last(small_rendered: dict, monkeypatch) -> None:
+    """The camera's thread makes the frames one by one from the scenario on: once every shard is
+    indexed the first frame goes out as soon as it is made, while the others are still being made
+    (here held back until a second after it); the frames are those the world makes all at once, in order."""
+    import threading
+    import time
+
+    from models.world import World
+
+    plain = World.iter_sensor_frames
+    gate = threading.Event()
+
+    def held(self):
+        for i, f in enumerate(plain(self)):
+            yield f
+            if i == 0:
+                gate.wait(30)  # the others only once the test lets them
+
+    monkeypatch.setattr(World, "iter_sensor_frames", held)
+    camera = Camera("camera")
+    posted: list[tuple[int, int]] = []  # (frame, frames made when it was posted)
+    post = camera._post
+
+    def recording(f, board):
+        assert camera._frames is not None
+        posted.append((f.index, len(camera._frames._made)))
+        if f.index == 0:
+            threading.Timer(1.0, gate.set).start()
+        post(f, board)
+
+    camera._post = recording  # type: ignore[method-assign]
+    bb = MemoryBlackboard()
+    bb.add(camera)
+    levels.post(bb.user, levels.Scenario(path=str(small_rendered["path"]), strategy="associative"))
+    bb.run()
+    levels.post(bb.user, levels.Index(shard=0, shards=1, viewframes=8))
+    start = time.perf_counter()
+    bb.run()
+    n = len(SMALL["route"])
+    assert posted[0] == (0, 1) and [k for k, _ in posted] == list(range(n))  # the first alone, then the rest
+    assert time.perf_counter() - start >= 1.0
+    with World.from_scenario(small_rendered["path"]) as world:
+        want = world.sensor_frames
+    got = [levels.SensorFrame.from_hypothesis(h) for h in bb.hypotheses(levels.SENSOR_FRAME)]
+    assert [f.frame for f in got] == [f.index for f in want]
+    assert all(np.array_equal(g.image, w.image) for g, w in zip(got, want))
+
+
+def test_an_error_making_the_frames_stops_the_camera_when_they_are_wanted(small_rendered: dict, monkeypatch) -> None:
+    """The frames are made by the camera's own thread: its error is raised by the camera's
+    activation that wants them (once the map is up), as it was when they were made in it."""
+    from models.world import World
+
+    def broken(self):
+        raise ValueError(f"{self.scenario.name}: sensor.frames: no such file")
+        yield  # a generator
+
+    monkeypatch.setattr(World, "iter_sensor_frames", broken)
+    bb = MemoryBlackboard()
+    bb.add(Camera("camera"))
+    levels.post(bb.user, levels.Scenario(path=str(small_rendered["path"]), strategy="associative"))
+    bb.run()
+    levels.post(bb.user, levels.Index(shard=0, shards=1, viewframes=8))
+    with pytest.raises(ValueError, match="small: sensor.frames: no such file"):
+        bb.run()
+    assert bb.hypotheses(levels.SENSOR_FRAME) == []
