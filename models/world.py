@@ -20,6 +20,7 @@ coordinates are (x, y, z) metres, images (row, col); see :mod:`models.camera_emu
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import threading
 import weakref
@@ -112,7 +113,7 @@ class World:
 
     def _share_key(self, part: str) -> tuple[Any, ...]:
         """What ``part`` ("terrain", "environment") of this world is made from: the scenario (all of
-        it, as JSON), the folder its relative paths resolve against, the size and time of the
+        it: a digest of its JSON), the folder its relative paths resolve against, the size and time of the
         terrain files it names, and for the environment the level-of-detail options."""
         spec = self.scenario.terrain
         files: list[tuple[str, int | None, int | None]] = []
@@ -125,7 +126,8 @@ class World:
                 except OSError:
                     files.append((str(path), None, None))  # loading it names the error
         lod = tuple(sorted((str(k), repr(v)) for k, v in self._lod.items())) if part == "environment" else ()
-        return (part, self.scenario.model_dump_json(), str(self.scenario.base_dir), tuple(files), lod)
+        scenario = hashlib.sha256(self.scenario.model_dump_json().encode()).hexdigest()  # a long route: not its text
+        return (part, scenario, str(self.scenario.base_dir), tuple(files), lod)
 
     @property
     def emulator(self) -> CameraEmulator:
