@@ -30,7 +30,9 @@ class RouteRanker(KnowledgeSource):
     collected, those that come before the map too, into the :class:`models.index.TrackWindows` rule
     (with the map's ``memory`` settings, the same in every ranker); :meth:`window` gives a frame's
     window (``(first, last)`` route points, or None: rank all) and records it in ``windows``. A
-    ranker never waits for a track: a dead or late tracker costs the window, never a ranking.
+    ranker never waits for a track: a dead or late tracker costs the window, never a ranking; a
+    track posted before the frame whose event comes after it is read from the blackboard
+    (:meth:`_track_before`).
 
     What a ranker needs of the viewframes may come from the viewframe cache entry the ``map``
     names instead of their messages: with ``from_messages`` False it does not consume the
@@ -112,6 +114,22 @@ class RouteRanker(KnowledgeSource):
         self.windows[frame] = window
         return window
 
+    def _track_before(self, frame: Hypothesis, board: Board) -> None:
+        """When the camera ``frame``'s window needs the track of the frame before and its event has
+        not come (a camera paced on the track posts a frame once that track is posted, but the two
+        reach this ranker by different subscriptions: the frame may come first), read that track
+        from the blackboard, once: one read, no waiting; not there, the frame is ranked in full as
+        before. So a paced run's windows do not depend on which message came first."""
+        windows, k = self._windows, int(frame.body["frame"])
+        if windows is None or not windows.enabled or k <= 0 or k % windows.full_every == 0:
+            return
+        if windows.window(k) is not None:  # the track of frame k - 1 is here (and tracking)
+            return
+        got = board.get(levels.track_id(k - 1))
+        if got is not None:
+            track = levels.Track.from_hypothesis(got)
+            windows.add(track.frame, track.state, track.window_next)
+
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
             return None
@@ -138,9 +156,11 @@ class RouteRanker(KnowledgeSource):
             self._early.clear()
             waiting, self._waiting = self._waiting, []
             for frame in waiting:
+                self._track_before(frame, board)
                 self.rank(frame, board)
         elif h.level == levels.SENSOR_FRAME:
             if self.built:
+                self._track_before(h, board)
                 self.rank(h, board)
             else:
                 self._waiting.append(h)

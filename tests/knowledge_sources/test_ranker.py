@@ -107,3 +107,31 @@ def test_while_tracking_the_ranking_holds_the_tracks_neighbourhood_and_when_lost
     assert set(ranking(bb, kind, 2).viewframes) == set(range(n))  # lost: everything
     assert sorted(ranking(bb, kind, 3).viewframes) == [2, 3, 4]
     assert set(ranking(bb, kind, 4).viewframes) == set(range(n))  # every 4th frame: everything
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_frame_that_comes_before_the_track_of_the_frame_before_reads_that_track_from_the_board(
+    small_rendered: dict, kind: str
+) -> None:
+    """A camera paced on the track posts frame k once the track of frame k - 1 is posted, but the
+    two reach a ranker by different subscriptions: when the frame comes first, the ranker reads the
+    track from the blackboard and ranks the track's window, as if the track had come first (it
+    ranked everything before); a track that is not on the board is not waited for."""
+    bb = MemoryBlackboard()
+    ranker = make(kind, tracked=True)
+    bb.add(ranker)
+    n = len(small_rendered["viewframes"])
+    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=4)
+    frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    plain = ranker.precondition
+    # frames now rated above tracks: the frame's event is taken before the track's (the race)
+    ranker.precondition = lambda e: 3.0 if e.hypothesis.level == levels.SENSOR_FRAME else plain(e)  # type: ignore[method-assign]
+    levels.post(bb.user, track(0, "tracking", 2, n))
+    frames_from_viewframes(bb, small_rendered, [1])
+    bb.run()
+    got = ranking(bb, kind, 1)
+    assert ranker.windows[1] == (1, 3) and sorted(got.viewframes) == [1, 2, 3] and got.viewframes[0] == 1
+    frames_from_viewframes(bb, small_rendered, [2])  # no track of frame 1 anywhere: everything, no waiting
+    bb.run()
+    assert ranker.windows[2] is None and set(ranking(bb, kind, 2).viewframes) == set(range(n))
