@@ -29,6 +29,7 @@ from __future__ import annotations
 import logging
 import re
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -276,7 +277,7 @@ class Scheduler(KnowledgeSource):
             reliability=self.reliability,
             beta=self.beta,
             priors=mp.priors,
-            track_prior=None if prior is None else np.asarray(prior, dtype=np.float64),
+            track_prior=None if prior is None else _per_viewframe(np.asarray(prior, dtype=np.float64), mp),
             backtracking=self.backtracking,
             questions=self.questions,
             floor=self.floor,
@@ -353,7 +354,7 @@ class Scheduler(KnowledgeSource):
                 queries=d.queries,
                 backtracks=d.backtracks,
                 latency_ms=(time.time() - st.frame_time) * 1000.0,
-                ranking=[[k, v] for k, v in st.ranking[:5]],
+                ranking=[[k, v] for k, v in _shown(st.ranking, mp)],
                 reason=d.reason + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
                 degraded=list(st.degraded),
                 steps=[dict(s) for s in d.steps],
@@ -363,3 +364,32 @@ class Scheduler(KnowledgeSource):
             links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
             credibility=float(min(1.0, max(0.0, d.confidence))),
         )
+
+
+def _per_viewframe(per_point: np.ndarray, mp: levels.Map) -> np.ndarray:
+    """The track's prior of each route point ``(N,)`` as one of each viewframe ``(V,)``: a
+    viewframe takes its route point's (the map's ``route_points``; the same array when the
+    viewframes are the route points)."""
+    if mp.route_points is None:
+        return per_point
+    return per_point[np.clip(mp.route_points, 0, per_point.size - 1)]
+
+
+#: a position carries the fused ranking's first viewframes, as many as cover this many route points
+RANKING_SHOWN = 5
+
+
+def _shown(ranking: Sequence[tuple[int, float]], mp: levels.Map) -> list[tuple[int, float]]:
+    """The first entries of ``ranking`` that cover :data:`RANKING_SHOWN` route points (the first
+    ``RANKING_SHOWN`` when the viewframes are the route points)."""
+    if mp.route_points is None:
+        return list(ranking[:RANKING_SHOWN])
+    out: list[tuple[int, float]] = []
+    seen: set[int] = set()
+    for k, v in ranking:
+        point = int(mp.route_points[int(k)])
+        if point not in seen and len(seen) == RANKING_SHOWN:
+            break
+        seen.add(point)
+        out.append((k, v))
+    return out

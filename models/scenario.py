@@ -98,6 +98,8 @@ SAMPLE_DEMS: tuple[str, ...] = ("jacksboro",)
 MAX_COORD_M = 1e7
 MAX_SIZE_M = 1e4
 MAX_SEED = 2**32 - 1
+#: at most this many viewframes per leg of the route (``render.views_per_leg``)
+MAX_VIEWS_PER_LEG = 9
 #: at most this many route points and camera frames in one scenario
 MAX_ROUTE_POINTS = 1_000_000
 #: the memory's shift search reaches at most this many memory pixels (its lags are circular: a
@@ -579,11 +581,21 @@ class RenderSpec(_Spec):
     the agents read the pixels from it (every agent's host must see the cache folder at the same
     path); true: the pixels travel in the messages (agents on hosts without a shared folder).
     Without a cache the pixels are always inline.
+
+    ``views_per_leg``: viewframes per leg of the route: 1 renders one at each route point (the
+    seed paper's), ``F`` also ``F - 1`` between each route point and the next, evenly along the
+    leg, looking along it (:func:`models.viewframes.view_route`). The answer is still a route
+    point (the one nearest the chosen viewframe) and its position the chosen viewframe's: a camera
+    between route points looks along the leg it drives on, as viewframe ``k`` looks at ``k + 1``, so
+    with one viewframe per point it matches the point behind it best even when it is nearer the
+    one ahead; viewframes between the points resolve that (BENCHMARKS.md). Costs ``F`` times the
+    rendering, memory and ranking of one per point.
     """
 
     workers: int | None = Field(default=None, ge=1, le=256)
     viewframes_per_worker: int = Field(default=250, ge=1, le=MAX_ROUTE_POINTS)
     inline: bool = False
+    views_per_leg: int = Field(default=1, ge=1, le=MAX_VIEWS_PER_LEG)
 
     def worker_count(self, viewframes: int) -> int:
         """The number of worker processes for a route of ``viewframes`` points (1: none)."""

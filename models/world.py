@@ -27,6 +27,7 @@ from typing import Any
 
 from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel, build_environment
+from models.route_views import view_poses
 from models.scenario import Scenario, load_scenario
 from models.sensor import SensorFrame, frames_from_files, simulate_frames
 from models.symbolic import landmark_priors
@@ -104,7 +105,14 @@ class World:
 
     @cached_property
     def poses(self) -> list[Pose]:
-        """The camera pose at every route point (:func:`models.viewframes.route_poses`)."""
+        """The camera pose of every viewframe (:func:`models.route_views.view_poses`: at every
+        route point, and between them with ``render.views_per_leg`` > 1)."""
+        return view_poses(self.scenario, self.terrain)
+
+    @cached_property
+    def route_poses(self) -> list[Pose]:
+        """The camera pose at every route point (:func:`models.viewframes.route_poses`), where
+        simulated camera frames are taken."""
         return route_poses(self.scenario, self.terrain)
 
     @cached_property
@@ -178,7 +186,7 @@ class World:
             return []
         if sensor.frames:
             return frames_from_files(self.scenario)
-        return simulate_frames(self.scenario, self.emulator, self.poses)
+        return simulate_frames(self.scenario, self.emulator, self.route_poses)
 
     @cached_property
     def priors(self) -> dict[str, float]:
