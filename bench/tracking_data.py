@@ -87,7 +87,7 @@ def ranked_drive(
     route = np.asarray(sc.route, dtype=np.float64)
     from models.route_views import view_route
 
-    route_points = view_route(route, sc.render.views_per_leg)[2]
+    route_points = view_route(route, sc.views_per_leg)[2]
     truth = np.array([f.truth if f.truth is not None else (np.nan, np.nan, np.nan) for f in frames], float)
     true_point = np.array([nearest_viewframe(t[0], t[1], route) if np.isfinite(t[0]) else -1 for t in truth])
     return {

@@ -117,9 +117,9 @@ def _route_points(scenario: Scenario) -> list[int] | None:
     the viewframes are the route points (one per leg)."""
     from models.route_views import view_route
 
-    if scenario.render.views_per_leg == 1:
+    if scenario.views_per_leg == 1:
         return None
-    return view_route(scenario.route, scenario.render.views_per_leg)[2].tolist()
+    return view_route(scenario.route, scenario.views_per_leg)[2].tolist()
 
 
 def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:

@@ -76,7 +76,7 @@ def agent_plan(
     in every viewframe message, as the scenario's ``render: {inline: true}``)."""
     sched = scenario.scheduler
     tracked = scenario.tracking.enabled if track is None else bool(track)
-    views = view_count(len(scenario.route), scenario.render.views_per_leg)
+    views = view_count(len(scenario.route), scenario.views_per_leg)
     shards = max(1, math.ceil(views / scenario.memory.shard_size))
     pace = (levels.TRACK if tracked else levels.POSITION) if paced else None
     plan: list[tuple[str, str, dict[str, Any]]] = [
@@ -300,7 +300,7 @@ def run_mission(
     track = scenario.tracking.enabled if track is None else bool(track)
     n_frames = frame_count(scenario)
     if timeout_s is None:
-        timeout_s = 120.0 + 0.5 * view_count(len(scenario.route), scenario.render.views_per_leg) + 2.0 * n_frames
+        timeout_s = 120.0 + 0.5 * view_count(len(scenario.route), scenario.views_per_leg) + 2.0 * n_frames
         if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
             renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
             timeout_s += 0.2 * n_frames * renders
@@ -407,9 +407,7 @@ def run_mission(
     not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
     route_points = (
-        None
-        if scenario.render.views_per_leg == 1
-        else view_route(scenario.route, scenario.render.views_per_leg)[2].tolist()
+        None if scenario.views_per_leg == 1 else view_route(scenario.route, scenario.views_per_leg)[2].tolist()
     )
     estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []

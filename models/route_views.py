@@ -67,7 +67,7 @@ def view_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     from models.camera_emulator import Pose
 
     cam = scenario.camera
-    xy, heading, _ = view_route(scenario.route, scenario.render.views_per_leg)
+    xy, heading, _ = view_route(scenario.route, scenario.views_per_leg)
     return [
         Pose(float(x), float(y), float(terrain.height_at(x, y)) + cam.eye_height, float(h), cam.pitch_deg)
         for (x, y), h in zip(xy.tolist(), heading.tolist())

@@ -120,7 +120,7 @@ def main(args: argparse.Namespace) -> int:
             written_geojson = ["positions.geojson"]
         for rec in detailed:
             if rec["frame"] in frames:
-                k = shown_view(rec, scenario.render.views_per_leg)
+                k = shown_view(rec, scenario.views_per_leg)
                 vf = viewframes[k].image if k is not None else None
                 written.append(
                     save(
