@@ -315,6 +315,7 @@ OF_SCENARIO = {
     "landmarks": [{"id": "H1", "kind": "house", "x": 230.0, "y": 240.0, "width": 16, "depth": 10, "height": 8}],
     "route": [[170.0, 240.0], [200.0, 240.0], [330.0, 240.0]],
     "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 800.0},
+    "render": {"views_per_leg": 1},  # a viewframe per route point (which of them see H1, below)
 }
 
 

@@ -61,7 +61,7 @@ def test_a_mission_with_viewframes_between_the_route_points(small_data, tmp_path
     """Three viewframes a leg through the whole blackboard (tracking on): the map renderer posts
     every viewframe, each answer is a route point and its position a viewframe's place."""
     views = 3
-    data = dict(small_data, render={"views_per_leg": views})
+    data = dict(small_data, render={"views_per_leg": views})  # SMALL has one a point
     path = tmp_path / "views.yaml"
     path.write_text(yaml.safe_dump(data))
     results = run_mission(path, trace_path=tmp_path / "run.trace")
