@@ -42,7 +42,7 @@ import numpy as np  # noqa: E402
 from bench.evalset import cases  # noqa: E402
 
 sys.path.insert(0, str(_HERE))  # bench/tracking_data.py, then off the path again (bench/blackboard.py)
-from tracking_data import observed, ranked_drive  # noqa: E402
+from tracking_data import observed, per_point, ranked_drive  # noqa: E402
 
 sys.path.pop(0)
 
@@ -192,11 +192,11 @@ def main(argv: list[str] | None = None) -> int:
                 else ranked_drive(case.scenario_path, transform=_transform(name, masks, 7000 + ci))
             )
             fused = observed(d, "fused")
+            memory = per_point(d, d["variances"], nats=False)
+            skyline = None if d["skyline"] is None else per_point(d, d["skyline"], nats=False)
             for t, truth in enumerate(d["true_point"]):
-                ranks[name]["memory"].append(_rank_of_truth(d["variances"][t], truth))
-                ranks[name]["skyline"].append(
-                    _rank_of_truth(d["skyline"][t], truth) if d["skyline"] is not None else -1
-                )
+                ranks[name]["memory"].append(_rank_of_truth(memory[t], truth))
+                ranks[name]["skyline"].append(_rank_of_truth(skyline[t], truth) if skyline is not None else -1)
                 ranks[name]["fused"].append(_rank_of_truth(fused[t], truth))
         print(f"{case.name}: done", file=sys.stderr)
     out: dict = {

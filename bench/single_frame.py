@@ -17,7 +17,8 @@ Prints JSON, then a table. Columns are entries of :data:`COLUMNS` (name, format,
 list of frame records): add one there (e.g. a ranking source's own top-1 once results carry it).
 
     python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
-        [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--track] [--json-only]
+        [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
+        [--track] [--json-only]
 """
 
 from __future__ import annotations
@@ -143,11 +144,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scheduler", type=json.loads, default=None, help="JSON scheduler block")
     parser.add_argument("--track", action="store_true", help="with the tracker (default: every frame decided alone)")
     parser.add_argument("--skyline", type=json.loads, default=None, help="JSON skyline block")
+    parser.add_argument("--render", type=json.loads, default=None, help='JSON render block, e.g. {"views_per_leg": 3}')
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
         k: v
-        for k, v in (("memory", args.memory), ("scheduler", args.scheduler), ("skyline", args.skyline))
+        for k, v in (
+            ("memory", args.memory),
+            ("scheduler", args.scheduler),
+            ("skyline", args.skyline),
+            ("render", args.render),
+        )
         if v is not None
     }
     t0 = time.time()

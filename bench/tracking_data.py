@@ -28,7 +28,7 @@ from models.scenario import Scenario, load_scenario  # noqa: E402
 from models.tracking import ranking_vector  # noqa: E402
 from models.world import World  # noqa: E402
 
-__all__ = ["ranked_drive", "with_drive", "observed", "OBSERVE"]
+__all__ = ["ranked_drive", "with_drive", "observed", "per_point", "OBSERVE"]
 
 #: what the tracker may observe: the associative memory alone, or every ranking source fused
 OBSERVE = ("associative", "fused")
@@ -85,6 +85,9 @@ def ranked_drive(
             m = match_skylines(q, refs, **match)
             skyline.append(ranking_vector([v.index for v in vfs], m.error, n))
     route = np.asarray(sc.route, dtype=np.float64)
+    from models.route_views import view_route
+
+    route_points = view_route(route, sc.views_per_leg)[2]
     truth = np.array([f.truth if f.truth is not None else (np.nan, np.nan, np.nan) for f in frames], float)
     true_point = np.array([nearest_viewframe(t[0], t[1], route) if np.isfinite(t[0]) else -1 for t in truth])
     return {
@@ -99,12 +102,33 @@ def ranked_drive(
         "true_point": true_point,
         "rank_ms": np.array(rank_ms),
         "camera_hw": (int(sc.camera.height), int(sc.camera.width)),
+        "route_points": route_points,
     }
+
+
+def per_point(drive: dict[str, Any], scores: np.ndarray, *, nats: bool) -> np.ndarray:
+    """Scores per viewframe ``(T, V)`` of a :func:`ranked_drive` as scores per route point ``(T, N)``
+    by the tracker's rule (:func:`knowledge_sources.tracker.by_route_point`: ``nats``, a point's
+    viewframes' total probability, else its best viewframe's); the same array when the
+    viewframes are the route points."""
+    from knowledge_sources.tracker import by_route_point
+
+    rp = np.asarray(drive.get("route_points", np.arange(len(drive["route"]))))
+    s = np.asarray(scores, dtype=np.float64)
+    n = len(drive["route"])
+    if s.shape[1] == n and (rp.size == n):
+        return s
+    out = np.full((s.shape[0], n), np.nan)
+    for t in range(s.shape[0]):
+        ok = np.flatnonzero(np.isfinite(s[t]))
+        labels, values = by_route_point(ok.tolist(), s[t][ok].tolist(), rp, nats=nats)
+        out[t] = ranking_vector(labels, values, n)
+    return out
 
 
 def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
     """What the tracker observes of each frame of a :func:`ranked_drive`, ``(T, N)`` indexed by
-    route point (lower is better): ``"associative"``, the memory's error variances; ``"fused"``,
+    route point (lower is better; viewframes between the route points reduced by :func:`per_point`): ``"associative"``, the memory's error variances; ``"fused"``,
     every ranking source of the drive fused by the scheduler's rule as the tracker takes it
     (:func:`knowledge_sources.fusion.fused_log_posterior` at the scenario's ``memory.weight``
     and ``skyline.weight``, the drive's ``memory_weight`` and ``skyline_weight``): the negative
@@ -118,7 +142,7 @@ def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
     v = np.asarray(drive["variances"], dtype=np.float64)
     sky = drive.get("skyline")
     if observe == "associative":
-        return v
+        return per_point(drive, v, nats=False)
     n = v.shape[1]
     labels = np.arange(n)
     weights = {
@@ -134,4 +158,4 @@ def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
             per[src] = (labels[ok].tolist(), errors[t][ok].tolist())
         lab, log_p = fused_log_posterior(per, weights={s: weights[s] for s in per})
         out[t] = ranking_vector(lab.tolist(), (-log_p).tolist(), n)
-    return out
+    return per_point(drive, out, nats=True)

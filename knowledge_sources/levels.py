@@ -614,12 +614,35 @@ class Map(Message):
             "into (models.viewframe_cache), null: rendered without a cache"
         ),
     )
+    route_points: np.ndarray | None = field(
+        default=None,
+        metadata=_doc(
+            "(V,) int32 the route point each viewframe belongs to, non-decreasing (render.views_per_leg > 1: "
+            "viewframes between the route points, models.route_views); null: viewframe k is route point k",
+            dtype="int32",
+            ndim=1,
+        ),
+    )
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)
         n, lms, rows = self.viewframes, len(self.landmarks), self.visible
         if self.poses.shape[0] != n:
             raise MessageError(self.level, "poses", f"must have a row per viewframe ({n}), got {self.poses.shape[0]}")
+        rp = self.route_points
+        if rp is None and n != len(self.route):
+            raise MessageError(
+                self.level,
+                "route_points",
+                f"needed when the viewframes ({n}) are not the route points ({len(self.route)})",
+            )
+        if rp is not None:
+            if rp.shape != (n,):
+                raise MessageError(self.level, "route_points", f"must have one per viewframe ({n}), got {rp.shape}")
+            if n and (rp.min() < 0 or rp.max() >= len(self.route) or (np.diff(rp) < 0).any()):
+                raise MessageError(
+                    self.level, "route_points", f"must be route points in [0, {len(self.route)}), non-decreasing"
+                )
         if len(rows):
             k, lm, px = rows[:, 0], rows[:, 1], rows[:, 2]
             if k.min() < 0 or k.max() >= n or (np.diff(k) < 0).any():
@@ -649,6 +672,7 @@ class Map(Message):
         memory: Mapping[str, Any],
         placements: Mapping[int, Mapping[str, Sequence[float]]] | None = None,
         entry: str | None = None,
+        route_points: Sequence[int] | None = None,
     ) -> Self:
         """The map of ``poses`` (one per viewframe), ``visible`` ``{k: {landmark id: pixels}}`` and
         ``placements`` ``{k: {landmark id: (elevation_deg, azimuth_deg, size_deg)}}`` (each landmark
@@ -681,7 +705,15 @@ class Map(Message):
             placements=None if placements is None else np.asarray(places, dtype=np.float64).reshape(-1, 3),
             memory=dict(memory),
             entry=entry,
+            route_points=None if route_points is None else np.asarray(route_points, dtype=np.int32).ravel(),
         )
+
+    def point_of(self) -> np.ndarray:
+        """The route point of every viewframe ``(V,)`` int64 (viewframe k is route point k unless
+        the map has viewframes between the route points)."""
+        if self.route_points is None:
+            return np.arange(self.viewframes, dtype=np.int64)
+        return self.route_points
 
     def pose(self, k: int) -> list[float]:
         """Viewframe ``k``'s pose ``[x, y, z, heading_deg, pitch_deg]`` (world metres, degrees)."""

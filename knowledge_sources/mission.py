@@ -45,6 +45,7 @@ from knowledge_sources.results import add_map_coordinates, frame_record, summari
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.preflight import check_scenario, frame_count
+from models.route_views import view_count, view_route
 from models.scenario import Scenario, load_scenario
 
 __all__ = ["run_mission", "agent_plan", "MAX_RATE_HZ", "MAX_WAIT_S"]
@@ -75,7 +76,8 @@ def agent_plan(
     in every viewframe message, as the scenario's ``render: {inline: true}``)."""
     sched = scenario.scheduler
     tracked = scenario.tracking.enabled if track is None else bool(track)
-    shards = max(1, math.ceil(len(scenario.route) / scenario.memory.shard_size))
+    views = view_count(len(scenario.route), scenario.views_per_leg)
+    shards = max(1, math.ceil(views / scenario.memory.shard_size))
     pace = (levels.TRACK if tracked else levels.POSITION) if paced else None
     plan: list[tuple[str, str, dict[str, Any]]] = [
         ("knowledge_sources.map_renderer:MapRenderer", "map-renderer", {"inline": True} if inline_viewframes else {}),
@@ -298,7 +300,7 @@ def run_mission(
     track = scenario.tracking.enabled if track is None else bool(track)
     n_frames = frame_count(scenario)
     if timeout_s is None:
-        timeout_s = 120.0 + 0.5 * len(scenario.route) + 2.0 * n_frames
+        timeout_s = 120.0 + 0.5 * view_count(len(scenario.route), scenario.views_per_leg) + 2.0 * n_frames
         if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
             renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
             timeout_s += 0.2 * n_frames * renders
@@ -404,6 +406,9 @@ def run_mission(
     # agents not ok: dead ones, and live ones whose activations raised (what they did not post is missing)
     not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
+    route_points = (
+        None if scenario.views_per_leg == 1 else view_route(scenario.route, scenario.views_per_leg)[2].tolist()
+    )
     estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []
     for f in sorted(frames_seen | set(range(n_frames))):
@@ -418,7 +423,13 @@ def run_mission(
         else:
             why = "no position was posted" + (f" (agents not ok: {not_ok})" if not_ok else "")
         rec = frame_record(
-            positions.get(f), frame=f, truth=truths.get(f), route_xy=route_xy, missing=why, pose=poses.get(f)
+            positions.get(f),
+            frame=f,
+            truth=truths.get(f),
+            route_xy=route_xy,
+            missing=why,
+            pose=poses.get(f),
+            route_points=route_points,
         )
         rec["missing"] = f not in frames_seen
         rec["interrupted"] = interrupted is not None and f not in positions

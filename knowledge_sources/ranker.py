@@ -10,6 +10,8 @@ from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 
 if TYPE_CHECKING:
+    import numpy as np
+
     from models.index import TrackWindows
     from models.scenario import MemorySpec
 
@@ -61,6 +63,7 @@ class RouteRanker(KnowledgeSource):
             self.consumes = tuple(lv for lv in type(self).consumes if lv != levels.VIEWFRAME)  # type: ignore[misc]
         self.tracked = bool(tracked)
         self._windows: TrackWindows | None = None  # the track window rule, set once the map is built
+        self._route_points: np.ndarray | None = None  # the map's route point of each viewframe (None: the same)
         self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
         self._waiting: list[Hypothesis] = []  # camera frames that came before the map
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
@@ -108,9 +111,14 @@ class RouteRanker(KnowledgeSource):
         return self._windows is not None
 
     def window(self, frame: int) -> tuple[int, int] | None:
-        """The route points to rank for ``frame`` (None: all), recorded in :attr:`windows`."""
+        """The viewframes ``(first, last)`` to rank for ``frame`` (None: all): those of the route points
+        of the track window rule; recorded in :attr:`windows`."""
         assert self._windows is not None, "window() before build()"
         window = self._windows.window(frame)
+        if window is not None and self._route_points is not None:  # viewframes between the route points
+            from models.route_views import views_of_points
+
+            window = views_of_points(self._route_points, *window)
         self.windows[frame] = window
         return window
 
@@ -150,7 +158,9 @@ class RouteRanker(KnowledgeSource):
         elif h.level == levels.MAP:
             mp = levels.Map.from_hypothesis(h)
             settings = self.build(mp, board)
-            self._windows = TrackWindows(settings, viewframes=mp.viewframes, tracked=self.tracked)
+            # the rule works in route points (the tracks' unit); window() gives their viewframes
+            self._windows = TrackWindows(settings, viewframes=len(mp.route), tracked=self.tracked)
+            self._route_points = mp.route_points
             for early in self._early:
                 self._windows.add(*early)
             self._early.clear()

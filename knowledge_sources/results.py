@@ -3,7 +3,7 @@
 ::
 
     {"scenario": str, "strategy": str, "scenario_path": str,
-     "frames": [{"frame": i, "viewframe": k | null, "position": [x, y] | null,
+     "frames": [{"frame": i, "viewframe": k | null, "view": v | null, "position": [x, y] | null,
                  "heading_deg": h | null, "confidence": c, "queries": q, "backtracks": b,
                  "latency_ms": t, "ranking": [[k, variance], ...first 5],
                  "truth_viewframe": k | null, "correct": bool | null, "reason": str,
@@ -34,6 +34,9 @@ A frame is *correct* when its ``viewframe`` is the route point nearest its truth
 ``position`` and ``heading_deg`` are the refined pose's when the refiner posted one
 (``route_position``, ``route_heading_deg``: the chosen viewframe's route point).
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
+``view`` is the viewframe the single-frame decision chose: the route point itself, unless the map
+has viewframes between the route points (``render.views_per_leg`` > 1), when ``viewframe`` (and
+the ``ranking``) name the route point nearest that view and ``position`` is the view's.
 """
 
 from __future__ import annotations
@@ -82,12 +85,16 @@ def frame_record(
     route_xy: Sequence[Sequence[float]],
     missing: str = "no position was posted",
     pose: PoseMessage | None = None,
+    route_points: Sequence[int] | None = None,
 ) -> dict[str, Any]:
     """One frame's entry of the results file, from the frame's ``position`` message (None: none was
     posted, the entry says ``missing`` as its reason), its ``truth`` message (None: unknown) and its
     refined ``pose`` (None: not refined). With a pose, ``position`` and ``heading_deg`` are the
     refined ones and ``route_position``/``route_heading_deg`` the chosen route point's; ``pose``
-    holds the refinement (pitch, uncertainty). The one function that turns a decision into a
+    holds the refinement (pitch, uncertainty). ``route_points``: the route point of each
+    viewframe when the map has viewframes between the route points (``render.views_per_leg``):
+    ``viewframe`` and the ``ranking`` are then route points (the ranking's first viewframe of
+    each), ``view`` the chosen viewframe itself. The one function that turns a decision into a
     results entry."""
     t = None if truth is None else [float(v) for v in truth.pose]
     truth_vf = None if t is None else nearest_viewframe(t[0], t[1], route_xy)
@@ -98,6 +105,10 @@ def frame_record(
         viewframe, xy, heading = position.viewframe, position.position, position.heading_deg
         confidence, queries, backtracks = position.confidence, position.queries, position.backtracks
         latency, ranking, reason = position.latency_ms, position.ranking, position.reason
+    view = viewframe
+    if route_points is not None:
+        viewframe = None if viewframe is None else int(route_points[int(viewframe)])
+        ranking = _by_point(ranking, route_points)
     route_xy_, route_heading = xy, heading
     if pose is not None and position is not None:
         xy, heading = [pose.x, pose.y], pose.heading_deg
@@ -107,6 +118,7 @@ def frame_record(
     record: dict[str, Any] = {
         "frame": int(frame),
         "viewframe": None if viewframe is None else int(viewframe),
+        "view": None if view is None else int(view),
         "position": None if xy is None else [float(xy[0]), float(xy[1])],
         "heading_deg": None if heading is None else float(heading),
         "confidence": float(confidence),
@@ -142,6 +154,14 @@ def frame_record(
         record["degraded"] = list(position.degraded)
         record["steps"] = list(position.steps)
     return record
+
+
+def _by_point(ranking: Sequence[Sequence[float]], route_points: Sequence[int]) -> list[list[float]]:
+    """A ranking ``[[viewframe, score], ...]`` as route points: each point once, at its first viewframe's place."""
+    out: dict[int, float] = {}
+    for k, v in ranking:
+        out.setdefault(int(route_points[int(k)]), float(v))
+    return [[k, v] for k, v in out.items()]
 
 
 def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str, Any]:

@@ -24,6 +24,7 @@ the prior the scheduler gets for frame t comes from the track of frame t - 1 (fr
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -35,7 +36,7 @@ from knowledge_sources import levels
 if TYPE_CHECKING:
     from models.tracking import RouteFilter
 
-__all__ = ["Tracker", "FrameOrder"]
+__all__ = ["Tracker", "FrameOrder", "by_route_point"]
 
 log = logging.getLogger(__name__)
 
@@ -123,6 +124,24 @@ class FrameOrder:
         return out
 
 
+def by_route_point(
+    viewframes: Sequence[int], scores: Sequence[float], route_points: np.ndarray, *, nats: bool
+) -> tuple[list[int], list[float]]:
+    """A ranking of viewframes (labels, scores: lower is better) as one of route points, given each
+    viewframe's route point ``route_points`` (the map's). ``nats``: the scores are negative log
+    posteriors, and a route point's is that of its viewframes' total probability,
+    ``-log sum_v exp(-s_v)``; else a point takes its best viewframe's score. Points in order of
+    first appearance (best first when the ranking is sorted)."""
+    best: dict[int, list[float]] = {}
+    for v, e in zip(viewframes, scores):
+        best.setdefault(int(route_points[int(v)]), []).append(float(e))
+    if nats:
+        out = {k: float(-np.logaddexp.reduce(-np.asarray(es))) for k, es in best.items()}
+    else:
+        out = {k: min(es) for k, es in best.items()}
+    return list(out), list(out.values())
+
+
 def answers_of(steps: list[dict[str, Any]]) -> list[tuple[str, bool]]:
     """The landmark answers (landmark, present) of a position's steps; undecided ones left out."""
     return [(s["landmark"], bool(s["present"])) for s in steps if s.get("present") is not None]
@@ -160,6 +179,7 @@ class Tracker(KnowledgeSource):
             raise ValueError(f"{name}: sources must map ranking sources to weights >= 0, one > 0, got {sources!r}")
         self._filter: RouteFilter | None = None
         self._visible: dict[int, frozenset[str]] = {}
+        self._route_points: np.ndarray | None = None  # the map's route point of each viewframe (None: the same)
         self._order = FrameOrder(tuple(self.sources), await_query=await_query)
         self._last_time: float | None = None
 
@@ -201,7 +221,14 @@ class Tracker(KnowledgeSource):
         if self._filter is not None:
             return
         self._filter = RouteFilter(mp.route, spec=self.spec)
-        self._visible = mp.visible_sets(min_pixels=self.min_pixels)
+        self._route_points = mp.route_points
+        visible = mp.visible_sets(min_pixels=self.min_pixels)
+        if mp.route_points is not None:  # viewframes between the route points: a point sees what its views see
+            points: dict[int, set[str]] = {k: set() for k in range(len(mp.route))}
+            for v, k in enumerate(mp.route_points.tolist()):
+                points[k] |= visible.get(v, frozenset())
+            visible = {k: frozenset(s) for k, s in points.items()}
+        self._visible = visible
 
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         from knowledge_sources.fusion import fuse_shards, shards_log_posterior
@@ -220,6 +247,8 @@ class Tracker(KnowledgeSource):
         else:  # the scheduler's fused ranking as it is (scores standardised by the filter)
             fused = fuse_shards(shards, weights=self.sources)
             viewframes, scores = [k for k, _ in fused], [e for _, e in fused]
+        if self._route_points is not None:
+            viewframes, scores = by_route_point(viewframes, scores, self._route_points, nats=self.spec.scores == "nats")
         ll = f.route_loglik(
             viewframes,
             scores,

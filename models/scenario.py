@@ -98,6 +98,12 @@ SAMPLE_DEMS: tuple[str, ...] = ("jacksboro",)
 MAX_COORD_M = 1e7
 MAX_SIZE_M = 1e4
 MAX_SEED = 2**32 - 1
+#: at most this many viewframes per leg of the route (``render.views_per_leg``)
+MAX_VIEWS_PER_LEG = 9
+#: ``render.views_per_leg`` by default: this many on routes of fewer than DENSE_ROUTE_POINTS points,
+#: one per point on longer ones (chosen on the evaluation set's tuning split, BENCHMARKS.md)
+DENSE_VIEWS_PER_LEG = 3
+DENSE_ROUTE_POINTS = 1000
 #: at most this many route points and camera frames in one scenario
 MAX_ROUTE_POINTS = 1_000_000
 #: the memory's shift search reaches at most this many memory pixels (its lags are circular: a
@@ -579,11 +585,30 @@ class RenderSpec(_Spec):
     the agents read the pixels from it (every agent's host must see the cache folder at the same
     path); true: the pixels travel in the messages (agents on hosts without a shared folder).
     Without a cache the pixels are always inline.
+
+    ``views_per_leg``: viewframes per leg of the route: 1 renders one at each route point (the
+    seed paper's), ``F`` also ``F - 1`` between each route point and the next, evenly along the
+    leg, looking along it (:func:`models.viewframes.view_route`). The answer is still a route
+    point (the one nearest the chosen viewframe) and its position the chosen viewframe's: a camera
+    between route points looks along the leg it drives on, as viewframe ``k`` looks at ``k + 1``, so
+    with one viewframe per point it matches the point behind it best even when it is nearer the
+    one ahead; viewframes between the points resolve that (BENCHMARKS.md). Costs ``F`` times the
+    rendering, memory and ranking of one per point. Null (default): :data:`DENSE_VIEWS_PER_LEG` on
+    routes of fewer than :data:`DENSE_ROUTE_POINTS` points, 1 on longer ones (where the track
+    window, not the single frame, bounds the search and the cost is what matters); read it as
+    :meth:`views` (or :attr:`Scenario.views_per_leg`).
     """
 
     workers: int | None = Field(default=None, ge=1, le=256)
     viewframes_per_worker: int = Field(default=250, ge=1, le=MAX_ROUTE_POINTS)
     inline: bool = False
+    views_per_leg: int | None = Field(default=None, ge=1, le=MAX_VIEWS_PER_LEG)
+
+    def views(self, points: int) -> int:
+        """Viewframes per leg on a route of ``points`` route points (see the class docstring)."""
+        if self.views_per_leg is not None:
+            return self.views_per_leg
+        return DENSE_VIEWS_PER_LEG if points < DENSE_ROUTE_POINTS else 1
 
     def worker_count(self, viewframes: int) -> int:
         """The number of worker processes for a route of ``viewframes`` points (1: none)."""
@@ -708,6 +733,11 @@ class Scenario(_Spec):
 
     _path: Path | None = PrivateAttr(default=None)
     _frame: Any = PrivateAttr(default=None)
+
+    @property
+    def views_per_leg(self) -> int:
+        """Viewframes per leg of this scenario's route (:meth:`RenderSpec.views`)."""
+        return self.render.views(len(self.route))
 
     @field_validator("crs")
     @classmethod

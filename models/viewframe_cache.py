@@ -214,6 +214,9 @@ def cache_key(
         "cell_size": float(terrain.cell_size),
         "terrain_shape": list(terrain.heights.shape),
     }
+    views = int(scenario.views_per_leg)
+    if views != 1:  # viewframes between the route points; one per point keeps the keys it always had
+        spec["views_per_leg"] = views
     h.update(json.dumps(spec, sort_keys=True, default=repr).encode())
     h.update(np.ascontiguousarray(terrain.heights, dtype=np.float64).tobytes())
     h.update(source_digest(RENDERER_MODULES).encode())

@@ -31,6 +31,7 @@ from typing import Any, NamedTuple, TypeVar, cast
 
 from models.camera_emulator import CameraEmulator, Pose
 from models.environment import EnvironmentModel, build_environment
+from models.route_views import view_poses
 from models.scenario import Scenario, load_scenario
 from models.sensor import SensorFrame, frames_from_files, iter_simulated_frames, simulate_frames
 from models.symbolic import landmark_priors
@@ -138,7 +139,14 @@ class World:
 
     @cached_property
     def poses(self) -> list[Pose]:
-        """The camera pose at every route point (:func:`models.viewframes.route_poses`)."""
+        """The camera pose of every viewframe (:func:`models.route_views.view_poses`: at every
+        route point, and between them with ``render.views_per_leg`` > 1)."""
+        return view_poses(self.scenario, self.terrain)
+
+    @cached_property
+    def route_poses(self) -> list[Pose]:
+        """The camera pose at every route point (:func:`models.viewframes.route_poses`), where
+        simulated camera frames are taken."""
         return route_poses(self.scenario, self.terrain)
 
     @cached_property
@@ -240,7 +248,7 @@ class World:
             return []
         if sensor.frames:
             return frames_from_files(self.scenario)
-        return simulate_frames(self.scenario, self.emulator, self.poses)
+        return simulate_frames(self.scenario, self.emulator, self.route_poses)
 
     def iter_sensor_frames(self) -> Iterator[SensorFrame]:
         """:attr:`sensor_frames` one by one, each simulated as it is asked for (read from files,

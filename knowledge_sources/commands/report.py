@@ -55,6 +55,7 @@ def main(args: argparse.Namespace) -> int:
     )
     from knowledge_sources.results import load_results
     from models.errors import InputError
+    from models.route_views import shown_view
     from models.scenario import load_scenario
 
     runs = [load_results(p) for p in args.results]
@@ -119,7 +120,8 @@ def main(args: argparse.Namespace) -> int:
             written_geojson = ["positions.geojson"]
         for rec in detailed:
             if rec["frame"] in frames:
-                vf = viewframes[rec["viewframe"]].image if rec["viewframe"] is not None else None
+                k = shown_view(rec, scenario.views_per_leg)
+                vf = viewframes[k].image if k is not None else None
                 written.append(
                     save(
                         plot_frame(rec, frames[rec["frame"]].image, vf, pattern=scene.pattern),

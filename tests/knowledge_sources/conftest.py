@@ -22,6 +22,9 @@ SMALL = {
     "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
     "sensor": {"simulate": {"per_point": 1, "jitter_m": 0.5, "jitter_deg": 1.0, "advance": 0.05}},
     "scheduler": {"query_timeout_s": 3.0},
+    # a viewframe per route point: the agents' tests count and index them by route point;
+    # viewframes between the points (the default on short routes) in test_views.py
+    "render": {"views_per_leg": 1},
 }
 
 

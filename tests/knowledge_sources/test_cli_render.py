@@ -12,6 +12,8 @@ import pytest
 import yaml
 
 from knowledge_sources.cli import main
+from models.route_views import view_count, view_route
+from models.scenario import DENSE_VIEWS_PER_LEG
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,13 +39,15 @@ def _scenario(tmp_path: Path, data: dict) -> Path:
 def test_render_writes_frames_descriptions_priors_and_overview(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["render", str(_scenario(tmp_path, SMALL)), "--out", str(out)]) == 0
-    assert "small: 3 viewframes" in capsys.readouterr().out
-    for i in range(3):
+    views = view_count(3, DENSE_VIEWS_PER_LEG)  # a short route: viewframes between the route points too
+    assert f"small: {views} viewframes" in capsys.readouterr().out
+    places = view_route(SMALL["route"], DENSE_VIEWS_PER_LEG)[0]
+    for i in range(views):
         img = cv2.imread(str(out / f"vf_{i:03d}.png"))
         assert img.shape == (120, 160, 3)
         doc = json.loads((out / f"vf_{i:03d}.json").read_text())
         assert doc["index"] == i and set(doc["pose"]) == {"x", "y", "z", "heading_deg", "pitch_deg"}
-        assert doc["pose"]["x"] == SMALL["route"][i][0]
+        assert [doc["pose"]["x"], doc["pose"]["y"]] == pytest.approx(places[i].tolist())
     first = json.loads((out / "vf_000.json").read_text())["description"]
     assert "H1" in first["visible"] and first["nodes"]["H1"]["kind"] == "house"
     priors = json.loads((out / "priors.json").read_text())
@@ -91,7 +95,7 @@ def test_render_bundled_hills_scenario_from_the_console_script(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     frames = sorted(out.glob("vf_*.png"))
-    assert len(frames) == 30 and (out / "overview.png").exists()
+    assert len(frames) == view_count(30, DENSE_VIEWS_PER_LEG) and (out / "overview.png").exists()
     docs = [json.loads(p.with_suffix(".json").read_text()) for p in frames]
     counts = [len(d["description"]["visible"]) for d in docs]
     assert sum(c > 0 for c in counts) >= len(counts) // 2  # landmarks are seen along the route

@@ -43,6 +43,17 @@ SAMPLES: list[levels.Message] = [
         placements={0: {"H1": [1.0, -2.0, 3.5]}},
         memory={"size": 64},
     ),
+    levels.Map.of(  # viewframes between the route points (render.views_per_leg: 2)
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={},
+        landmarks=[],
+        route=[[0.0, 0.0], [10.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={},
+        memory={"size": 64},
+        route_points=[0, 0, 1],
+    ),
     levels.Index(shard=1, shards=3, viewframes=12),
     levels.SensorFrame(frame=4, image=_image(), source="simulated"),
     levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
@@ -304,6 +315,7 @@ OF_SCENARIO = {
     "landmarks": [{"id": "H1", "kind": "house", "x": 230.0, "y": 240.0, "width": 16, "depth": 10, "height": 8}],
     "route": [[170.0, 240.0], [200.0, 240.0], [330.0, 240.0]],
     "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 800.0},
+    "render": {"views_per_leg": 1},  # a viewframe per route point (which of them see H1, below)
 }
 
 
@@ -508,3 +520,39 @@ def test_sensor_frame_columns_are_checked_against_the_image():
     for bad in ([12, 4], [0, 17], [-1, 8], [1.5, 8], ["a", 8]):
         with pytest.raises(levels.MessageError, match="columns"):
             levels.SensorFrame(frame=0, image=image, source="f.png", columns=bad)
+
+
+@pytest.mark.parametrize(
+    "route_points, problem",
+    [
+        (None, "needed when the viewframes"),  # 3 viewframes, 2 route points, no mapping
+        ([0, 1], "one per viewframe"),
+        ([0, 2, 1], "non-decreasing"),
+        ([0, 1, 2], r"in \[0, 2\)"),
+    ],
+)
+def test_a_map_with_viewframes_between_route_points_names_a_bad_route_points_field(route_points, problem):
+    with pytest.raises(levels.MessageError, match=problem) as err:
+        levels.Map.of(
+            scenario="s",
+            path="/tmp/s.yaml",
+            priors={},
+            landmarks=[],
+            route=[[0.0, 0.0], [10.0, 0.0]],
+            poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
+            visible={},
+            memory={},
+            route_points=route_points,
+        )
+    assert "route_points" in str(err.value)
+    assert levels.Map.of(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={},
+        landmarks=[],
+        route=[[0.0, 0.0], [10.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={},
+        memory={},
+        route_points=[0, 1, 1],
+    ).point_of().tolist() == [0, 1, 1]

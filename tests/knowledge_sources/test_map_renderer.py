@@ -121,7 +121,7 @@ def test_viewframes_from_the_cache_are_posted_by_reference_unless_inline_is_aske
     if not cache:
         monkeypatch.setenv("MAPINTERP_CACHE", "off")
     path = tmp_path / "small.yaml"
-    path.write_text(yaml.safe_dump({**SMALL, **({"render": render} if render else {})}))
+    path.write_text(yaml.safe_dump({**SMALL, "render": {**SMALL["render"], **render}}))
     bb = MemoryBlackboard()
     bb.add(MapRenderer("map-renderer", **option))
     levels.post(bb.user, levels.Scenario(path=str(path), strategy="associative"))

@@ -51,6 +51,7 @@ def test_coarse_candidates_contain_the_full_rankings_best():
             "camera": {"width": 80, "height": 60, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 4000.0},
             "sensor": {"simulate": {"stride": 8}},
             "memory": {"size": 64},
+            "render": {"views_per_leg": 1},
         }
     )
     with World(scenario, cache=None) as world:

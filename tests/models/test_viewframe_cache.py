@@ -31,6 +31,7 @@ def _data(**extra):
         "landmarks": [{"id": "H1", "kind": "house", "x": 260.0, "y": 320.0, "width": 20, "depth": 12, "height": 8}],
         "route": [[200, 300], [240, 310], [280, 305], [300, 300]],
         "camera": {"width": 64, "height": 48, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 2000.0},
+        "render": {"views_per_leg": 1},  # a viewframe per route point (the entries' counts below)
     }
     data.update(extra)
     return data
@@ -83,8 +84,9 @@ def test_a_second_world_reads_the_viewframes_without_rendering(tmp_path):
         {"camera": {"width": 64, "height": 48, "fov_y_deg": 50, "eye_height": 2.0, "near": 1.0, "far": 2000.0}},
         {"route": [[200, 300], [240, 310], [280, 305], [301, 300]]},
         {"terrain": {"cell_size": 10.0, "procedural": {"size": 64, "relief": 41.0, "seed": 2}}},
+        {"render": {"views_per_leg": 3}},
     ],
-    ids=["landmark", "camera", "route", "terrain"],
+    ids=["landmark", "camera", "route", "terrain", "views-per-leg"],
 )
 def test_any_change_of_the_map_is_a_miss(change):
     base = scenario_from_dict(_data())

@@ -54,7 +54,7 @@ def test_route_poses_stand_on_the_ground():
 
 
 def test_the_world_renders_and_describes_each_route_point():
-    s = _scenario([[200, 300], [240, 310], [300, 300]])
+    s = _scenario([[200, 300], [240, 310], [300, 300]], render={"views_per_leg": 1})
     with World(s) as world:
         frames = world.viewframes
     assert [f.index for f in frames] == [0, 1, 2]

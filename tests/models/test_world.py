@@ -8,6 +8,7 @@ import pytest
 
 from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
+from models.route_views import view_count, view_poses
 from models.scenario import scenario_from_dict
 from models.sensor import simulate_frames
 from models.symbolic import landmark_priors
@@ -30,18 +31,20 @@ def _scenario(**extra):
 
 
 @pytest.mark.slow
-def test_the_world_is_the_pipeline_done_by_hand():
-    scenario = _scenario(sensor={"simulate": {"per_point": 1}})
+@pytest.mark.parametrize("views", [1, 3])
+def test_the_world_is_the_pipeline_done_by_hand(views):
+    scenario = _scenario(sensor={"simulate": {"per_point": 1}}, render={"views_per_leg": views})
     with World(scenario) as world:
         viewframes, frames, poses = world.viewframes, world.sensor_frames, world.poses
         assert world.viewframes is viewframes and world.environment is world.emulator.environment  # built once
     env = build_environment(scenario)
     with CameraEmulator(env, scenario.camera) as cam:
-        by_hand_poses = route_poses(scenario, env.terrain)
+        by_hand_poses = view_poses(scenario, env.terrain)
         by_hand = render_viewframes(cam, by_hand_poses)
-        by_hand_frames = simulate_frames(scenario, cam, by_hand_poses)
+        # the camera frames are taken at the route points, whatever the viewframes
+        by_hand_frames = simulate_frames(scenario, cam, route_poses(scenario, env.terrain))
     assert poses == by_hand_poses
-    assert [vf.index for vf in viewframes] == [0, 1, 2]
+    assert [vf.index for vf in viewframes] == list(range(view_count(3, views)))
     for a, b in zip(viewframes, by_hand):
         np.testing.assert_array_equal(a.mask, b.mask)
         assert np.abs(a.image.astype(int) - b.image).mean() < 0.5

@@ -1,0 +1,44 @@
+"""bench/tracking_data.py: what the offline tracker observes, with viewframes between the route points."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bench.tracking_data import observed, per_point
+
+
+def _drive(views: int) -> dict:
+    """Two frames over a route of 3 points with ``views`` viewframes a leg (errors per viewframe)."""
+    from models.route_views import view_route
+
+    route = np.array([[0.0, 0.0], [30.0, 0.0], [60.0, 0.0]])
+    rp = view_route(route, views)[2]
+    rng = np.random.default_rng(5)
+    return {"route": route, "route_points": rp, "variances": rng.uniform(1.0, 2.0, (2, rp.size)), "skyline": None}
+
+
+def test_per_point_is_the_identity_with_a_viewframe_per_point():
+    d = _drive(1)
+    assert np.array_equal(per_point(d, d["variances"], nats=False), d["variances"])
+
+
+def test_per_point_takes_each_points_best_viewframe_or_its_total_probability():
+    d = _drive(3)
+    v, rp = d["variances"], d["route_points"]
+    best = per_point(d, v, nats=False)
+    total = per_point(d, v, nats=True)
+    assert best.shape == total.shape == (2, 3)
+    for k in range(3):
+        mine = v[:, rp == k]
+        assert best[:, k] == pytest.approx(mine.min(axis=1))
+        assert total[:, k] == pytest.approx([-math.log(np.exp(-row).sum()) for row in mine])
+
+
+def test_the_observation_of_a_drive_with_viewframes_between_points_is_per_route_point():
+    d = _drive(3)
+    assert observed(d, "associative").shape == (2, 3)
+    fused = observed(d, "fused")
+    assert fused.shape == (2, 3) and np.isfinite(fused).all()
