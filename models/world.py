@@ -258,7 +258,7 @@ class World:
         if "sensor_frames" in self.__dict__ or sensor is None or sensor.frames:
             yield from self.sensor_frames
             return
-        yield from iter_simulated_frames(self.scenario, self.emulator, self.poses)
+        yield from iter_simulated_frames(self.scenario, self.emulator, self.route_poses)
 
     @cached_property
     def priors(self) -> dict[str, float]:
