@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
                 if name == "none"
                 else ranked_drive(case.scenario_path, transform=_transform(name, masks, 7000 + ci))
             )
-            fused = observed(d, "fused")
+            fused = observed(d, "fused", point="best")  # the scene analysis's ranking of route points
             memory = per_point(d, d["variances"], nats=False)
             skyline = None if d["skyline"] is None else per_point(d, d["skyline"], nats=False)
             for t, truth in enumerate(d["true_point"]):

@@ -126,14 +126,17 @@ def per_point(drive: dict[str, Any], scores: np.ndarray, *, nats: bool) -> np.nd
     return out
 
 
-def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
+def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np.ndarray:
     """What the tracker observes of each frame of a :func:`ranked_drive`, ``(T, N)`` indexed by
     route point (lower is better; viewframes between the route points reduced by :func:`per_point`): ``"associative"``, the memory's error variances; ``"fused"``,
     every ranking source of the drive fused by the scheduler's rule as the tracker takes it
     (:func:`knowledge_sources.fusion.fused_log_posterior` at the scenario's ``memory.weight``
     and ``skyline.weight``, the drive's ``memory_weight`` and ``skyline_weight``): the negative
     log posterior in nats, which orders the viewframes as the fused ranking does (for a drive
-    without the skyline: the memory's weighted robust z-scores, an affine map of its errors)."""
+    without the skyline: the memory's weighted robust z-scores, an affine map of its errors).
+    With viewframes between the route points, ``point`` says how a route point's fused value
+    comes from its viewframes': ``"total"`` their total probability (the tracker's rule),
+    ``"best"`` its best viewframe's (the scene analysis's rule, knowledge_sources.scheduler)."""
     from knowledge_sources.fusion import fused_log_posterior
     from models.scenario import MemorySpec, SkylineSpec
 
@@ -158,4 +161,6 @@ def observed(drive: dict[str, Any], observe: str) -> np.ndarray:
             per[src] = (labels[ok].tolist(), errors[t][ok].tolist())
         lab, log_p = fused_log_posterior(per, weights={s: weights[s] for s in per})
         out[t] = ranking_vector(lab.tolist(), (-log_p).tolist(), n)
-    return per_point(drive, out, nats=True)
+    if point not in ("total", "best"):
+        raise ValueError(f"point must be 'total' or 'best', not {point!r}")
+    return per_point(drive, out, nats=point == "total")

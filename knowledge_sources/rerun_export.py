@@ -148,6 +148,10 @@ class RerunLogger:
         terrain = replay.environment.terrain
         self._rows, self._cs = terrain.shape[0], terrain.cell_size
         self.route = [tuple(p) for p in replay.scenario.route]
+        from models.route_views import view_route
+
+        self.views_per_leg = replay.scenario.views_per_leg
+        self.route_points = view_route(self.route, self.views_per_leg)[2]  # each viewframe's route point
         self.track: list[list[float]] = []
         self._answers: dict[int, list[dict[str, Any]]] = defaultdict(list)
         self._truths: dict[int, list[float]] = {}
@@ -241,8 +245,8 @@ class RerunLogger:
         truth = truth or (list(frame.truth) if frame is not None and frame.truth else None)
         true_vf = None
         if truth:
-            true_vf = nearest_viewframe(truth[0], truth[1], self.route)
-            rec.log("viewframe/true", rr.Image(replay.viewframes[true_vf].image))
+            true_vf = nearest_viewframe(truth[0], truth[1], self.route)  # a route point; shown: the viewframe on it
+            rec.log("viewframe/true", rr.Image(replay.viewframes[true_vf * self.views_per_leg].image))
             rec.log(
                 "map/truth",
                 rr.Points2D([self.px(truth[0], truth[1])], colors=[[0, 0, 0]], radii=2.5, labels=[f"truth {f}"]),
@@ -258,7 +262,7 @@ class RerunLogger:
         if position is not None:
             p = self.px(float(position[0]), float(position[1]))
             self.track.append(p)
-            ok = true_vf is not None and chosen == true_vf
+            ok = true_vf is not None and chosen is not None and int(self.route_points[int(chosen)]) == true_vf
             rec.log(
                 "map/estimate",
                 rr.Points2D([p], colors=[[40, 200, 60] if ok else [230, 40, 40]], radii=2.5, labels=[f"V{chosen}"]),

@@ -42,3 +42,15 @@ def test_the_observation_of_a_drive_with_viewframes_between_points_is_per_route_
     assert observed(d, "associative").shape == (2, 3)
     fused = observed(d, "fused")
     assert fused.shape == (2, 3) and np.isfinite(fused).all()
+
+
+def test_a_points_best_viewframe_is_never_above_its_viewframes_total_probability():
+    """A route point's total probability (the tracker's rule) is at least its best viewframe's
+    (the scene analysis's): in nats the total is never above the best; one a point, the same."""
+    d = _drive(3)
+    total, best = observed(d, "fused", point="total"), observed(d, "fused", point="best")
+    assert (total <= best + 1e-12).all() and (total < best - 1e-9).any()
+    one = _drive(1)
+    assert np.array_equal(observed(one, "fused", point="total"), observed(one, "fused", point="best"))
+    with pytest.raises(ValueError, match="point"):
+        observed(d, "fused", point="mean")

@@ -37,16 +37,17 @@ def read_rrd(path: Path) -> dict[str, dict[int | None, dict[str, object]]]:
     return out
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    """A real run of the small scenario with its trace and results, and its live .rrd."""
+@pytest.fixture(scope="module", params=[1, 3], ids=["a-view-a-point", "views-between-points"])
+def run(tmp_path_factory, request):
+    """A real run of the small scenario with its trace and results, and its live .rrd; with a
+    viewframe per route point, and with viewframes between the route points."""
     import yaml
 
     from tests.knowledge_sources.conftest import SMALL
 
     tmp = tmp_path_factory.mktemp("rerun")
     scenario = tmp / "small.yaml"
-    scenario.write_text(yaml.safe_dump(SMALL))
+    scenario.write_text(yaml.safe_dump({**SMALL, "render": {"views_per_leg": request.param}}))
     trace, results, live = tmp / "run.trace", tmp / "r.json", tmp / "live.rrd"
     assert (
         main(
