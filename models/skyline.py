@@ -225,10 +225,10 @@ def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.ran
     # k-means++ seeds from OpenCV's global generator: seeded, so that a frame's horizon does not
     # depend on how many k-means ran before it in this process
     cv2.setRNGSeed(int(rng.integers(2**31)))
-    _, lab, _ = cv2.kmeans(  # type: ignore[call-overload]  # bestLabels None: let OpenCV allocate them
-        s.astype(np.float32),
+    _, lab, _ = cv2.kmeans(  # bestLabels: an output (no KMEANS_USE_INITIAL_LABELS), given so that
+        s.astype(np.float32),  # OpenCV 5.0's and 5.1's type stubs both accept the call
         k,
-        None,
+        np.zeros((len(s), 1), np.int32),
         (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 10, 0.5),
         1,
         cv2.KMEANS_PP_CENTERS,
