@@ -32,7 +32,7 @@ stay in local metres (:mod:`models.georef`).
 A frame is *correct* when its ``viewframe`` is the route point nearest its truth position;
 ``mean_error_m`` is the mean distance in metres between the estimated and the true ``(x, y)``.
 ``position`` and ``heading_deg`` are the refined pose's when the refiner posted one
-(``route_position``, ``route_heading_deg``: the chosen viewframe's route point).
+(``route_position``, ``route_heading_deg``: the chosen viewframe's place and heading).
 A frame that could not be localized has ``viewframe: null`` and says why in ``reason``.
 ``view`` is the viewframe the single-frame decision chose: the route point itself, unless the map
 has viewframes between the route points (``render.views_per_leg`` > 1), when ``viewframe`` (and
@@ -90,7 +90,7 @@ def frame_record(
     """One frame's entry of the results file, from the frame's ``position`` message (None: none was
     posted, the entry says ``missing`` as its reason), its ``truth`` message (None: unknown) and its
     refined ``pose`` (None: not refined). With a pose, ``position`` and ``heading_deg`` are the
-    refined ones and ``route_position``/``route_heading_deg`` the chosen route point's; ``pose``
+    refined ones and ``route_position``/``route_heading_deg`` the chosen viewframe's; ``pose``
     holds the refinement (pitch, uncertainty). ``route_points``: the route point of each
     viewframe when the map has viewframes between the route points (``render.views_per_leg``):
     ``viewframe`` and the ``ranking`` are then route points (the ranking's first viewframe of
