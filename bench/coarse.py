@@ -39,15 +39,16 @@ def evalset(split: str, ks: tuple[int, ...] = (1, 3, 5, 10)) -> dict:
     """Coarse recall on the sweeps of ``bench.evalset`` (see the module docstring)."""
     import cv2
 
-    from bench.evalset import cases
+    from bench.evalset import cases, one_view_a_point
     from models.coarse import CoarseIndex
     from models.index import ViewframeIndex
+    from models.scenario import load_scenario
     from models.world import World
 
     out: dict = {"split": split, "ks": list(ks), "cases": {}}
     total = {"frames": 0, "full_top1": 0, **{f"truth@{k}": 0 for k in ks}, **{f"best@{k}": 0 for k in ks}}
     for case in cases(split, kinds=["sweep"]):
-        with World.from_scenario(case.scenario_path) as world:
+        with World(one_view_a_point(load_scenario(case.scenario_path))) as world:
             viewframes = world.viewframes
             memory = world.scenario.memory
         images, ids = [vf.image for vf in viewframes], [vf.index for vf in viewframes]

@@ -28,10 +28,11 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+from bench.evalset import one_view_a_point  # noqa: E402
 from models.camera_emulator import CameraEmulator, Pose  # noqa: E402
 from models.detectors import LR_FEATURES, CandidateView, DetectorRegistry  # noqa: E402
 from models.index import ViewframeIndex  # noqa: E402
-from models.scenario import Scenario, SimulateSpec  # noqa: E402
+from models.scenario import Scenario, SimulateSpec, load_scenario  # noqa: E402
 from models.sensor import degrade  # noqa: E402
 from models.world import World  # noqa: E402
 
@@ -114,7 +115,7 @@ def case_questions(case, *, candidates: int = 8, min_pixels: int = 60, align_px:
     run`` does; the truth mask is rendered by the camera emulator at each frame's true pose
     (position, eye height, heading, pitch; roll as an image rotation)."""
     frames = []
-    with World.from_scenario(case.scenario_path) as world:
+    with World(one_view_a_point(load_scenario(case.scenario_path))) as world:
         scenario, vfs, env = world.scenario, world.viewframes, world.environment
         for img, ef in zip(world.sensor_frames, case.frames):
             pose = Pose(ef.x, ef.y, ef.z, ef.heading_deg, ef.pitch_deg)

@@ -32,7 +32,7 @@ dp = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(dp)
 
 sys.path.append(str(ROOT))
-from bench.evalset import cases  # noqa: E402
+from bench.evalset import cases, one_view_a_point  # noqa: E402
 from models.detectors import CandidateView, align_pixels, default_registry  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 
@@ -68,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     rows, ambiguous, started, names = [], 0, time.perf_counter(), []
     for case in cases(args.split, names=args.names, kinds=args.kinds):
-        sc = load_scenario(case.scenario_path)
+        sc = one_view_a_point(load_scenario(case.scenario_path))
         reg, align = registry_for(sc)
         data = dp.case_questions(
             case, align_px=align, min_pixels=sc.scheduler.min_pixels, candidates=sc.scheduler.candidates

@@ -38,7 +38,7 @@ sys.path.insert(0, str(_HERE.parent))
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import cases  # noqa: E402
+from bench.evalset import cases, one_view_a_point  # noqa: E402
 from knowledge_sources.fusion import fuse_rankings, fused_log_posterior  # noqa: E402
 from models.scenario import MemorySpec, SkylineSpec  # noqa: E402
 from models.skyline import match_skylines  # noqa: E402
@@ -56,7 +56,7 @@ def dump(split: str, out: Path) -> Path:
     refs: dict[str, np.ndarray] = {}
     routes: dict[str, np.ndarray] = {}
     for case in cases(split):
-        scenario = load_scenario(case.scenario_path)
+        scenario = one_view_a_point(load_scenario(case.scenario_path))
         cam, sky = scenario.camera, scenario.skyline
         t0 = time.perf_counter()
         with World(scenario) as world:

@@ -32,9 +32,10 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import cases  # noqa: E402
+from bench.evalset import cases, one_view_a_point  # noqa: E402
 from knowledge_sources.results import nearest_viewframe  # noqa: E402
 from models.index import ViewframeIndex  # noqa: E402
+from models.scenario import load_scenario  # noqa: E402
 from models.world import World  # noqa: E402
 
 #: built-in grids of memory overrides
@@ -48,7 +49,7 @@ GRIDS: dict[str, list[dict[str, Any]]] = {
 
 def prepare(case) -> dict[str, Any]:
     """Viewframe images, camera images (camera size), truth route points of one case."""
-    with World.from_scenario(case.scenario_path) as world:
+    with World(one_view_a_point(load_scenario(case.scenario_path))) as world:
         sc = world.scenario
         vfs = [v.image for v in world.viewframes]
         frames = world.sensor_frames

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import cases  # noqa: E402
+from bench.evalset import cases, one_view_a_point  # noqa: E402
 from knowledge_sources.fusion import fuse_rankings  # noqa: E402
 from models.index import ViewframeIndex  # noqa: E402
 from models.refine import refine_pose  # noqa: E402
@@ -54,7 +54,7 @@ def evaluate_case(
 ) -> dict:
     """``roll_candidates``: also rank with each of these skyline ``roll_candidates`` ("none": all),
     as sources ``skyline rc=K`` and ``fused@w rc=K`` (w the first weight), in the same run."""
-    scenario = load_scenario(case.scenario_path)
+    scenario = one_view_a_point(load_scenario(case.scenario_path))
     cam_spec, sky = scenario.camera, scenario.skyline
     match = sky.match_options()
     variants = {rc: {**match, "roll_candidates": None if rc == "none" else int(rc)} for rc in roll_candidates}

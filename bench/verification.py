@@ -47,6 +47,7 @@ def _load(name: str):
 dp = _load("detector_pairs")
 bench_detectors = _load("detectors")
 
+from bench.evalset import one_view_a_point  # noqa: E402
 from knowledge_sources.scene_analysis import SceneAnalysis  # noqa: E402
 from models.detectors import CandidateView  # noqa: E402
 from models.placement import found_placement, placement  # noqa: E402
@@ -188,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
     started = time.perf_counter()
     frames = []
     for case in bench_detectors.cases(args.split, names=args.names, kinds=args.kinds):
-        sc = load_scenario(case.scenario_path)
+        sc = one_view_a_point(load_scenario(case.scenario_path))
         reg, align = bench_detectors.registry_for(sc)
         data = dp.case_questions(
             case, align_px=align, min_pixels=sc.scheduler.min_pixels, candidates=sc.scheduler.candidates

@@ -62,6 +62,7 @@ from bench.evalset.cases import (
     case_names,
     cases,
     default_out_dir,
+    one_view_a_point,
     seeds,
 )
 
@@ -78,4 +79,5 @@ __all__ = [
     "CAMERA",
     "GENERATOR_VERSION",
     "default_out_dir",
+    "one_view_a_point",
 ]

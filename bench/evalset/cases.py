@@ -36,6 +36,7 @@ __all__ = [
     "ERROR_BOUNDS",
     "GENERATOR_VERSION",
     "default_out_dir",
+    "one_view_a_point",
 ]
 
 log = logging.getLogger(__name__)
@@ -334,6 +335,15 @@ def _absolute_paths(data: dict[str, Any], base: Path) -> dict[str, Any]:
     if "frames" in sensor:
         data["sensor"] = {"frames": [{**f, "image": str((base / f["image"]).resolve())} for f in sensor["frames"]]}
     return data
+
+
+def one_view_a_point(scenario: Any) -> Any:
+    """``scenario`` (a :class:`models.scenario.Scenario`) with one viewframe a route point
+    (``render.views_per_leg: 1``): for the benchmarks that rank viewframes themselves and judge
+    them by route point (the skyline, fusion, ranking, detector and verification benchmarks
+    measured the viewframes of the route points; the missions of bench/single_frame.py and
+    bench/tracking.py take the scenario's own)."""
+    return scenario.model_copy(update={"render": scenario.render.model_copy(update={"views_per_leg": 1})})
 
 
 def default_out_dir() -> Path:

@@ -189,3 +189,31 @@ def test_raycaster_agrees_with_the_viewframe_renderer(tmp_path):
                 x, y, z, heading_deg=heading, pitch_deg=0.0, roll_deg=0.0, width=160, height=120, fov_y_deg=45.0
             )
             assert np.median(np.abs(ours - ref)) <= 1.0
+
+
+def test_one_view_a_point_pins_the_benchmarks_scenario_and_keeps_its_files(tmp_path):
+    """The benchmarks that judge their own rankings by route point pin one viewframe a point; the
+    copy still resolves the scenario's relative files (its DEM)."""
+    import yaml
+
+    from bench.evalset import one_view_a_point
+    from models.scenario import load_scenario
+    from models.world import World
+
+    np.save(tmp_path / "dem.npy", np.random.default_rng(1).uniform(0, 30, (40, 40)))
+    path = tmp_path / "s.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "name": "pinned",
+                "terrain": {"cell_size": 10.0, "dem": "dem.npy"},
+                "route": [[100.0, 100.0], [140.0, 110.0], [180.0, 100.0]],
+                "camera": {"width": 32, "height": 24, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 900.0},
+            }
+        )
+    )
+    sc = load_scenario(path)
+    assert sc.views_per_leg == 3  # a short route: viewframes between the points by default
+    pinned = one_view_a_point(sc)
+    assert pinned.views_per_leg == 1 and sc.views_per_leg == 3
+    assert len(World(pinned, cache=None).poses) == 3 and World(pinned, cache=None).terrain.heights.shape == (40, 40)
