@@ -68,10 +68,13 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
     assert llrs and any(abs(abs(v) - implied) > 1e-3 for v in llrs), llrs
 
 
-def test_same_results_in_one_process_and_in_processes(small):
+@pytest.mark.parametrize("views", [1, 3], ids=["a-view-a-point", "views-between-points"])
+def test_same_results_in_one_process_and_in_processes(small_data, tmp_path, views):
+    small = tmp_path / "small.yaml"
+    small.write_text(yaml.safe_dump({**small_data, "render": {"views_per_leg": views}}))
     a = run_mission(small)
     b = run_mission(small, processes=True)
-    keys = ("frame", "viewframe", "queries", "backtracks", "correct")
+    keys = ("frame", "viewframe", "view", "queries", "backtracks", "correct")
     assert [{k: f[k] for k in keys} for f in a["frames"]] == [{k: f[k] for k in keys} for f in b["frames"]]
     for fa, fb in zip(a["frames"], b["frames"]):  # same ranking; variances equal but for float rounding
         assert [k for k, _ in fa["ranking"]] == [k for k, _ in fb["ranking"]]
