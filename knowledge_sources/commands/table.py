@@ -6,7 +6,8 @@ block, as the indexer agent does), and for every camera frame (the files of
 ``sensor.frames``, resized to the camera size, or the simulated frames of ``sensor.simulate``)
 prints one row: the error variance of the recall against every stored viewframe (see
 :mod:`models.associative`), the row's minimum marked ``*``. When a frame has a true pose, its
-*truth viewframe* is the route point nearest to it, and the row says whether the minimum falls
+*truth viewframe* is the viewframe nearest to it (the route point itself with one viewframe a
+point), and the row says whether the minimum falls
 on it. ``--json`` prints the same as one JSON document.
 """
 
@@ -32,7 +33,7 @@ HELP = "print the error-variance table of camera images against stored viewframe
 @dataclass(frozen=True)
 class TableRow:
     """One camera frame: ``variances`` (V,) in viewframe order, ``best`` the index of the
-    minimum, ``truth`` the nearest route point to the true pose (None if unknown)."""
+    minimum, ``truth`` the viewframe nearest to the true pose (None if unknown)."""
 
     frame: int
     source: str
@@ -89,13 +90,14 @@ def error_variance_table(
     index = ViewframeIndex(scenario.memory, seed=scenario.seed)
     index.add([vf.image for vf in viewframes], [vf.index for vf in viewframes])
     rows = []
+    places = [(vf.pose.x, vf.pose.y) for vf in viewframes]  # the viewframes' (x, y), between the route points too
     for frame in frames:
         ranking = index.rank(frame.image)
         by_viewframe = dict(zip(ranking.viewframes.tolist(), ranking.variances.tolist()))
         variances = [by_viewframe[vf.index] for vf in viewframes]
         truth = None
         if frame.truth is not None:
-            truth = nearest_viewframe(frame.truth[0], frame.truth[1], scenario.route)
+            truth = nearest_viewframe(frame.truth[0], frame.truth[1], places)
         rows.append(
             TableRow(frame.index, frame.source, variances, int(ranking.viewframes[0]), ranking.reliability, truth)
         )

@@ -92,3 +92,19 @@ def test_format_table(rows: list[TableRow], summary: str | None) -> None:
         assert line.count("*") == 1
         assert ("WRONG" in line) == (row.correct is False)
     assert (summary in text) if summary else ("rows have their minimum" not in text)
+
+
+def test_with_viewframes_between_the_route_points_a_rows_truth_is_the_nearest_viewframe(
+    small_data, tmp_path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The table's columns are every viewframe; a frame's truth is the viewframe nearest its true
+    pose: SMALL's frames stand at their route points (5 % of a leg on), so the viewframe on the
+    point, 3 k for frame k, not the route point's index k."""
+    from models.route_views import view_count
+
+    path = tmp_path / "views.yaml"
+    path.write_text(yaml.safe_dump({**small_data, "render": {"views_per_leg": 3}}))
+    assert main(["table", str(path), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert len(doc["viewframes"]) == view_count(len(small_data["route"]), 3)
+    assert [row["truth_viewframe"] for row in doc["rows"]] == [3 * row["frame"] for row in doc["rows"]]
