@@ -25,6 +25,8 @@ from typing import Any
 import cv2
 import numpy as np
 
+from models.route_views import shown_view
+
 __all__ = ["write_html_report", "frame_order", "truth_rank", "draw_answers"]
 
 _COLOUR = {True: (40, 200, 60), False: (230, 40, 40), None: (240, 200, 0)}  # RGB per answer
@@ -237,11 +239,12 @@ def write_html_report(
                 f"({e(str(sensor.source))}); boxes: the landmarks asked about, where the candidate viewframe "
                 "shows them</figcaption></figure>"
             )
-        truth = f.get("truth_viewframe")
-        if truth is not None and 0 <= int(truth) < len(replay.viewframes):
-            name = f"frames/viewframe_{int(truth):03d}.png"
+        truth = f.get("truth_viewframe")  # a route point; shown: the viewframe on it
+        on_truth = None if truth is None else int(truth) * replay.scenario.views_per_leg
+        if on_truth is not None and 0 <= on_truth < len(replay.viewframes):
+            name = f"frames/viewframe_{on_truth:03d}.png"
             if not (out / name).exists():
-                _save(out / name, draw_answers(replay.viewframes[int(truth)].image, []))
+                _save(out / name, draw_answers(replay.viewframes[on_truth].image, []))
             parts.append(
                 f'<figure><img src="{name}" alt="true viewframe {truth}"><figcaption>true viewframe {truth}'
                 "</figcaption></figure>"
@@ -250,9 +253,10 @@ def write_html_report(
             g = frames.get(idx)
             if g is None:
                 continue
-            chosen = g.get("viewframe")
+            chosen = g.get("viewframe")  # a route point; shown: its viewframe (models.route_views.shown_view)
+            shown = shown_view(g, replay.scenario.views_per_leg)
             caption = f"{e(run_name)} ({e(str(runs[names.index(run_name)]['strategy']))}): "
-            if chosen is None or not 0 <= int(chosen) < len(replay.viewframes):
+            if shown is None or not 0 <= shown < len(replay.viewframes):
                 parts.append(
                     f"<figure><figcaption>{caption}not localized: {e(str(g.get('reason', '')))}</figcaption></figure>"
                 )
@@ -260,7 +264,7 @@ def write_html_report(
             name = f"frames/frame_{idx:03d}_{names.index(run_name)}_chosen.png"
             _save(
                 out / name,
-                draw_answers(replay.viewframes[int(chosen)].image, _answer_boxes(g, replay, viewframe=int(chosen))),
+                draw_answers(replay.viewframes[shown].image, _answer_boxes(g, replay, viewframe=shown)),
             )
             ranking = ", ".join(f"V{int(k)} {float(v):.3g}" for k, v in g.get("ranking") or [])
             ok = {True: "right", False: "wrong", None: ""}[g.get("correct")]

@@ -140,3 +140,20 @@ def test_report_bad_results_file(tmp_path, capsys, content, message):
     assert main(["report", str(path), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err
     assert "results.json" in err and message in err
+
+
+def test_a_report_with_viewframes_between_the_route_points_shows_the_viewframe_on_the_true_point(small_data, tmp_path):
+    """The results name route points; the report's true viewframe is the one standing on the true
+    route point (3 k with three a leg), the chosen one the decision's own viewframe."""
+    small_data["route"] = small_data["route"][:3]
+    path = tmp_path / "views.yaml"
+    path.write_text(yaml.safe_dump({**small_data, "render": {"views_per_leg": 3}}))
+    out, report = tmp_path / "results.json", tmp_path / "report"
+    assert main(["run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert main(["report", str(out), "--out", str(report)]) == 0
+    results = json.loads(out.read_text())
+    truths = {f["truth_viewframe"] for f in results["frames"]}
+    shown = {p.name for p in (report / "frames").glob("viewframe_*.png")}
+    assert shown == {f"viewframe_{3 * k:03d}.png" for k in truths}
+    for f in results["frames"]:
+        assert cv2.imread(str(report / "frames" / f"frame_{f['frame']:03d}_0_chosen.png")) is not None
