@@ -20,8 +20,9 @@ __all__ = ["Replay", "replay", "scenario_path_of_trace", "answer_box"]
 
 @dataclass
 class Replay:
-    """``scenario``; ``environment``; ``viewframes`` (by route index); ``frames`` camera frames by
-    index; ``pattern`` the scenario's memory preprocessing (for edge images)."""
+    """``scenario``; ``environment``; ``viewframes`` (by viewframe index: the route points', and
+    those between them with ``render.views_per_leg`` > 1); ``frames`` camera frames by index;
+    ``pattern`` the scenario's memory preprocessing (for edge images)."""
 
     scenario: Any
     environment: Any
