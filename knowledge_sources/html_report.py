@@ -25,7 +25,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from models.route_views import shown_view
+from models.route_views import shown_view, view_on_point
 
 __all__ = ["write_html_report", "frame_order", "truth_rank", "draw_answers"]
 
@@ -240,7 +240,7 @@ def write_html_report(
                 "shows them</figcaption></figure>"
             )
         truth = f.get("truth_viewframe")  # a route point; shown: the viewframe on it
-        on_truth = None if truth is None else int(truth) * replay.scenario.views_per_leg
+        on_truth = None if truth is None else view_on_point(truth, replay.scenario.views_per_leg)
         if on_truth is not None and 0 <= on_truth < len(replay.viewframes):
             name = f"frames/viewframe_{on_truth:03d}.png"
             if not (out / name).exists():

@@ -708,13 +708,6 @@ class Map(Message):
             route_points=None if route_points is None else np.asarray(route_points, dtype=np.int32).ravel(),
         )
 
-    def point_of(self) -> np.ndarray:
-        """The route point of every viewframe ``(V,)`` int64 (viewframe k is route point k unless
-        the map has viewframes between the route points)."""
-        if self.route_points is None:
-            return np.arange(self.viewframes, dtype=np.int64)
-        return self.route_points
-
     def pose(self, k: int) -> list[float]:
         """Viewframe ``k``'s pose ``[x, y, z, heading_deg, pitch_deg]`` (world metres, degrees)."""
         return [float(v) for v in self.poses[k]]

@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.errors import input_error_message
-
-if TYPE_CHECKING:
-    from models.scenario import Scenario
+from models.route_views import route_points_of
 
 __all__ = ["MapRenderer"]
 
@@ -137,7 +135,7 @@ class MapRenderer(KnowledgeSource):
                 placements=placements,
                 memory=scenario.memory.model_dump(),
                 entry=entry,
-                route_points=_route_points(scenario),
+                route_points=route_points_of(scenario),
             ),
             links=(source.id,),
         )
@@ -183,16 +181,6 @@ class MapRenderer(KnowledgeSource):
                 board.get(levels.viewframe_id(k))  # flow control, as for the viewframes (act)
         viewframe_cache.release_pages([skylines], advice=mmap.MADV_DONTNEED)  # the entry's pages, read once
         return poses, visible, placements
-
-
-def _route_points(scenario: Scenario) -> list[int] | None:
-    """The route point of each viewframe (:func:`models.route_views.view_route`), or None when
-    the viewframes are the route points (one per leg)."""
-    from models.route_views import view_route
-
-    if scenario.views_per_leg == 1:
-        return None
-    return view_route(scenario.route, scenario.views_per_leg)[2].tolist()
 
 
 def _placement(node: dict, shape: tuple[int, ...], fov_y_deg: float) -> tuple[float, float, float]:

@@ -45,7 +45,7 @@ from knowledge_sources.results import add_map_coordinates, frame_record, summari
 from knowledge_sources.scheduler import detector_name
 from models.errors import ScenarioError
 from models.preflight import check_scenario, frame_count
-from models.route_views import view_count, view_route
+from models.route_views import route_points_of, view_count
 from models.scenario import Scenario, load_scenario
 
 __all__ = ["run_mission", "agent_plan", "MAX_RATE_HZ", "MAX_WAIT_S"]
@@ -406,9 +406,7 @@ def run_mission(
     # agents not ok: dead ones, and live ones whose activations raised (what they did not post is missing)
     not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
     route_xy = [[float(x), float(y)] for x, y in scenario.route]
-    route_points = (
-        None if scenario.views_per_leg == 1 else view_route(scenario.route, scenario.views_per_leg)[2].tolist()
-    )
+    route_points = route_points_of(scenario)
     estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
     records = []
     for f in sorted(frames_seen | set(range(n_frames))):

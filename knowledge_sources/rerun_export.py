@@ -205,6 +205,7 @@ class RerunLogger:
         """Log camera frame ``f`` with its position ``body`` (empty: not localized), answers and truth."""
         from knowledge_sources.replay import answer_box
         from knowledge_sources.results import nearest_viewframe
+        from models.route_views import view_on_point
 
         rr, rec, replay = self.rr, self.rec, self.replay
         rec.set_time("frame", sequence=f)
@@ -246,7 +247,7 @@ class RerunLogger:
         true_vf = None
         if truth:
             true_vf = nearest_viewframe(truth[0], truth[1], self.route)  # a route point; shown: the viewframe on it
-            rec.log("viewframe/true", rr.Image(replay.viewframes[true_vf * self.views_per_leg].image))
+            rec.log("viewframe/true", rr.Image(replay.viewframes[view_on_point(true_vf, self.views_per_leg)].image))
             rec.log(
                 "map/truth",
                 rr.Points2D([self.px(truth[0], truth[1])], colors=[[0, 0, 0]], radii=2.5, labels=[f"truth {f}"]),

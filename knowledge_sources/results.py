@@ -158,10 +158,9 @@ def frame_record(
 
 def _by_point(ranking: Sequence[Sequence[float]], route_points: Sequence[int]) -> list[list[float]]:
     """A ranking ``[[viewframe, score], ...]`` as route points: each point once, at its first viewframe's place."""
-    out: dict[int, float] = {}
-    for k, v in ranking:
-        out.setdefault(int(route_points[int(k)]), float(v))
-    return [[k, v] for k, v in out.items()]
+    from models.route_views import first_per_point
+
+    return [[int(route_points[k]), v] for k, v in first_per_point(ranking, route_points)]
 
 
 def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str, Any]:

@@ -385,14 +385,8 @@ def _best_view_per_point(ranking: list[tuple[int, float]], mp: levels.Map) -> li
     third of a leg apart match a camera alike and the total favours the point with the most of
     them, not the place that matches best. The tracker takes every viewframe (its own fusion of
     the same rankings)."""
+    from models.route_views import first_per_point
+
     if mp.route_points is None:
         return ranking
-    rp = mp.route_points
-    seen: set[int] = set()
-    out = []
-    for k, v in ranking:
-        point = int(rp[int(k)])
-        if point not in seen:
-            seen.add(point)
-            out.append((k, v))
-    return out
+    return first_per_point(ranking, mp.route_points)

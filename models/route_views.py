@@ -13,7 +13,7 @@ World coordinates ``(x, y)`` in metres; headings counterclockwise from +x, degre
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -24,7 +24,16 @@ if TYPE_CHECKING:
     from models.scenario import Scenario
     from models.terrain import Terrain
 
-__all__ = ["view_count", "view_route", "view_poses", "views_of_points", "shown_view"]
+__all__ = [
+    "view_count",
+    "view_route",
+    "view_poses",
+    "route_points_of",
+    "view_on_point",
+    "views_of_points",
+    "first_per_point",
+    "shown_view",
+]
 
 
 def view_count(points: int, views_per_leg: int = 1) -> int:
@@ -74,6 +83,34 @@ def view_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:
     ]
 
 
+def route_points_of(scenario: Scenario) -> list[int] | None:
+    """The route point of each viewframe of ``scenario`` (:func:`view_route`), or None when the
+    viewframes are the route points (one a leg): the map's ``route_points``."""
+    if scenario.views_per_leg == 1:
+        return None
+    return view_route(scenario.route, scenario.views_per_leg)[2].tolist()
+
+
+def view_on_point(point: int, views_per_leg: int = 1) -> int:
+    """The viewframe standing on route point ``point`` (:func:`view_route`: ``views_per_leg`` times it)."""
+    return int(point) * int(views_per_leg)
+
+
+def first_per_point(ranking: Sequence[Sequence[float]], route_points: ArrayLike) -> list[tuple[int, float]]:
+    """The entries ``(viewframe, score)`` of ``ranking`` that are the first of their route point
+    (``route_points``: each viewframe's), in the ranking's order: a best-first ranking's best
+    viewframe of each route point."""
+    rp = np.asarray(route_points)
+    seen: set[int] = set()
+    out = []
+    for k, v in ranking:
+        point = int(rp[int(k)])
+        if point not in seen:
+            seen.add(point)
+            out.append((int(k), float(v)))
+    return out
+
+
 def views_of_points(route_points: ArrayLike, first: int, last: int) -> tuple[int, int]:
     """The viewframes ``(first, last)`` (inclusive) of the route points ``first..last``, given each
     viewframe's route point ``route_points`` (V,), non-decreasing (:func:`view_route`'s)."""
@@ -93,4 +130,4 @@ def shown_view(record: Mapping[str, Any], views_per_leg: int = 1) -> int | None:
     view = record.get("view")
     if view is not None and (record.get("frame_only") or {}).get("viewframe", point) == point:
         return int(view)
-    return int(point) * int(views_per_leg)
+    return view_on_point(point, views_per_leg)

@@ -522,6 +522,21 @@ def test_sensor_frame_columns_are_checked_against_the_image():
             levels.SensorFrame(frame=0, image=image, source="f.png", columns=bad)
 
 
+def _map_between(route_points):
+    """A map of 3 viewframes on a route of 2 points (render.views_per_leg: 2) with ``route_points``."""
+    return levels.Map.of(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={},
+        landmarks=[],
+        route=[[0.0, 0.0], [10.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={},
+        memory={},
+        route_points=route_points,
+    )
+
+
 @pytest.mark.parametrize(
     "route_points, problem",
     [
@@ -533,26 +548,6 @@ def test_sensor_frame_columns_are_checked_against_the_image():
 )
 def test_a_map_with_viewframes_between_route_points_names_a_bad_route_points_field(route_points, problem):
     with pytest.raises(levels.MessageError, match=problem) as err:
-        levels.Map.of(
-            scenario="s",
-            path="/tmp/s.yaml",
-            priors={},
-            landmarks=[],
-            route=[[0.0, 0.0], [10.0, 0.0]],
-            poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
-            visible={},
-            memory={},
-            route_points=route_points,
-        )
+        _map_between(route_points)
     assert "route_points" in str(err.value)
-    assert levels.Map.of(
-        scenario="s",
-        path="/tmp/s.yaml",
-        priors={},
-        landmarks=[],
-        route=[[0.0, 0.0], [10.0, 0.0]],
-        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
-        visible={},
-        memory={},
-        route_points=[0, 1, 1],
-    ).point_of().tolist() == [0, 1, 1]
+    assert _map_between([0, 1, 1]).route_points.tolist() == [0, 1, 1]

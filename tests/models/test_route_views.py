@@ -7,7 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from models.route_views import shown_view, view_count, view_route, views_of_points
+from models.route_views import (
+    first_per_point,
+    route_points_of,
+    shown_view,
+    view_count,
+    view_on_point,
+    view_route,
+    views_of_points,
+)
 from models.viewframes import route_headings
 
 ROUTE = [[0.0, 0.0], [30.0, 0.0], [30.0, 40.0], [-10.0, 40.0], [-10.0, 50.0]]
@@ -26,7 +34,7 @@ def test_views_between_the_points_stand_on_the_legs_and_look_along_them(views):
     pts, heads = np.asarray(ROUTE), route_headings(ROUTE)
     assert len(xy) == len(heading) == len(point) == view_count(len(ROUTE), views) == views * (len(ROUTE) - 1) + 1
     for k in range(len(ROUTE)):
-        assert xy[views * k].tolist() == pytest.approx(ROUTE[k])  # view F k stands on route point k
+        assert xy[view_on_point(k, views)].tolist() == pytest.approx(ROUTE[k])  # view F k stands on route point k
     for v in range(len(xy)):
         leg = min(v // views, len(ROUTE) - 2)
         a, b = pts[leg], pts[leg + 1]
@@ -66,3 +74,25 @@ def test_a_views_per_leg_below_one_is_refused():
 )
 def test_the_view_shown_for_an_answer(record, views, shown):
     assert shown_view(record, views) == shown
+
+
+def test_the_first_viewframe_of_each_route_point_in_ranking_order():
+    _, _, point = view_route(ROUTE, 3)  # 0 0 1 1 1 2 2 2 3 3 3 4 4
+    ranking = [(4, 0.1), (3, 0.2), (0, 0.3), (12, 0.4), (1, 0.5), (9, 0.6)]
+    assert first_per_point(ranking, point) == [(4, 0.1), (0, 0.3), (12, 0.4), (9, 0.6)]
+
+
+@pytest.mark.parametrize("views, expected", [(1, None), (3, view_route(ROUTE, 3)[2].tolist())])
+def test_a_scenarios_route_points_are_none_with_a_viewframe_a_point(views, expected):
+    from models.scenario import scenario_from_dict
+
+    sc = scenario_from_dict(
+        {
+            "name": "rp",
+            "terrain": {"cell_size": 10.0, "procedural": {"size": 32, "relief": 10.0, "seed": 1}},
+            "route": [[x + 100, y + 100] for x, y in ROUTE],
+            "camera": {"width": 32, "height": 24, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 900.0},
+            "render": {"views_per_leg": views},
+        }
+    )
+    assert route_points_of(sc) == expected
