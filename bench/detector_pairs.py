@@ -22,8 +22,13 @@ from __future__ import annotations
 
 import math
 import os
+import sys
+from pathlib import Path
 
 os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# loaded by file from bench/ and bench/tuning/ scripts: the repository root must be importable
+if str(Path(__file__).resolve().parents[1]) not in sys.path:
+    sys.path.append(str(Path(__file__).resolve().parents[1]))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
