@@ -14,8 +14,13 @@ weights; ``--fit``: at the weights fitted on this split) and prints top-1 / top-
 and overall, and the calibrated rule's position error: its first route point against estimates
 between it and its neighbours from the fused posterior (:func:`position_errors`).
 
-    python bench/fusion_sweep.py --split tuning --dump
-    python bench/fusion_sweep.py --split tuning --fit [--rules ...] [--truncate 2] [--max-roll 3]
+With ``--views`` the scenarios' own viewframes (``render.views_per_leg``: between the route points
+too) are dumped and ranked, and a rule is judged by route point: a point ranks where its best
+viewframe does (the scene analysis's candidates), and ``--fit`` maximises the true point's total
+posterior over its viewframes (the tracker's observation of a point).
+
+    python bench/fusion_sweep.py --split tuning --dump [--views]
+    python bench/fusion_sweep.py --split tuning --fit [--views] [--rules ...] [--truncate 2] [--max-roll 3]
 
 Prints JSON, then a table.
 """
@@ -44,9 +49,11 @@ from models.scenario import MemorySpec, SkylineSpec  # noqa: E402
 from models.skyline import match_skylines  # noqa: E402
 
 
-def dump(split: str, out: Path) -> Path:
-    """Step 1 of the module docstring; returns the file written."""
+def dump(split: str, out: Path, *, views: bool = False) -> Path:
+    """Step 1 of the module docstring; returns the file written. ``views``: the scenario's own
+    viewframes (``render.views_per_leg``) with each one's route point, instead of one a point."""
     from models.index import ViewframeIndex
+    from models.route_views import route_points_of
     from models.scenario import load_scenario
     from models.sensor import load_frame_image
     from models.skyline import skyline_from_image
@@ -55,8 +62,11 @@ def dump(split: str, out: Path) -> Path:
     rec: dict[str, list[Any]] = {k: [] for k in ("case", "truth", "assoc", "query", "xy", "arc")}
     refs: dict[str, np.ndarray] = {}
     routes: dict[str, np.ndarray] = {}
+    points: dict[str, np.ndarray] = {}
     for case in cases(split):
-        scenario = one_view_a_point(load_scenario(case.scenario_path))
+        scenario = load_scenario(case.scenario_path)
+        scenario = scenario if views else one_view_a_point(scenario)
+        on = route_points_of(scenario)
         cam, sky = scenario.camera, scenario.skyline
         t0 = time.perf_counter()
         with World(scenario) as world:
@@ -65,6 +75,7 @@ def dump(split: str, out: Path) -> Path:
             index.add((v.image for v in vfs), [v.index for v in vfs])
             refs[case.name] = np.stack([v.skyline for v in vfs]).astype(np.float32)
             routes[case.name] = np.array([[v.pose.x, v.pose.y, v.pose.heading_deg] for v in vfs])
+            points[case.name] = np.arange(len(vfs)) if on is None else np.asarray(on, dtype=np.int64)
             for fr in case.frames:
                 image = load_frame_image(fr.image, width=cam.width, height=cam.height)
                 rk = index.rank(image)
@@ -80,7 +91,7 @@ def dump(split: str, out: Path) -> Path:
             f"# {case.name}: {len(case.frames)} frames, {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True
         )
     out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{split}.npz"
+    path = out / f"{split}{'-views' if views else ''}.npz"
     np.savez(
         path,
         case=np.array(rec["case"]),
@@ -92,6 +103,7 @@ def dump(split: str, out: Path) -> Path:
         ref_names=np.array(list(refs)),
         **{f"ref:{k}": v for k, v in refs.items()},
         **{f"route:{k}": v for k, v in routes.items()},
+        **{f"points:{k}": v for k, v in points.items()},
     )
     return path
 
@@ -138,6 +150,7 @@ def per_frame(data: dict[str, Any], *, truncate: float, max_roll: float) -> list
         m = match_skylines(data["query"][i], refs, **match)
         flat = match_skylines(data["query"][i], refs, **{**match, "max_roll_deg": 0.0})
         labels = list(range(len(refs)))
+        key = f"points:{name}"
         out.append(
             {
                 "per": {
@@ -146,6 +159,7 @@ def per_frame(data: dict[str, Any], *, truncate: float, max_roll: float) -> list
                     "skyline_flat": (labels, flat.error.tolist()),
                 },
                 "truth": int(data["truth"][i]),
+                "points": data[key] if key in data else np.arange(len(refs)),
                 "terrain": str(name).split("/")[0],
             }
         )
@@ -154,15 +168,17 @@ def per_frame(data: dict[str, Any], *, truncate: float, max_roll: float) -> list
 
 def fit_weights(frames: list[dict[str, Any]]) -> tuple[float, float, float]:
     """The calibrated rule's (w_associative, w_skyline) that maximise the log posterior of the
-    true viewframes (:func:`fused_log_posterior`), and that negative log-likelihood (nats)."""
+    true route points (:func:`fused_log_posterior`; a point's is the total of its viewframes'),
+    and that negative log-likelihood (nats)."""
     from scipy.optimize import minimize
+    from scipy.special import logsumexp
 
     def nll(p: np.ndarray) -> float:
         w = {"associative": float(np.exp(p[0])), "skyline": float(np.exp(p[1]))}
         total = 0.0
         for f in frames:
             lab, lp = fused_log_posterior({s: f["per"][s] for s in w}, weights=w)
-            total -= float(lp[np.searchsorted(lab, f["truth"])])
+            total -= float(logsumexp(lp[f["points"][lab] == f["truth"]]))
         return total
 
     r = minimize(nll, np.log([_MEM.weight, _SKY.weight]), method="Nelder-Mead", options={"xatol": 1e-3, "fatol": 1e-3})
@@ -195,12 +211,15 @@ def position_errors(data: dict[str, Any], frames: list[dict[str, Any]], rule_wei
 
 
 def evaluate(frames: list[dict[str, Any]], rules: dict[str, Rule]) -> dict[str, Any]:
-    """Top-1 / top-5 of each rule per terrain and over all frames."""
+    """Top-1 / top-5 of each rule per terrain and over all frames, by route point (a point ranked
+    where its best viewframe is, as the scene analysis takes it)."""
+    from models.route_views import first_per_point
+
     ranks: dict[str, list[int]] = {r: [] for r in rules}
     for f in frames:
         for r, rule in rules.items():
-            fused = rule(f["per"])
-            ranks[r].append(next(j for j, (k, _) in enumerate(fused) if k == f["truth"]))
+            best = first_per_point(rule(f["per"]), f["points"])
+            ranks[r].append(next(j for j, (k, _) in enumerate(best) if int(f["points"][k]) == f["truth"]))
     terr = np.array([f["terrain"] for f in frames])
     out: dict[str, Any] = {"frames": len(frames), "terrains": {}, "overall": {}}
     for r in rules:
@@ -221,10 +240,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--truncate", type=float, default=_SKY.truncate_deg, help="skyline truncate_deg")
     ap.add_argument("--max-roll", type=float, default=_SKY.max_roll_deg, help="skyline max_roll_deg")
     ap.add_argument("--fit", action="store_true", help="fit the calibrated rule's weights on this split")
+    ap.add_argument(
+        "--views", action="store_true", help="the scenarios' own viewframes (views_per_leg), judged by route point"
+    )
     args = ap.parse_args(argv)
-    path = args.out / f"{args.split}.npz"
+    path = args.out / f"{args.split}{'-views' if args.views else ''}.npz"
     if args.dump or not path.exists():
-        path = dump(args.split, args.out)
+        path = dump(args.split, args.out, views=args.views)
     with np.load(path, allow_pickle=True) as z:
         data = {k: z[k] for k in z.files}
     frames = per_frame(data, truncate=args.truncate, max_roll=args.max_roll)
