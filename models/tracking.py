@@ -551,9 +551,9 @@ class MotionModel:
         """``(J, C)``: ``belief`` ``(C,)`` moved by each speed class of :meth:`speed_classes` alone
         (each row sums to the belief's mass; cumulative sums, O(J C)). The route ends at its last
         point, as in :meth:`predict`: a class's forward moves from a cell are those that stay on
-        the route, renormalised; from a cell where none does (at the last point, beyond it, or
-        nearer to it than the class's shortest move) the class is a stop; reversals that would
-        pass the first point stop there."""
+        the route, renormalised; from a cell nearer to the last point than the class's shortest
+        move it ends on the last point, and on the last point or beyond it (the grid's tail) it
+        is a stop; reversals that would pass the first point stop there."""
         a, b, _ = self.speed_classes(dt)
         n = belief.size
         e = min(self.end_cell, n - 1)
@@ -578,7 +578,8 @@ class MotionModel:
                     count = (e - lo + 1) - np.arange(k0, k1 + 1)
                     o[k0 + lo : e + 1] += np.cumsum((1.0 / count - 1.0 / w) * belief[k0 : k1 + 1])
                 s0 = max(0, e - lo + 1)
-                o[s0:] += belief[s0:]  # nearer than its shortest move, or past the end: a stop
+                o[e] += float(belief[s0:e].sum())  # nearer than its shortest move: to the last point
+                o[e:] += belief[e:]  # on the last point or past it: a stop
             else:  # a reversal: o[i] = sum of belief[i + 1 .. i + back] / back
                 back = -lo
                 o[: n - back] = c[back + 1 :]

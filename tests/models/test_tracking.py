@@ -366,7 +366,8 @@ def test_speed_classes_are_the_kernel(dt):
 
 def test_speed_classes_end_at_the_last_point():
     """Each class row keeps the belief's mass; a class's moves that would pass the last point are
-    renormalised over those that do not (none past it), and where none is left it is a stop."""
+    renormalised over those that do not (none past it); nearer to it than its shortest move, the
+    class ends on the last point; on it or beyond, it is a stop."""
     grid = RouteGrid.build(_route(8), cell_m=2.0, tail=0.5)
     motion = MotionModel.from_spec(TrackingSpec(p_kidnap=0.0), grid)
     n, e = grid.cells, motion.end_cell
@@ -384,6 +385,11 @@ def test_speed_classes_end_at_the_last_point():
         reach = (lo + hi) // 2
         assert r[e + 1 :].sum() == 0.0 and r.sum() == pytest.approx(1.0)
         np.testing.assert_allclose(r[e - reach + lo : e + 1], 1.0 / (reach - lo + 1))
-        one[:] = 0.0
-        one[e] = 1.0  # on the last point: the class stands there
-        np.testing.assert_allclose(motion.class_rows(one, None)[j], one)
+        for cell in (e, n - 1):  # on the last point, or past it: the class stands there
+            one[:] = 0.0
+            one[cell] = 1.0
+            np.testing.assert_allclose(motion.class_rows(one, None)[j], one)
+        if lo > 1:  # nearer than its shortest move: onto the last point
+            one[:] = 0.0
+            one[e - lo + 1] = 1.0
+            np.testing.assert_allclose(motion.class_rows(one, None)[j], np.eye(n)[e])
