@@ -761,9 +761,11 @@ class RouteFilter:
     def step(self, route_loglik: np.ndarray | None, *, dt: float | None = None) -> TrackEstimate:
         """Predict (``dt`` seconds since the previous frame, or None: no time) and update."""
         if self.speed_state and self.frames > 0:
+            mass = float(self.belief.sum())  # every class row's
             rows, weights, pred = self._predict_classes(dt)
-            self.belief = _update(self.grid, pred, route_loglik)
-            self.speed = _speed_posterior(self.grid, rows, weights, route_loglik, self.motion.p_kidnap)
+            like = None if route_loglik is None else _cell_likelihood(self.grid, route_loglik)
+            self.belief = _posterior(pred, like)
+            self.speed = _speed_posterior(rows, weights, like, self.motion.p_kidnap, mass=mass)
         else:
             pred = self.prior(dt)
             self.belief = _update(self.grid, pred, route_loglik)
@@ -773,27 +775,34 @@ class RouteFilter:
         return dataclasses.replace(est, state=self.state)
 
 
-def _update(grid: RouteGrid, pred: np.ndarray, route_loglik: np.ndarray | None) -> np.ndarray:
-    if route_loglik is None:
-        return pred
+def _cell_likelihood(grid: RouteGrid, route_loglik: np.ndarray) -> np.ndarray:
+    """A frame's likelihood at the cells ``(C,)``, relative to its largest (capped below)."""
     ll = grid.cell_loglik(route_loglik)
-    post = pred * np.exp(np.maximum(ll - ll.max(), -_LOG_RATIO_CAP))
+    return np.exp(np.maximum(ll - ll.max(), -_LOG_RATIO_CAP))
+
+
+def _posterior(pred: np.ndarray, like: np.ndarray | None) -> np.ndarray:
+    if like is None:
+        return pred
+    post = pred * like
     np.maximum(post, _TINY, out=post)  # no subnormal numbers: they make numpy 50x slower
     total = post.sum()
     return post / total if total > 0 else pred
 
 
+def _update(grid: RouteGrid, pred: np.ndarray, route_loglik: np.ndarray | None) -> np.ndarray:
+    return _posterior(pred, None if route_loglik is None else _cell_likelihood(grid, route_loglik))
+
+
 def _speed_posterior(
-    grid: RouteGrid, rows: np.ndarray, weights: np.ndarray, route_loglik: np.ndarray | None, p_kidnap: float
+    rows: np.ndarray, weights: np.ndarray, like: np.ndarray | None, p_kidnap: float, *, mass: float
 ) -> np.ndarray:
     """The posterior probability of each speed class of the step ``(J,)``: its prior ``weights``
-    times the evidence's likelihood under its prediction ``rows[j]`` (the kidnap part alike for all)."""
-    if route_loglik is None:
+    times the evidence's likelihood ``like`` ``(C,)`` under its prediction ``rows[j]`` (each row
+    of mass ``mass``; the kidnap part alike for all)."""
+    if like is None:
         return weights / weights.sum()
-    ll = grid.cell_loglik(route_loglik)
-    like = np.exp(np.maximum(ll - ll.max(), -_LOG_RATIO_CAP))
-    mass = rows.sum(axis=1)
-    ev = (1.0 - p_kidnap) * (rows @ like) / np.maximum(mass, 1e-300) + p_kidnap * float(like.mean())
+    ev = (1.0 - p_kidnap) * (rows @ like) / max(mass, 1e-300) + p_kidnap * float(like.mean())
     post = weights * ev
     total = float(post.sum())
     return post / total if total > 0 else weights / weights.sum()
