@@ -4,8 +4,10 @@ Drives: the cases of the evaluation set (bench/evalset: sweeps with a frame at e
 point, drives with stops and gaps of several route points, drives with a kidnapping; camera
 frames from another renderer than the viewframes', at other sizes, with larger pose errors),
 split ``heldout`` (the default: for reporting, never used to choose a parameter) or ``tuning``;
-or ``--split sim``: simulated drives of the bundled terrains with bench/tracking_calibrate.py's
-tuning seeds. Each drive's frames are ranked by the real associative memory
+``--split tuning-drives``: more drives and kidnaps on the tuning terrains, at tuning seeds
+(:func:`extra_tuning_drives`; the tuning split has one drive and two kidnaps); or ``--split sim``:
+simulated drives of the bundled terrains with bench/tracking_calibrate.py's tuning seeds (a
+speed that persists, stops of several frames). Each drive's frames are ranked by the real associative memory
 (bench/tracking_data.py), then
 
 * single-frame: the observed ranking's best route point per frame (the blind decision, without
@@ -27,7 +29,7 @@ on which the tracked route point is right again), the tracker's cost per frame o
 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
 tracker on one drive (``mapinterp run`` and ``--no-track``).
 
-    python bench/tracking.py [--split heldout|tuning|sim] [--observe associative fused-robust fused]
+    python bench/tracking.py [--split heldout|tuning|tuning-drives|sim] [--observe associative fused-robust fused]
                              [--set temperature=1.0 ...] [--runs] [--json-only]
 
 Prints JSON, then a table.
@@ -70,13 +72,27 @@ sys.path.pop(0)
 #: the observation model's parameters fitted for the associative ranking alone on the evaluation
 #: set's tuning split (bench/tracking_calibrate.py --observe associative; BENCHMARKS.md): the
 #: tracker before it observed the fused ranking, run beside the defaults (fitted to the fusion)
-ASSOCIATIVE_CALIBRATION = {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0, "scores": "robust"}
+ASSOCIATIVE_CALIBRATION = {
+    "temperature": 1.11,
+    "spread": 0.45,
+    "eps": 1e-4,
+    "margin_scale": 0.0,
+    "scores": "robust",
+    "speed_persistence": 0.0,
+}
 #: what a run may observe, each with its calibration: ``associative`` (above), ``fused-robust``
 #: (the fused ranking re-standardised per frame at the calibration of the first fusion rule: the
 #: tracker before its observation was refitted to the calibrated fusion), ``fused`` (the defaults)
 CALIBRATIONS: dict[str, dict] = {
     "associative": ASSOCIATIVE_CALIBRATION,
-    "fused-robust": {"temperature": 1.11, "spread": 0.45, "eps": 1e-4, "margin_scale": 0.0, "scores": "robust"},
+    "fused-robust": {
+        "temperature": 1.11,
+        "spread": 0.45,
+        "eps": 1e-4,
+        "margin_scale": 0.0,
+        "scores": "robust",
+        "speed_persistence": 0.0,
+    },
     "fused": {},
 }
 
@@ -209,24 +225,34 @@ def pooled(results: list[dict]) -> dict:
 def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
     """Median cost of one online step (prediction, likelihood from a ranking, update, estimate)
     on a straight route of 10,000 cells, 40 m between route points: wall time, and the CPU time of
-    this thread (on a loaded machine the wall time includes waiting for a core)."""
+    this thread (on a loaded machine the wall time includes waiting for a core). Measured for
+    ``spec`` and, alternating step by step in the same run, for ``spec`` without the speed state
+    (``speed_persistence`` 0: the filter before it), under ``without_speed_state``."""
     points = int(10_000 * spec.cell_m / 40.0) + 1
     route = np.c_[np.arange(points) * 40.0, np.zeros(points)]
-    f = RouteFilter(route, spec=spec)
+    specs = {"with": spec, "without": spec.model_copy(update={"speed_persistence": 0.0})}
+    filters = {k: RouteFilter(route, spec=sp) for k, sp in specs.items()}
     rng = np.random.default_rng(0)
     variances = [rng.random(points) for _ in range(8)]
     viewframes = np.arange(points)
-    f.step(f.route_loglik(viewframes, variances[0]))
-    per: dict[str, list[float]] = {"step_ms": [], "predict_ms": [], "step_cpu_ms": []}
+    per: dict[str, dict[str, list[float]]] = {}
+    for k, f in filters.items():
+        f.step(f.route_loglik(viewframes, variances[0]))
+        per[k] = {"step_ms": [], "predict_ms": [], "step_cpu_ms": []}
     for i in range(repeats):
-        t0, c0 = time.perf_counter(), time.thread_time()
-        f.step(f.route_loglik(viewframes, variances[i % 8]), dt=None)
-        per["step_ms"].append((time.perf_counter() - t0) * 1e3)
-        per["step_cpu_ms"].append((time.thread_time() - c0) * 1e3)
-        t0 = time.perf_counter()
-        f.motion.predict(f.belief, None)
-        per["predict_ms"].append((time.perf_counter() - t0) * 1e3)
-    return {"cells": f.grid.cells, "route_points": points, **{k + "_p50": float(np.median(v)) for k, v in per.items()}}
+        for k, f in filters.items():
+            t0, c0 = time.perf_counter(), time.thread_time()
+            f.step(f.route_loglik(viewframes, variances[i % 8]), dt=None)
+            per[k]["step_ms"].append((time.perf_counter() - t0) * 1e3)
+            per[k]["step_cpu_ms"].append((time.thread_time() - c0) * 1e3)
+            t0 = time.perf_counter()
+            f.prior(None)
+            per[k]["predict_ms"].append((time.perf_counter() - t0) * 1e3)
+    f = filters["with"]
+    out: dict = {"cells": f.grid.cells, "route_points": points}
+    out.update({k + "_p50": float(np.median(v)) for k, v in per["with"].items()})
+    out["without_speed_state"] = {k + "_p50": float(np.median(v)) for k, v in per["without"].items()}
+    return out
 
 
 def whole_runs(path: Path) -> dict:
@@ -241,6 +267,33 @@ def whole_runs(path: Path) -> dict:
             "top1_frame_only": s.get("top1_frame_only"),
             "mean_queries": s.get("mean_queries"),
         }
+    return out
+
+
+#: ``--split tuning-drives``: the seed offset of the tuning terrains' second instances (seeds
+#: 1551-1854: tuning seeds, 1xxx, apart from the held-out 2xxx)
+EXTRA_SEED_OFFSET = 450
+#: the evaluation set's kinds of case that are drives (time-ordered frames at a varying speed)
+DRIVE_KINDS = ("drive", "kidnap")
+
+
+def extra_tuning_drives() -> list:
+    """More drives on the evaluation set's TUNING terrains (the split has one drive and two
+    kidnaps): each tuning terrain's drive kinds it does not have (``<name>-x``), and each tuning
+    terrain again at seed + :data:`EXTRA_SEED_OFFSET` (another terrain of its family, route and
+    drive; the real-DEM crop the same) with both kinds (``<name>-s``)."""
+    import dataclasses
+
+    from bench.evalset import TERRAINS
+
+    out = []
+    for t in TERRAINS:
+        if t.split != "tuning":
+            continue
+        out.append(
+            dataclasses.replace(t, name=f"{t.name}-x", drives=tuple(k for k in DRIVE_KINDS if k not in t.drives))
+        )
+        out.append(dataclasses.replace(t, name=f"{t.name}-s", seed=t.seed + EXTRA_SEED_OFFSET, drives=DRIVE_KINDS))
     return out
 
 
@@ -269,7 +322,8 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
         return out, f"simulated TUNING drives (seeds {list(TUNING_SEEDS)}), not held out"
     from bench.evalset import cases
 
-    for case in cases(split):
+    extra = split == "tuning-drives"
+    for case in cases("tuning", terrains=extra_tuning_drives(), kinds=DRIVE_KINDS) if extra else cases(split):
         sc = load_scenario(case.scenario_path)
         d = ranked_drive(sc)
         d["name"] = case.name
@@ -278,6 +332,8 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
         d["kidnaps"] = [f.index for f in case.frames if f.event == "kidnap"]
         out.append((d, sc.tracking, case.scenario_path))
         print(f"{case.name}: {len(d['true_point'])} frames", file=sys.stderr)
+    if extra:
+        return out, "more drives on the evaluation set's tuning terrains (tuning seeds; parameters may be chosen here)"
     return out, f"evaluation set, split {split}" + (
         " (held out: never used to choose a parameter)" if split == "heldout" else " (parameters may be chosen here)"
     )
@@ -287,9 +343,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--split",
-        choices=["heldout", "tuning", "sim"],
+        choices=["heldout", "tuning", "tuning-drives", "sim"],
         default="heldout",
-        help="evaluation-set split, or simulated tuning drives (default heldout)",
+        help="evaluation-set split, more drives on the tuning terrains (tuning-drives: extra_tuning_drives), "
+        "or simulated tuning drives (default heldout)",
     )
     ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
     ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
@@ -326,9 +383,12 @@ def main() -> None:
                 args.cache.write_bytes(pickle.dumps((ranked, what)))
         results = []
         for d, _, path in ranked:
-            sc = load_scenario(path)  # not the cached one: the defaults may have changed since
-            tracking = sc.tracking
-            d["memory_weight"], d["skyline_weight"] = sc.memory.weight, sc.skyline.weight
+            if Path(path).is_file():
+                sc = load_scenario(path)  # not the cached one: the defaults may have changed since
+                tracking = sc.tracking
+                d["memory_weight"], d["skyline_weight"] = sc.memory.weight, sc.skyline.weight
+            else:  # a simulated drive's scenario was a temporary file: today's defaults, the cached weights
+                tracking = TrackingSpec()
             if args.no_times:
                 d["times"] = np.full(len(d["true_point"]), np.nan)
             runs = {}
@@ -399,10 +459,11 @@ def main() -> None:
                 f"{m(p['error_m_median']):>6} {m(p['error_m_mean']):>7} {rec:>8}"
             )
     c = out["cost_10000_cells"]
-    print(
-        f"tracker cost, {c['cells']} cells: step p50 {c['step_ms_p50']:.3f} ms wall, {c['step_cpu_ms_p50']:.3f} ms CPU; "
-        f"prediction p50 {c['predict_ms_p50']:.3f} ms"
-    )
+    for label, cc in (("", c), (" (without the speed state)", c["without_speed_state"])):
+        print(
+            f"tracker cost{label}, {c['cells']} cells: step p50 {cc['step_ms_p50']:.3f} ms wall, "
+            f"{cc['step_cpu_ms_p50']:.3f} ms CPU; prediction p50 {cc['predict_ms_p50']:.3f} ms"
+        )
     if whole:
         for k, v in whole.items():
             print(

@@ -651,7 +651,10 @@ class TrackingSpec(_Spec):
     spacings (or ``max_speed_mps`` * dt when frames carry a ``time`` and that is more), with
     probability ``p_skip`` by up to ``max_skip_points`` spacings (dropped frames), a stop with
     probability ``p_stop``, a reversal of up to ``reverse_m`` with probability ``p_reverse``; a
-    jump anywhere on the route with probability ``p_kidnap`` (relocalization). Observation: the
+    jump anywhere on the route with probability ``p_kidnap`` (relocalization). Speed state: the
+    step's speed class (a part of that kernel) is kept from the previous step with probability
+    ``speed_persistence`` (then moved to a neighbouring class with probability ``speed_walk``),
+    else drawn afresh from the kernel; 0 is the kernel alone. Observation: the
     frame's ranking (every ranking source the scheduler uses, fused by its rule:
     :mod:`knowledge_sources.fusion`) as a likelihood, ``log(eps_f + exp(gain - z / temperature))``
     with ``z`` the fused score above the best: with ``scores: nats`` the calibrated fusion's
@@ -660,7 +663,8 @@ class TrackingSpec(_Spec):
     higher when the ranking's margin is low, each route point's term spread along the route by a
     Gaussian of ``spread`` mean route spacings (the ranking's own along-route error);
     the parameters were measured on the fused ranking of the evaluation set's tuning split
-    (maximum likelihood, then the tracked top-1 over a grid; ``gain`` fixed;
+    (maximum likelihood, then the tracked top-1 over a grid; ``gain`` fixed; ``spread`` and
+    ``speed_persistence`` refitted with three viewframes a leg on the tuning drives;
     bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
@@ -679,11 +683,13 @@ class TrackingSpec(_Spec):
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
+    speed_persistence: float = Field(default=0.3, ge=0, lt=1)
+    speed_walk: float = Field(default=0.25, ge=0, le=1)
     temperature: float = Field(default=1.0, gt=0, le=1000)
     gain: float = Field(default=0.0, ge=-100, le=100)
     eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0, le=1000)
-    spread: float = Field(default=0.45, ge=0, le=1000)
+    spread: float = Field(default=0.3, ge=0, le=1000)
     scores: Literal["nats", "robust"] = "nats"
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)

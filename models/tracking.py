@@ -21,6 +21,26 @@ Prediction (motion model)
     after a wrong start or a jump. The kernel is piecewise constant, so the convolution costs
     O(cells) by cumulative sums (the offline backward pass, the transpose, too).
 
+    *Speed state* (``speed_persistence`` > 0, the default): a vehicle's speed persists from one
+    frame to the next, which a kernel drawn afresh every step cannot know (in a stop it pushes
+    90 % of the mass forward every frame, and the track drifts ahead of a vehicle standing still
+    or driving slowly while weak evidence keeps the right point). The kernel is cut into speed
+    classes (the reversal, the stop, :data:`CRUISE_CLASSES` equal parts of the cruise box,
+    :data:`SKIP_CLASSES` of the skip box: :meth:`MotionModel.speed_classes`), so that drawing a class
+    with the kernel's probabilities and a move uniformly within it is the kernel. The filter
+    keeps the posterior probability of the last step's class (:attr:`RouteFilter.speed`: each
+    class's prediction times the frame's evidence), and the next step keeps that class with
+    probability ``speed_persistence`` (moving to a neighbouring class with probability
+    ``speed_walk``), else draws it afresh from the kernel. The speed is one distribution for the
+    whole belief (not one per cell: a joint grid over (speed, cell) cost 3 ms a step at 10,000
+    cells against this one's ~0.1 ms more than the plain kernel, and tracked within a frame or
+    two of it on the tuning drives). ``speed_persistence`` 0 is the plain kernel, exactly.
+    Measured on tuning drives only (BENCHMARKS.md, "Tracking along the route", session 9): on
+    drives whose speed persists (the simulated drives, stops of several frames) it holds the
+    track where the plain kernel drifted ahead; on the evaluation set's generated drives, whose
+    speed is drawn afresh every frame, it costs a little; 0.3 is the plateau of the pooled tuning
+    drives. The offline smoother uses the plain kernel.
+
 Update (observation model)
     The frame's ranking gives a value ``v_k`` per route point ``k`` (lower is better): the
     knowledge source passes the ranking the single-frame decision uses, every ranking source
@@ -57,7 +77,11 @@ Update (observation model)
     grid's plateau. The script also prints the empirical log
     ratio of the score histograms of true and other route points, and a reliability table (the
     single-frame probability of the chosen route point against how often it is right). A margin
-    term did not improve the fit once the spread was modelled, so its default is 0.
+    term did not improve the fit once the spread was modelled, so its default is 0. Refitted
+    with three viewframes a leg (``render.views_per_leg`` 3, each route point observed as its
+    viewframes' total probability; session 9): the fit's spread fell from 0.33 to 0.26 route
+    spacings (temperature 0.65 -> 0.44); ``spread`` 0.3 (was 0.45), on the tracked plateau
+    0.25-0.35 of the tuning drives; temperature 1 kept (the fit is over-confident for tracking).
 
     Landmark answers of the scene analysis add ``log q`` / ``log (1 - q)`` per route point that
     sees / does not see a landmark reported present, and the converse for one reported absent
@@ -113,6 +137,9 @@ SAMPLES_PER_LEG = 4
 _SPREAD_LEGS = 3
 #: what the observed values are (:func:`ranking_scores`; the scenario's ``tracking.scores``)
 SCORES = ("nats", "robust")
+#: with a speed state (``speed_persistence`` > 0): the cruise box's speed classes, and the skip box's
+CRUISE_CLASSES = 8
+SKIP_CLASSES = 4
 
 
 @dataclass(frozen=True)
@@ -346,6 +373,10 @@ class MotionModel:
     p_kidnap: float
     #: the cell of the route's last point: forward moves that would pass it end there
     end_cell: int
+    #: probability that a step keeps the previous step's speed class (then moves to a neighbouring
+    #: class with probability ``speed_walk``); else the class is drawn afresh from the kernel
+    persistence: float = 0.0
+    speed_walk: float = 0.25
     _cache: dict = field(default_factory=dict, compare=False, repr=False)
 
     @classmethod
@@ -362,6 +393,8 @@ class MotionModel:
             spec.reverse_m,
             spec.p_kidnap,
             min(grid.cells - 1, int(grid.arc[-1] / grid.cell_m)),
+            spec.speed_persistence,
+            spec.speed_walk,
         )
 
     def cruise_m(self, dt: float | None) -> float:
@@ -486,6 +519,98 @@ class MotionModel:
             out += a_back * stay * message
         return (1.0 - self.p_kidnap) * out + self.p_kidnap * message.mean()
 
+    def speed_classes(self, dt: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(a, b, pi)`` of the speed classes of a step (cached): class j moves uniformly by
+        ``a[j] .. b[j]`` cells (inclusive) and ``pi[j]`` is the kernel's probability of those
+        displacements, so drawing a class from ``pi`` and a move within it is :meth:`kernel`.
+        Classes, slowest first: the reversal, the stop, the cruise box in :data:`CRUISE_CLASSES`
+        equal parts and the skip box beyond it in :data:`SKIP_CLASSES` (a class is a fraction of
+        the step's largest move, so with times it scales with ``dt``)."""
+        key = ("classes", None if dt is None else round(float(dt), 3))
+        got = self._cache.get(key)
+        if got is not None:
+            return got
+        k, back = self.kernel(dt)
+        cruise = self._cache[None if dt is None else round(float(dt), 3)][2]
+        fwd = k.size - back - 1
+        edges = np.unique(np.round(np.linspace(0, cruise, CRUISE_CLASSES + 1)).astype(int))
+        if fwd > cruise:
+            edges = np.unique(np.r_[edges, np.round(np.linspace(cruise, fwd, SKIP_CLASSES + 1)).astype(int)])
+        a = [-back, 0] if back else [0]
+        b = [-1, 0] if back else [0]
+        a += [int(x) + 1 for x in edges[:-1]]
+        b += [int(x) for x in edges[1:]]
+        aa, bb = np.asarray(a), np.asarray(b)
+        c = np.r_[0.0, np.cumsum(k)]
+        pi = c[bb + back + 1] - c[aa + back]
+        got = (aa, bb, pi / pi.sum())
+        self._cache[key] = got
+        return got
+
+    def class_rows(self, belief: np.ndarray, dt: float | None) -> np.ndarray:
+        """``(J, C)``: ``belief`` ``(C,)`` moved by each speed class of :meth:`speed_classes` alone
+        (each row sums to the belief's mass; cumulative sums, O(J C)). The route ends at its last
+        point, as in :meth:`predict`: a class's forward moves from a cell are those that stay on
+        the route, renormalised; from a cell nearer to the last point than the class's shortest
+        move it ends on the last point, and on the last point or beyond it (the grid's tail) it
+        is a stop; reversals that would pass the first point stop there."""
+        a, b, _ = self.speed_classes(dt)
+        n = belief.size
+        e = min(self.end_cell, n - 1)
+        c = np.zeros(n + 1)
+        np.cumsum(belief, out=c[1:])
+        rows = np.empty((a.size, n))
+        for j, (lo, hi) in enumerate(zip(a.tolist(), b.tolist())):
+            o = rows[j]
+            lo, hi = min(lo, n - 1), min(hi, n - 1)
+            if lo == 0 and hi == 0:
+                o[:] = belief
+            elif lo > 0:  # forward: o[i] = sum of belief[i - hi .. i - lo] / width
+                o[:lo] = 0.0
+                o[lo:] = c[1 : n - lo + 1]
+                o[hi:] -= c[: n - hi]
+                w = hi - lo + 1
+                o *= 1.0 / w
+                o[e + 1 :] = 0.0
+                # the cells nearer the end than the class's longest move: their moves renormalised
+                k0, k1 = max(0, e - hi + 1), e - lo
+                if k1 >= k0:
+                    count = (e - lo + 1) - np.arange(k0, k1 + 1)
+                    o[k0 + lo : e + 1] += np.cumsum((1.0 / count - 1.0 / w) * belief[k0 : k1 + 1])
+                s0 = max(0, e - lo + 1)
+                o[e] += float(belief[s0:e].sum())  # nearer than its shortest move: to the last point
+                o[e:] += belief[e:]  # on the last point or past it: a stop
+            else:  # a reversal: o[i] = sum of belief[i + 1 .. i + back] / back
+                back = -lo
+                o[: n - back] = c[back + 1 :]
+                o[n - back :] = c[n]
+                o -= c[1:]
+                o *= 1.0 / back
+                o[0] += float(c[n]) - float(o.sum())
+        return rows
+
+    def class_weights(self, q: np.ndarray | None, dt: float | None) -> np.ndarray:
+        """The next step's speed-class probabilities ``(J,)`` given this step's posterior ``q``
+        (None: the kernel's): kept with probability ``persistence`` (moving to a neighbouring
+        class with probability ``speed_walk``), else drawn afresh from the kernel's."""
+        pi = self.speed_classes(dt)[2]
+        if q is None or q.size != pi.size:
+            return pi.copy()
+        walk = self.speed_walk
+        k = (1.0 - walk) * q
+        k[1:] += 0.5 * walk * q[:-1]
+        k[:-1] += 0.5 * walk * q[1:]
+        k[0] += 0.5 * walk * q[0]
+        k[-1] += 0.5 * walk * q[-1]
+        return self.persistence * k + (1.0 - self.persistence) * pi
+
+    def mix(self, rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """The prediction ``(C,)`` of class rows ``(J, C)`` mixed by ``weights`` ``(J,)``, with the kidnap mixture."""
+        out = weights @ rows
+        out *= (1.0 - self.p_kidnap) / max(float(out.sum()), 1e-300)
+        out += self.p_kidnap / out.size
+        return out
+
 
 @dataclass(frozen=True)
 class TrackEstimate:
@@ -572,8 +697,22 @@ class RouteFilter:
     def reset(self) -> None:
         """Back to a blind start: uniform belief, ``lost``, no frame yet."""
         self.belief = np.full(self.grid.cells, 1.0 / self.grid.cells)
+        #: with a speed state: the posterior probability of each speed class of the last step ``(J,)``
+        #: (None before the first step)
+        self.speed: np.ndarray | None = None
         self.state = "lost"
         self.frames = 0
+
+    @property
+    def speed_state(self) -> bool:
+        """Whether the filter keeps a speed state (``speed_persistence`` > 0)."""
+        return self.motion.persistence > 0
+
+    def _predict_classes(self, dt: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(rows (J, C), weights (J,), prediction (C,))`` of the next frame with a speed state."""
+        rows = self.motion.class_rows(self.belief, dt)
+        weights = self.motion.class_weights(self.speed, dt)
+        return rows, weights, self.motion.mix(rows, weights)
 
     def route_loglik(
         self,
@@ -598,6 +737,8 @@ class RouteFilter:
         """The predicted belief ``(C,)`` of the next frame, before its evidence."""
         if self.frames == 0:
             return self.belief.copy()
+        if self.speed_state:
+            return self._predict_classes(dt)[2]
         return self.motion.predict(self.belief, dt)
 
     def window_next(self, prediction: np.ndarray, *, tail: float) -> tuple[int, int] | None:
@@ -619,22 +760,52 @@ class RouteFilter:
 
     def step(self, route_loglik: np.ndarray | None, *, dt: float | None = None) -> TrackEstimate:
         """Predict (``dt`` seconds since the previous frame, or None: no time) and update."""
-        pred = self.prior(dt)
-        self.belief = _update(self.grid, pred, route_loglik)
+        if self.speed_state and self.frames > 0:
+            mass = float(self.belief.sum())  # every class row's
+            rows, weights, pred = self._predict_classes(dt)
+            like = None if route_loglik is None else _cell_likelihood(self.grid, route_loglik)
+            self.belief = _posterior(pred, like)
+            self.speed = _speed_posterior(rows, weights, like, self.motion.p_kidnap, mass=mass)
+        else:
+            pred = self.prior(dt)
+            self.belief = _update(self.grid, pred, route_loglik)
         self.frames += 1
         est = _estimate(self.grid, self.belief, self.state, route_loglik is not None)
         self.state = _next_state(self.state, est.confidence, self.spec)
         return dataclasses.replace(est, state=self.state)
 
 
-def _update(grid: RouteGrid, pred: np.ndarray, route_loglik: np.ndarray | None) -> np.ndarray:
-    if route_loglik is None:
-        return pred
+def _cell_likelihood(grid: RouteGrid, route_loglik: np.ndarray) -> np.ndarray:
+    """A frame's likelihood at the cells ``(C,)``, relative to its largest (capped below)."""
     ll = grid.cell_loglik(route_loglik)
-    post = pred * np.exp(np.maximum(ll - ll.max(), -_LOG_RATIO_CAP))
+    return np.exp(np.maximum(ll - ll.max(), -_LOG_RATIO_CAP))
+
+
+def _posterior(pred: np.ndarray, like: np.ndarray | None) -> np.ndarray:
+    if like is None:
+        return pred
+    post = pred * like
     np.maximum(post, _TINY, out=post)  # no subnormal numbers: they make numpy 50x slower
     total = post.sum()
     return post / total if total > 0 else pred
+
+
+def _update(grid: RouteGrid, pred: np.ndarray, route_loglik: np.ndarray | None) -> np.ndarray:
+    return _posterior(pred, None if route_loglik is None else _cell_likelihood(grid, route_loglik))
+
+
+def _speed_posterior(
+    rows: np.ndarray, weights: np.ndarray, like: np.ndarray | None, p_kidnap: float, *, mass: float
+) -> np.ndarray:
+    """The posterior probability of each speed class of the step ``(J,)``: its prior ``weights``
+    times the evidence's likelihood ``like`` ``(C,)`` under its prediction ``rows[j]`` (each row
+    of mass ``mass``; the kidnap part alike for all)."""
+    if like is None:
+        return weights / weights.sum()
+    ev = (1.0 - p_kidnap) * (rows @ like) / max(mass, 1e-300) + p_kidnap * float(like.mean())
+    post = weights * ev
+    total = float(post.sum())
+    return post / total if total > 0 else weights / weights.sum()
 
 
 def _next_state(state: str, confidence: float, spec: TrackingSpec) -> str:
@@ -654,7 +825,9 @@ def smooth(
 
     ``logliks[t]`` is frame t's log-likelihood at the grid's samples (None: no evidence), ``dts[t]``
     the time since frame t - 1 (ignored for t = 0; None: no time). The state (tracking/lost)
-    follows the same hysteresis over the smoothed confidences.
+    follows the same hysteresis over the smoothed confidences. The motion is the plain kernel
+    (``speed_persistence`` is the online filter's; a backward pass over the speed classes is
+    not implemented).
     """
     f = RouteFilter(route, spec=spec)
     grid, motion = f.grid, f.motion

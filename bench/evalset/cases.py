@@ -784,19 +784,22 @@ def cases(
     kinds: Sequence[str] | None = None,
     max_frames: int | None = None,
     refresh: bool = False,
+    terrains: Sequence[TerrainEntry] | None = None,
 ) -> Iterator[Case]:
     """Yield the cases of ``split`` ("tuning" or "heldout"), generating those not cached.
 
     ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
     ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is
     listed; ``kinds`` only those kinds ("sweep", "drive", "kidnap"); ``max_frames`` cuts each
-    case to its first frames (a separate cache entry, for quick tests); ``refresh`` regenerates.
+    case to its first frames (a separate cache entry, for quick tests); ``refresh`` regenerates;
+    ``terrains`` replaces the table :data:`TERRAINS` (more cases of a split's terrains, e.g.
+    bench/tracking.py's extra tuning drives; their names must differ from the table's).
     Generation is deterministic: the same table and seeds give the same files.
     """
     _check_split(split)
     base = Path(out_dir) if out_dir is not None else default_out_dir()
     wanted = set(names or ())
-    for t in TERRAINS:
+    for t in TERRAINS if terrains is None else terrains:
         if t.split != split:
             continue
         for kind in ("sweep", *t.drives):

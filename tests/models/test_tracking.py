@@ -154,19 +154,25 @@ def test_the_route_ends_at_its_last_point():
     assert out[e + 1 :].sum() == 0.0
 
 
-def test_a_frame_without_evidence_keeps_the_belief():
+@pytest.mark.parametrize("persistence", [0.0, None])
+def test_a_frame_without_evidence_keeps_the_belief(persistence):
     rng = np.random.default_rng(5)
-    spec = TrackingSpec()
+    spec = TrackingSpec() if persistence is None else TrackingSpec(speed_persistence=persistence)
     f = RouteFilter(_route(), spec=spec)
     true_s = 0.0
     for _ in range(6):
         true_s += 30.0
         f.step(_loglik(f, _variances(true_s, f.grid, rng)), dt=1.0)
     before = f.belief.copy()
-    predicted = f.motion.predict(before, 1.0)
+    predicted = f.prior(1.0)
+    if not f.speed_state:
+        np.testing.assert_allclose(predicted, f.motion.predict(before, 1.0))
+    speed = None if f.speed is None else f.speed.copy()
     est = f.step(None, dt=1.0)
     assert not est.evidence
     np.testing.assert_allclose(f.belief, predicted)  # propagated only
+    if speed is not None:  # the speed state too: its prediction, no evidence for or against a class
+        np.testing.assert_allclose(f.speed, f.motion.class_weights(speed, 1.0))
     # the mass moved forward, not sideways: the mean arc length advances by less than the reach
     mean_before = float(before @ f.grid.centres)
     mean_after = float(f.belief @ f.grid.centres)
@@ -288,3 +294,102 @@ def test_the_position_along_the_grid_is_numpys_interpolation_bit_for_bit():
     for s in arcs:
         want = (float(np.interp(s, c, grid.xy[:, 0])), float(np.interp(s, c, grid.xy[:, 1])))
         assert _position_at(grid, float(s)) == want, s
+
+
+def _slow_then_stopped(f: RouteFilter, rng: np.random.Generator, *, wrong_every: int) -> list[tuple[float, object]]:
+    """A drive of 30 frames at 0.4 route spacings a frame for 10 frames, then stopped; from the stop
+    on, every ``wrong_every``-th frame's ranking is confidently wrong two route points ahead (the
+    same view, frame after frame: correlated errors). Returns (true arc, estimate) per frame."""
+    s, out = 40.0, []
+    for t in range(30):
+        if t < 10:
+            s += 0.4 * SPACING
+        d = np.abs(f.grid.arc - s) / SPACING
+        v = 1.0 + 0.09 * rng.standard_normal(f.grid.points) - 0.8 * np.exp(-(d**2))
+        if t >= 10 and t % wrong_every == 0:
+            v[_true_point(f.grid, s) + 2] = v.min() - 0.1
+        out.append((s, f.step(_loglik(f, v), dt=1.0)))
+    return out
+
+
+def test_a_slow_drive_and_a_stop_with_wrong_frames_hold_the_position():
+    """The speed state: a vehicle that drove slowly and then stands still, with every third
+    ranking confidently two points ahead, stays where it is; the filter without a speed state
+    (each step's speed drawn afresh: 90 % of the mass forward by up to two spacings every frame)
+    drifts ahead onto the wrong frames' point (what this test guards against)."""
+    old = TrackingSpec(speed_persistence=0.0, spread=0.45)  # the filter before the speed state
+    right: dict[str, list[float]] = {"new": [], "old": []}
+    for seed in range(6):
+        for label, spec in (("new", TrackingSpec()), ("old", old)):
+            f = RouteFilter(_route(40), spec=spec)
+            frames = _slow_then_stopped(f, np.random.default_rng(seed), wrong_every=3)
+            right[label].append(float(np.mean([e.route_point == _true_point(f.grid, s) for s, e in frames[13:]])))
+    assert np.mean(right["new"]) >= 0.85, right
+    assert all(n >= o for n, o in zip(right["new"], right["old"])), right
+    assert np.mean(right["old"]) <= 0.75, right  # the old filter loses it: the test can fail
+
+
+def test_the_speed_state_learns_that_the_vehicle_stands_still():
+    rng = np.random.default_rng(8)
+    f = RouteFilter(_route(40), spec=TrackingSpec())
+    assert f.speed_state
+    s = 200.0
+    for _ in range(12):
+        f.step(_loglik(f, _variances(s, f.grid, rng)), dt=1.0)
+    a, b, pi = f.motion.speed_classes(1.0)
+    stop = int(np.flatnonzero((a == 0) & (b == 0))[0])
+    assert f.speed is not None and int(np.argmax(f.speed)) == stop
+    assert f.speed[stop] > 2 * pi[stop]  # more than the kernel's stop probability
+
+
+@pytest.mark.parametrize("dt", [None, 1.0, 4.0])
+def test_speed_classes_are_the_kernel(dt):
+    """Drawing a speed class with the kernel's class probabilities and a move within it is the
+    kernel; the class rows mixed by those probabilities are the prediction away from the ends."""
+    grid = RouteGrid.build(_route(40), cell_m=2.0)
+    spec = TrackingSpec(p_kidnap=0.0)
+    motion = MotionModel.from_spec(spec, grid)
+    k, back = motion.kernel(dt)
+    a, b, pi = motion.speed_classes(dt)
+    assert a[0] == -back and b[-1] == k.size - back - 1 and np.all(a[1:] == b[:-1] + 1)  # they tile the kernel
+    np.testing.assert_allclose(pi.sum(), 1.0)
+    rebuilt = np.zeros_like(k)
+    for lo, hi, p in zip(a, b, pi):
+        rebuilt[lo + back : hi + back + 1] += p / (hi - lo + 1)
+    np.testing.assert_allclose(rebuilt[1:-1], k[1:-1], atol=1e-12)  # uniform within a class
+    belief = np.zeros(grid.cells)
+    belief[100:140] = np.hanning(40)
+    belief /= belief.sum()
+    mixed = motion.mix(motion.class_rows(belief, dt), pi)
+    np.testing.assert_allclose(mixed, motion.predict(belief, dt), atol=1e-12)
+
+
+def test_speed_classes_end_at_the_last_point():
+    """Each class row keeps the belief's mass; a class's moves that would pass the last point are
+    renormalised over those that do not (none past it); nearer to it than its shortest move, the
+    class ends on the last point; on it or beyond, it is a stop."""
+    grid = RouteGrid.build(_route(8), cell_m=2.0, tail=0.5)
+    motion = MotionModel.from_spec(TrackingSpec(p_kidnap=0.0), grid)
+    n, e = grid.cells, motion.end_cell
+    a, b, _ = motion.speed_classes(None)
+    rng = np.random.default_rng(9)
+    belief = rng.random(n)
+    belief /= belief.sum()
+    rows = motion.class_rows(belief, None)
+    np.testing.assert_allclose(rows.sum(axis=1), 1.0, rtol=1e-12)
+    for j in np.flatnonzero(a > 0):
+        lo, hi = int(a[j]), int(b[j])
+        one = np.zeros(n)
+        one[e - (lo + hi) // 2] = 1.0  # within the class's reach of the end: renormalised, up to the end
+        r = motion.class_rows(one, None)[j]
+        reach = (lo + hi) // 2
+        assert r[e + 1 :].sum() == 0.0 and r.sum() == pytest.approx(1.0)
+        np.testing.assert_allclose(r[e - reach + lo : e + 1], 1.0 / (reach - lo + 1))
+        for cell in (e, n - 1):  # on the last point, or past it: the class stands there
+            one[:] = 0.0
+            one[cell] = 1.0
+            np.testing.assert_allclose(motion.class_rows(one, None)[j], one)
+        if lo > 1:  # nearer than its shortest move: onto the last point
+            one[:] = 0.0
+            one[e - lo + 1] = 1.0
+            np.testing.assert_allclose(motion.class_rows(one, None)[j], np.eye(n)[e])
