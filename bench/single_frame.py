@@ -18,7 +18,9 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
 
     python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
-        [--track] [--json-only]
+        [--track] [--errors standard|large] [--json-only]
+
+``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import cases  # noqa: E402
+from bench.evalset import ERROR_PROFILES, cases  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -83,11 +85,12 @@ def run(
     kinds: Sequence[str] | None = None,
     blocks: dict[str, Any] | None = None,
     track: bool = False,
+    errors: str = "standard",
 ) -> dict[str, Any]:
     """Run every selected case; returns per-case results, per-terrain and overall measures.
     ``track``: with the tracker (the mission's default); off, every frame is decided alone."""
     per_case, by_terrain, everything = {}, {}, []
-    for case in cases(split, names=names, kinds=kinds):
+    for case in cases(split, names=names, kinds=kinds, errors=errors):
         path = case.write_scenario(**blocks) if blocks else case.scenario_path
         t0 = time.perf_counter()
         res = run_mission(path, track=track)
@@ -108,6 +111,7 @@ def run(
         "split": split,
         "blocks": blocks or {},
         "track": track,
+        "errors": errors,
         "cases": per_case,
         "terrains": terrains,
         "all": measure(everything),
@@ -145,6 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--track", action="store_true", help="with the tracker (default: every frame decided alone)")
     parser.add_argument("--skyline", type=json.loads, default=None, help="JSON skyline block")
     parser.add_argument("--render", type=json.loads, default=None, help='JSON render block, e.g. {"views_per_leg": 3}')
+    parser.add_argument("--errors", choices=sorted(ERROR_PROFILES), default="standard", help="pose-error profile")
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -159,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
-    result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track)
+    result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors)
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),
@@ -170,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.json_only:
         print()
         print(
-            f"split {args.split}, blocks {json.dumps(blocks) if blocks else 'scenario defaults'}, "
+            f"split {args.split} ({args.errors} pose errors), blocks {json.dumps(blocks) if blocks else 'scenario defaults'}, "
             f"{'with' if args.track else 'without'} tracking"
         )
         print(table(result))

@@ -297,8 +297,11 @@ def extra_tuning_drives() -> list:
     return out
 
 
-def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, Path]], str]:
-    """Ranked drives of a split: ``(drive, tracking spec, scenario path)`` each, and a label."""
+def ranked_cases(
+    split: str, tmp: Path, *, errors: str = "standard"
+) -> tuple[list[tuple[dict, TrackingSpec, Path]], str]:
+    """Ranked drives of a split (``errors``: the evaluation set's pose-error profile):
+    ``(drive, tracking spec, scenario path)`` each, and a label."""
     sys.path.insert(0, str(ROOT / "bench"))
     from tracking_data import ranked_drive
 
@@ -323,7 +326,12 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
     from bench.evalset import cases
 
     extra = split == "tuning-drives"
-    for case in cases("tuning", terrains=extra_tuning_drives(), kinds=DRIVE_KINDS) if extra else cases(split):
+    chosen = (
+        cases("tuning", terrains=extra_tuning_drives(), kinds=DRIVE_KINDS, errors=errors)
+        if extra
+        else cases(split, errors=errors)
+    )
+    for case in chosen:
         sc = load_scenario(case.scenario_path)
         d = ranked_drive(sc)
         d["name"] = case.name
@@ -333,8 +341,11 @@ def ranked_cases(split: str, tmp: Path) -> tuple[list[tuple[dict, TrackingSpec, 
         out.append((d, sc.tracking, case.scenario_path))
         print(f"{case.name}: {len(d['true_point'])} frames", file=sys.stderr)
     if extra:
-        return out, "more drives on the evaluation set's tuning terrains (tuning seeds; parameters may be chosen here)"
-    return out, f"evaluation set, split {split}" + (
+        return out, (
+            f"more drives on the evaluation set's tuning terrains, {errors} pose errors "
+            "(tuning seeds; parameters may be chosen here)"
+        )
+    return out, f"evaluation set, split {split}, {errors} pose errors" + (
         " (held out: never used to choose a parameter)" if split == "heldout" else " (parameters may be chosen here)"
     )
 
@@ -351,6 +362,9 @@ def main() -> None:
     ap.add_argument("--no-times", action="store_true", help="ignore the frames' times (frame-based motion bound)")
     ap.add_argument("--runs", action="store_true", help="also whole runs through the blackboard (slow)")
     ap.add_argument("--cache", type=Path, help="keep the ranked drives here (pickle) and reuse them")
+    ap.add_argument(
+        "--errors", choices=["standard", "large"], default="standard", help="the evaluation set's pose-error profile"
+    )
     ap.add_argument(
         "--observe",
         nargs="+",
@@ -378,7 +392,7 @@ def main() -> None:
         if args.cache is not None and args.cache.is_file():
             ranked, what = pickle.loads(args.cache.read_bytes())
         else:
-            ranked, what = ranked_cases(args.split, Path(tmp))
+            ranked, what = ranked_cases(args.split, Path(tmp), errors=args.errors)
             if args.cache is not None:
                 args.cache.write_bytes(pickle.dumps((ranked, what)))
         results = []

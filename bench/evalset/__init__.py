@@ -47,12 +47,16 @@ of what is generated bumps :data:`GENERATOR_VERSION`.
   sensor effects (vignetting, gain, gamma, blur, motion blur, noise, JPEG), and other
   resolutions (200x150, 320x240, 640x480) than the viewframes' 160x120.
 * Larger pose errors (:data:`ERROR_BOUNDS`): +-30 % of the route spacing along, +-4 m across,
-  +-5 degrees heading, +-2 degrees pitch and roll, +-0.2 m eye height.
+  +-5 degrees heading, +-2 degrees pitch and roll, +-0.2 m eye height; and a ``large`` profile
+  (:data:`ERROR_PROFILES`; ``cases(split, errors="large")``, ``--errors large`` of
+  bench/single_frame.py and bench/tracking.py): +-40 % along, +-8 m across, +-10 degrees heading,
+  +-3 degrees pitch and roll.
 """
 
 from bench.evalset.cases import (
     CAMERA,
     ERROR_BOUNDS,
+    ERROR_PROFILES,
     GENERATOR_VERSION,
     SPLITS,
     TERRAINS,
@@ -76,6 +80,7 @@ __all__ = [
     "TERRAINS",
     "SPLITS",
     "ERROR_BOUNDS",
+    "ERROR_PROFILES",
     "CAMERA",
     "GENERATOR_VERSION",
     "default_out_dir",

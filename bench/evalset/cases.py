@@ -34,6 +34,7 @@ __all__ = [
     "case_names",
     "seeds",
     "ERROR_BOUNDS",
+    "ERROR_PROFILES",
     "GENERATOR_VERSION",
     "default_out_dir",
     "one_view_a_point",
@@ -57,6 +58,23 @@ ERROR_BOUNDS: dict[str, float] = {
     "pitch_deg": 2.0,
     "roll_deg": 2.0,
     "eye_height_m": 0.2,
+}
+
+#: pose-error profiles of the camera frames: ``standard`` (:data:`ERROR_BOUNDS`, the bounds the
+#: tracking and single-frame issues name) and ``large`` (+-40 % of a spacing along, +-8 m across,
+#: +-10 degrees heading, +-3 degrees pitch and roll: a vehicle that wanders off the route's line
+#: and pitches on rough ground). Another profile is another cache entry (``<split>-<profile>/``)
+#: with the same terrains, routes, landmarks and seeds; only the poses' bounds differ.
+ERROR_PROFILES: dict[str, dict[str, float]] = {
+    "standard": ERROR_BOUNDS,
+    "large": {
+        **ERROR_BOUNDS,
+        "along_frac": 0.4,
+        "lateral_m": 8.0,
+        "heading_deg": 10.0,
+        "pitch_deg": 3.0,
+        "roll_deg": 3.0,
+    },
 }
 
 #: the scenario camera of every case (the viewframes' renderer); camera frames come at other sizes
@@ -301,6 +319,7 @@ class Case:
     spacing_m: float
     frames: tuple[EvalFrame, ...]
     description: str
+    errors: str = "standard"
 
     def scenario_dict(self) -> dict[str, Any]:
         """The scenario file parsed (a fresh dict each call)."""
@@ -524,10 +543,12 @@ def _world_boxes(lms: list[dict[str, Any]], world: raycast.World) -> list[raycas
 # poses
 
 
-def _sweep_poses(route, spacing: float, rng: np.random.Generator) -> list[dict[str, Any]]:
-    """One pose per route point, in route order, within ERROR_BOUNDS."""
+def _sweep_poses(
+    route, spacing: float, rng: np.random.Generator, *, bounds: dict[str, float] = ERROR_BOUNDS
+) -> list[dict[str, Any]]:
+    """One pose per route point, in route order, within ``bounds`` (:data:`ERROR_PROFILES`)."""
     pts, arc = _polyline(route)
-    b = ERROR_BOUNDS
+    b = bounds
     out = []
     for i in range(len(pts)):
         frac = rng.uniform(-b["along_frac"], b["along_frac"])
@@ -559,13 +580,22 @@ def _sweep_poses(route, spacing: float, rng: np.random.Generator) -> list[dict[s
     return out
 
 
-def _drive_poses(route, spacing: float, rng: np.random.Generator, *, frames: int, kidnap: bool) -> list[dict[str, Any]]:
+def _drive_poses(
+    route,
+    spacing: float,
+    rng: np.random.Generator,
+    *,
+    frames: int,
+    kidnap: bool,
+    bounds: dict[str, float] = ERROR_BOUNDS,
+) -> list[dict[str, Any]]:
     """A drive in time order (1 s apart): cruising at 0.4-1.2 route spacings a frame, stops of
     1-3 frames, gaps of 2.5-5 spacings, smooth lateral, heading, pitch and roll errors within
-    ERROR_BOUNDS; with ``kidnap`` one jump by 35-65 % of the route length, a third of the way in."""
+    ``bounds`` (:data:`ERROR_PROFILES`); with ``kidnap`` one jump by 35-65 % of the route length, a
+    third of the way in."""
     pts, arc = _polyline(route)
     total = float(arc[-1])
-    b = ERROR_BOUNDS
+    b = bounds
     s = rng.uniform(0.0, 0.15) * total
     lat = rng.uniform(-0.5, 0.5) * b["lateral_m"]
     herr = pitch = roll = 0.0
@@ -616,9 +646,9 @@ def _drive_poses(route, spacing: float, rng: np.random.Generator, *, frames: int
 # generation
 
 
-def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None) -> str:
+def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None, errors: str = "standard") -> str:
     blob = json.dumps(
-        [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_BOUNDS], sort_keys=True, default=str
+        [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_PROFILES[errors]], sort_keys=True, default=str
     )
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
@@ -642,16 +672,19 @@ def _build_terrain(t: TerrainEntry, folder: Path) -> tuple[np.ndarray, list, lis
     return heights, route, lms, block
 
 
-def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) -> None:
+def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None, errors: str = "standard") -> None:
     heights, route, lms, terrain_block = _build_terrain(t, folder)
     world = raycast.World(heights, t.cell)
     world.boxes = _world_boxes(lms, world)
     seed = _case_seed(t, kind)
     rng_pose = np.random.default_rng([seed, 4])
+    bounds = ERROR_PROFILES[errors]
     if kind == "sweep":
-        poses = _sweep_poses(route, t.spacing, rng_pose)
+        poses = _sweep_poses(route, t.spacing, rng_pose, bounds=bounds)
     else:
-        poses = _drive_poses(route, t.spacing, rng_pose, frames=max(12, (t.points * 3) // 4), kidnap=kind == "kidnap")
+        poses = _drive_poses(
+            route, t.spacing, rng_pose, frames=max(12, (t.points * 3) // 4), kidnap=kind == "kidnap", bounds=bounds
+        )
     if max_frames is not None:
         poses = poses[:max_frames]
     look = raycast.Look(**t.look)
@@ -725,9 +758,8 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) 
             ]
         },
     }
-    header = (
-        f"# evaluation case {t.name}/{kind} ({t.split} split, seed {seed}): generated by bench/evalset, do not edit\n"
-    )
+    profile = "" if errors == "standard" else f", {errors} pose errors"
+    header = f"# evaluation case {t.name}/{kind} ({t.split} split{profile}, seed {seed}): generated by bench/evalset, do not edit\n"
     (folder / "scenario.yaml").write_text(header + yaml.safe_dump(scenario, sort_keys=False))
     np.savez_compressed(folder / "labels.npz", horizons=np.asarray(horizons, np.float32))
     src = t.source.get("family") or f"{t.source['dem']} DEM crop"
@@ -735,11 +767,12 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None) 
     desc = (
         f"{src}, {t.cell:g} m cells{contours}; "
         f"{len(route)} route points {t.spacing:g} m apart; {len(lms)} landmarks; {kind} of {len(frames)} frames "
-        f"at {width}x{height}"
+        f"at {width}x{height}{profile}"
     )
     meta = {
         "version": GENERATOR_VERSION,
-        "hash": _spec_hash(t, kind, max_frames),
+        "hash": _spec_hash(t, kind, max_frames, errors),
+        "errors": errors,
         "name": f"{t.name}/{kind}",
         "split": t.split,
         "terrain": t.name,
@@ -773,6 +806,7 @@ def _load(folder: Path) -> Case:
         spacing_m=float(meta["spacing_m"]),
         frames=frames,
         description=meta["description"],
+        errors=str(meta.get("errors", "standard")),
     )
 
 
@@ -785,6 +819,7 @@ def cases(
     max_frames: int | None = None,
     refresh: bool = False,
     terrains: Sequence[TerrainEntry] | None = None,
+    errors: str = "standard",
 ) -> Iterator[Case]:
     """Yield the cases of ``split`` ("tuning" or "heldout"), generating those not cached.
 
@@ -793,10 +828,13 @@ def cases(
     listed; ``kinds`` only those kinds ("sweep", "drive", "kidnap"); ``max_frames`` cuts each
     case to its first frames (a separate cache entry, for quick tests); ``refresh`` regenerates;
     ``terrains`` replaces the table :data:`TERRAINS` (more cases of a split's terrains, e.g.
-    bench/tracking.py's extra tuning drives; their names must differ from the table's).
-    Generation is deterministic: the same table and seeds give the same files.
+    bench/tracking.py's extra tuning drives; their names must differ from the table's);
+    ``errors``: the pose-error profile of :data:`ERROR_PROFILES` (other than ``standard``, in
+    ``<split>-<errors>/``). Generation is deterministic: the same table and seeds give the same files.
     """
     _check_split(split)
+    if errors not in ERROR_PROFILES:
+        raise ValueError(f"errors must be one of {', '.join(ERROR_PROFILES)}, got {errors!r}")
     base = Path(out_dir) if out_dir is not None else default_out_dir()
     wanted = set(names or ())
     for t in TERRAINS if terrains is None else terrains:
@@ -808,12 +846,13 @@ def cases(
                 continue
             if kinds is not None and kind not in kinds:
                 continue
-            folder = base / split / t.name / (kind if max_frames is None else f"{kind}-n{max_frames}")
+            top = split if errors == "standard" else f"{split}-{errors}"
+            folder = base / top / t.name / (kind if max_frames is None else f"{kind}-n{max_frames}")
             meta_path = folder / "case.json"
             fresh = False
             if meta_path.is_file() and not refresh:
                 try:
-                    fresh = json.loads(meta_path.read_text()).get("hash") == _spec_hash(t, kind, max_frames)
+                    fresh = json.loads(meta_path.read_text()).get("hash") == _spec_hash(t, kind, max_frames, errors)
                 except (OSError, ValueError):
                     fresh = False
             if not fresh:
@@ -821,7 +860,7 @@ def cases(
                 # into a private folder first, then renamed: concurrent users never see half a case
                 tmp = folder.with_name(f".{folder.name}.{os.getpid()}.tmp")
                 shutil.rmtree(tmp, ignore_errors=True)
-                _generate(t, kind, tmp, max_frames)
+                _generate(t, kind, tmp, max_frames, errors)
                 if folder.exists():
                     shutil.rmtree(folder, ignore_errors=True)
                 try:

@@ -9,8 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.evalset import ERROR_BOUNDS, SPLITS, TERRAINS, case_names, cases, seeds
-from bench.evalset.cases import _drive_poses, _polyline
+from bench.evalset import ERROR_BOUNDS, ERROR_PROFILES, SPLITS, TERRAINS, case_names, cases, seeds
+from bench.evalset.cases import _drive_poses, _polyline, _sweep_poses
 from bench.evalset.raycast import Box, Look, RayCaster, Sensor, World, sensor_effects
 from bench.evalset.terrains import FAMILIES
 from models.scenario import load_scenario
@@ -126,6 +126,43 @@ def test_drive_poses_bounds_gaps_stops_and_kidnap():
         assert 0.0 <= p["arc"] <= arc[-1]
     plain = _drive_poses(route, 30.0, np.random.default_rng(7), frames=60, kidnap=False)
     assert "kidnap" not in [p["event"] for p in plain]
+
+
+@pytest.mark.parametrize("kind", ["sweep", "drive"])
+def test_the_large_pose_error_profile_reaches_past_the_standard_bounds(kind):
+    route = [(100.0 + 30 * i, 200.0 + 5 * math.sin(i / 3)) for i in range(200)]
+    large, std = ERROR_PROFILES["large"], ERROR_BOUNDS
+
+    def poses(bounds):
+        rng = np.random.default_rng(11)
+        if kind == "sweep":
+            return _sweep_poses(route, 30.0, rng, bounds=bounds)
+        return _drive_poses(route, 30.0, rng, frames=200, kidnap=False, bounds=bounds)
+
+    got = poses(large)
+    for key, bound in (("heading_error", "heading_deg"), ("lateral", "lateral_m"), ("pitch", "pitch_deg")):
+        worst = max(abs(p[key]) for p in got)
+        assert std[bound] < worst <= large[bound] + 1e-9, (key, worst)
+    # the standard profile is the default, as before
+    assert [p["heading_error"] for p in poses(std)] == [
+        p["heading_error"]
+        for p in (
+            _sweep_poses(route, 30.0, np.random.default_rng(11))
+            if kind == "sweep"
+            else _drive_poses(route, 30.0, np.random.default_rng(11), frames=200, kidnap=False)
+        )
+    ]
+
+
+def test_a_pose_error_profile_is_its_own_cache_entry(tmp_path):
+    std = next(cases("heldout", out_dir=tmp_path, names=[SMALL], max_frames=2))
+    big = next(cases("heldout", out_dir=tmp_path, names=[SMALL], max_frames=2, errors="large"))
+    assert (std.errors, big.errors) == ("standard", "large")
+    assert std.folder.parent.parent.name == "heldout" and big.folder.parent.parent.name == "heldout-large"
+    assert [f.heading_error_deg for f in std.frames] != [f.heading_error_deg for f in big.frames]
+    assert load_scenario(big.scenario_path).route == load_scenario(std.scenario_path).route  # same terrain and route
+    with pytest.raises(ValueError, match="errors must be one of"):
+        next(cases("heldout", out_dir=tmp_path, names=[SMALL], errors="huge"))
 
 
 def _tiny_world():
