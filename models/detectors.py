@@ -50,7 +50,10 @@ The likelihood ratio
       edges alone (the walls every renderer draws; their distance is the landmark's width);
     - ``contrast``: the best silhouette-against-ring contrast of the camera image over the
       same shifts and scales, less that of the view without the landmark;
-    - ``llr = bias + w . (statistic, orientation, vertical, contrast)``, the calibration's.
+    - ``context``: the same edge-direction correlation over a ring around the silhouette at the
+      ``orientation`` match's shift and scale (the landmark's surroundings: a landmark of the
+      same kind elsewhere seldom stands against the candidate's terrain and sky);
+    - ``llr = bias + w . (statistic, orientation, vertical, contrast, context)``, the calibration's.
       Edge directions took the place of session 4's edge *magnitude* score (``score``, still the
       three-way answer's): renderers disagree on how strong an edge is (a wall in shadow, a red
       box against a beige wall under a roof), far less on where and which way it runs
@@ -201,7 +204,7 @@ class Calibration:
 
 
 #: the features a :class:`Calibration` weighs, in order (:meth:`EdgeTemplateDetector.evidence`)
-LR_FEATURES: tuple[str, ...] = ("statistic", "orientation", "vertical", "contrast")
+LR_FEATURES: tuple[str, ...] = ("statistic", "orientation", "vertical", "contrast", "context")
 
 #: the percentile of an image's gradient magnitude that soft-normalises its orientation field
 #: (:func:`orientation_field`; 75 and 97 did about as well with a tuning case left out, BENCHMARKS.md)
@@ -322,9 +325,10 @@ class EdgeTemplateDetector:
     align_px: tuple[int, int] = (9, 16)
     scales: tuple[float, ...] = _DEFAULTS.detector_scales
 
-    def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float, float] | None:
+    def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float, float, float] | None:
         """The uncalibrated evidence (:data:`LR_FEATURES`): ``(statistic, orientation, vertical,
-        contrast)``, ``None`` when the view has no ``without`` image or the landmark too few pixels.
+        contrast, context)``, ``None`` when the view has no ``without`` image or the landmark too
+        few pixels.
 
         ``statistic`` compares the camera image with the viewframe with the landmark (``T1``) and
         without it (``T0``, the terrain and sky behind it) over the landmark's silhouette ``M``,
@@ -350,7 +354,11 @@ class EdgeTemplateDetector:
         from a ring around it, as a landmark in front of the terrain does (its best
         ``|mean_in - mean_ring| / sqrt(var_in + var_ring)`` in gray levels), less the same
         contrast in the view without the landmark (a horizon crossing the silhouette shows
-        contrast with no landmark there).
+        contrast with no landmark there). ``context`` is the edge-direction correlation over a
+        ring around the silhouette (its box grown by a quarter of its height and half its width)
+        at ``orientation``'s best shift and scale: does the terrain and sky the landmark stands
+        against in the viewframe stand around the match too (a landmark of the same kind
+        elsewhere, or a look-alike, seldom has the candidate's surroundings).
         """
         sil = self._check(image, view)
         if view.without is None or int(sil.sum()) < self.min_pixels:
@@ -358,8 +366,8 @@ class EdgeTemplateDetector:
         statistic = self._colour_statistic(image, view, sil)
         if statistic is None:
             return None
-        found = self._scaled_matches(image, view, sil)
-        return statistic, found["both"][0], found["x"][0], self._contrast(image, view, sil)
+        orientation, _, vertical, context = self._scaled_matches(image, view, sil)
+        return statistic, orientation, vertical, self._contrast(image, view, sil), context
 
     def _search(self, rows: int, cols: int) -> tuple[int, int]:
         """The likelihood ratio's alignment search, ``(rows, cols)`` half-sizes, for a landmark box
@@ -393,63 +401,71 @@ class EdgeTemplateDetector:
         sil = self._check(image, view)
         if int(sil.sum()) < self.min_pixels:
             return None
-        fields = orientation_field(image), orientation_field(view.image)
-        return self._scaled_match(*fields, sil)[1]
+        return self._scaled_matches(image, view, sil)[1]
 
     def _scaled_matches(
         self, image: np.ndarray, view: CandidateView, sil: np.ndarray
-    ) -> dict[str, tuple[float, tuple[float, float, float] | None]]:
-        """:meth:`_scaled_match` of both axes (``"both"``, ``"x"``), the fields computed once."""
+    ) -> tuple[float, tuple[float, float, float] | None, float, float]:
+        """``(orientation, where, vertical, context)`` of :meth:`evidence`, the fields computed once:
+        :meth:`_scaled_match` of the edge directions with the context ring, and of the vertical edges."""
         camera, template = orientation_fields(image), orientation_fields(view.image)
-        return {axis: self._scaled_match(camera[axis], template[axis], sil) for axis in ("both", "x")}
+        orientation, where, context = self._scaled_match(camera["both"], template["both"], sil, context=True)
+        vertical = self._scaled_match(camera["x"], template["x"], sil)[0]
+        return orientation, where, vertical, context
 
     def _scaled_match(
-        self, camera: np.ndarray, template: np.ndarray, sil: np.ndarray
-    ) -> tuple[float, tuple[float, float, float] | None]:
+        self, camera: np.ndarray, template: np.ndarray, sil: np.ndarray, *, context: bool = False
+    ) -> tuple[float, tuple[float, float, float] | None, float]:
         """The best energy-aware correlation ``2 <T, W> / (|T|^2 + |W|^2)`` of the viewframe's
         :func:`orientation_field` ``template`` (H, W, C) inside the dilated silhouette with the
         camera image's, ``camera`` (H, W, C), over the likelihood ratio's shifts and template
-        scales, and its place (:meth:`match`)."""
+        scales; its place (:meth:`match`); and, with ``context``, the same correlation over the
+        ring around the silhouette (its box grown by a quarter of its height and half its width,
+        at least 4 pixels, less the dilated silhouette) at that best shift and scale (else 0)."""
         k = 2 * self.dilate + 1
         region = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         rows, cols = np.nonzero(region)
         r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        sr, sc = self._search(r1 - r0, c1 - c0)
+        ring = None
+        if context:  # the template's box takes in the ring
+            h, w = region.shape
+            pr, pc = max(4, (r1 - r0) // 4), max(4, (c1 - c0) // 2)
+            r0, r1, c0, c1 = max(0, r0 - pr), min(h, r1 + pr), max(0, c0 - pc), min(w, c1 + pc)
+            ring = (~region[r0:r1, c0:c1]).astype(np.float32)
         template = template[r0:r1, c0:c1]
         tmask = region[r0:r1, c0:c1].astype(np.float32)
-        sr, sc = self._search(r1 - r0, c1 - c0)
         power = np.ascontiguousarray((camera * camera).sum(axis=2))  # the camera field's energy per pixel
         srows, scols = np.nonzero(sil)
         # the silhouette's centroid from its box's centre (pixel centres at integers)
         offset = (float(srows.mean()) - (r0 + r1 - 1) / 2, float(scols.mean()) - (c0 + c1 - 1) / 2)
-        best, where = 0.0, None
+        centre = ((r0 + r1) / 2, (c0 + c1) / 2)
+        best, where, around = 0.0, None, 0.0
         for s in self.scales:
             m = _scaled_mask(tmask, s)
-            size = (m.shape[1], m.shape[0])
-            centre = ((r0 + r1) / 2, (c0 + c1) / 2)
-            cross = np.zeros((2 * sr + 1, 2 * sc + 1), np.float32)
-            norm = 0.0
-            for ch in range(template.shape[2]):
-                t = cv2.resize(np.ascontiguousarray(template[..., ch]), size, interpolation=cv2.INTER_LINEAR) * m
-                win = _window(camera[..., ch], *centre, m.shape, sr, sc, mode="constant")
-                cross += cv2.matchTemplate(win, t, cv2.TM_CCORR)
-                norm += float((t * t).sum())
-            energy = cv2.matchTemplate(_window(power, *centre, m.shape, sr, sc, mode="constant"), m, cv2.TM_CCORR)
-            if norm < 1e-9:
+            windows = [
+                _window(camera[..., ch], *centre, m.shape, sr, sc, mode="constant") for ch in range(camera.shape[2])
+            ]
+            energy = _window(power, *centre, m.shape, sr, sc, mode="constant")
+            scores = _energy_aware(windows, energy, template, m)
+            if scores is None:
                 continue
-            scores = 2.0 * cross / (norm + energy + 1e-12)
             i, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
             if where is None or float(scores[i, j]) > best:
                 best = max(best, float(scores[i, j]))
+                if ring is not None:
+                    ring_scores = _energy_aware(windows, energy, template, _scaled_mask(ring, s, like=m))
+                    around = 0.0 if ring_scores is None else float(ring_scores[i, j])
                 # offset (i, j) of the window puts the template's top-left here (see _window)
-                top = int(round((r0 + r1) / 2 - m.shape[0] / 2)) - sr + int(i)
-                left = int(round((c0 + c1) / 2 - m.shape[1] / 2)) - sc + int(j)
+                top = int(round(centre[0] - m.shape[0] / 2)) - sr + int(i)
+                left = int(round(centre[1] - m.shape[1] / 2)) - sc + int(j)
                 sy, sx = m.shape[0] / tmask.shape[0], m.shape[1] / tmask.shape[1]  # the scale, as rounded
                 where = (
                     top + (m.shape[0] - 1) / 2 + sy * offset[0],
                     left + (m.shape[1] - 1) / 2 + sx * offset[1],
                     float(math.sqrt(sy * sx)),
                 )
-        return best, where
+        return best, where, around
 
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
         sil = self._check(image, view)
@@ -463,9 +479,9 @@ class EdgeTemplateDetector:
         if self.calibration is not None and view.without is not None:
             statistic = self._colour_statistic(image, view, sil)
             if statistic is not None:
-                found = self._scaled_matches(image, view, sil)
-                (orientation, where), vertical = found["both"], found["x"][0]
-                llr = self.calibration.llr((statistic, orientation, vertical, self._contrast(image, view, sil)))
+                orientation, where, vertical, context = self._scaled_matches(image, view, sil)
+                contrast = self._contrast(image, view, sil)
+                llr = self.calibration.llr((statistic, orientation, vertical, contrast, context))
         lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
         if best >= self.threshold:
             why, present = f"score {best:.3f} >= {self.threshold}{lr}", True
@@ -535,12 +551,34 @@ class EdgeTemplateDetector:
         return (ssd0 - ssd1) / d2
 
 
-def _scaled_mask(mask: np.ndarray, scale: float) -> np.ndarray:
-    """A 0/1 float mask resized by ``scale`` (at least 2 x 2 pixels)."""
-    if scale == 1.0:
+def _scaled_mask(mask: np.ndarray, scale: float, *, like: np.ndarray | None = None) -> np.ndarray:
+    """A 0/1 float mask resized by ``scale`` (at least 2 x 2 pixels; ``like``: to that mask's shape)."""
+    if scale == 1.0 and like is None:
         return mask
-    size = (max(2, int(round(mask.shape[1] * scale))), max(2, int(round(mask.shape[0] * scale))))
+    if like is not None:
+        size = (like.shape[1], like.shape[0])
+    else:
+        size = (max(2, int(round(mask.shape[1] * scale))), max(2, int(round(mask.shape[0] * scale))))
     return (cv2.resize(mask, size, interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
+
+
+def _energy_aware(
+    windows: Sequence[np.ndarray], energy: np.ndarray, template: np.ndarray, mask: np.ndarray
+) -> np.ndarray | None:
+    """``2 <T, W> / (|T|^2 + |W|^2)`` over ``mask`` for every offset of the template inside the
+    windows: ``windows`` one per channel of the camera's field, ``energy`` their summed squares,
+    ``template`` (h, w, C) resized to the mask's shape. ``None`` when the template is empty there."""
+    size = (mask.shape[1], mask.shape[0])
+    cross = None
+    norm = 0.0
+    for ch, win in enumerate(windows):
+        t = cv2.resize(np.ascontiguousarray(template[..., ch]), size, interpolation=cv2.INTER_LINEAR) * mask
+        c = cv2.matchTemplate(win, t, cv2.TM_CCORR)
+        cross = c if cross is None else cross + c
+        norm += float((t * t).sum())
+    if norm < 1e-9 or cross is None:
+        return None
+    return 2.0 * cross / (norm + cv2.matchTemplate(energy, mask, cv2.TM_CCORR) + 1e-12)
 
 
 def _window(

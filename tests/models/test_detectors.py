@@ -210,11 +210,11 @@ def test_align_pixels_follow_the_field_of_view_and_size():
 
 
 def test_calibration_is_affine_in_the_features_and_checks_its_size():
-    cal = Calibration.from_sequence([0.5, 2.0, -1.0, 0.25, 3.0])
-    assert cal.llr((1.0, 0.5, 2.0, 0.1)) == pytest.approx(0.5 + 2.0 - 0.5 + 0.5 + 0.3)
+    cal = Calibration.from_sequence([0.5, 2.0, -1.0, 0.25, 3.0, -2.0])
+    assert cal.llr((1.0, 0.5, 2.0, 0.1, 0.5)) == pytest.approx(0.5 + 2.0 - 0.5 + 0.5 + 0.3 - 1.0)
     with pytest.raises(ValueError, match="numbers"):
-        Calibration.from_sequence([1.0, 2.0, 3.0, 4.0])
-    assert LR_FEATURES == ("statistic", "orientation", "vertical", "contrast")
+        Calibration.from_sequence([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert LR_FEATURES == ("statistic", "orientation", "vertical", "contrast", "context")
     # every family and kind the schema calibrates builds
     for values in SPEC.calibration.values():
         Calibration.from_sequence(values)
