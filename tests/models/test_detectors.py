@@ -385,9 +385,33 @@ def test_likelihood_ratio_rejects_a_look_alike_of_half_the_size():
             llr = {k: det.detect(im, view=view).llr for k, im in frames.items()}
             ev = {k: det.evidence(im, view=view) for k, im in frames.items()}
             assert llr["landmark"] > 1.0 and llr["look-alike"] < 0.0 and llr["nothing"] < 0.0, llr
-            for f in ("orientation", "vertical"):
+            for f in ("orientation", "vertical", "context"):
                 j = LR_FEATURES.index(f)
                 assert ev["landmark"][j] > ev["look-alike"][j] + 0.15, (f, ev)
+            j = LR_FEATURES.index("context")
+            assert ev["landmark"][j] > ev["nothing"][j] + 0.1, ev
+
+
+def test_context_is_the_landmarks_surroundings():
+    """The same box at the same place, once against the viewframe's surroundings (the horizon
+    along its foot) and once against others (the ground 20 rows lower, a look-alike standing
+    elsewhere): the edge directions on the box itself agree alike, the context ring only in the
+    first."""
+    rng = np.random.default_rng(15)
+    sil = np.zeros((H, W), bool)
+    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
+    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
+    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    same = _red(_scene(np.random.default_rng(16), box=BOX, noise=3.0), BOX)
+    elsewhere = same.copy()
+    elsewhere[80:100] = _scene(np.random.default_rng(17), box=None, noise=3.0)[40:60]  # sky down to row 100
+    elsewhere[BOX[0] : BOX[2], BOX[1] : BOX[3]] = same[BOX[0] : BOX[2], BOX[1] : BOX[3]]
+    det = _registry().for_kind("house")
+    ev_same, ev_elsewhere = det.evidence(same, view=view), det.evidence(elsewhere, view=view)
+    assert ev_same is not None and ev_elsewhere is not None
+    o, c = LR_FEATURES.index("orientation"), LR_FEATURES.index("context")
+    assert ev_same[c] > ev_elsewhere[c] + 0.2, (ev_same, ev_elsewhere)
+    assert abs(ev_same[o] - ev_elsewhere[o]) < 0.15, (ev_same, ev_elsewhere)
 
 
 @pytest.mark.parametrize(
