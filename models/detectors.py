@@ -43,11 +43,21 @@ The likelihood ratio
       each hypothesis at its best shift within the search and template scale of ``scales``
       (about the silhouette's centre; a position error along the route makes a near landmark
       larger or smaller: the scenario schema's ``scheduler.detector_scales``);
-    - ``score``: the best energy-aware edge correlation of the viewframe's edges inside ``M``
-      (dilated) with the camera image's, over the same shifts and scales;
+    - ``orientation``: the best energy-aware correlation of the viewframe's edge *directions*
+      inside ``M`` (dilated) with the camera image's (:func:`orientation_field`: each edge's
+      direction, polarity-free, soft-normalised so that a clear edge counts whatever its
+      contrast), over the same shifts and scales; ``vertical``: the same with the vertical
+      edges alone (the walls every renderer draws; their distance is the landmark's width);
     - ``contrast``: the best silhouette-against-ring contrast of the camera image over the
       same shifts and scales, less that of the view without the landmark;
-    - ``llr = bias + w . (statistic, score, contrast)``, the calibration's. The scheduler's ``soft`` backtracking multiplies the
+    - ``context``: the same edge-direction correlation over a ring around the silhouette at the
+      ``orientation`` match's shift and scale (the landmark's surroundings: a landmark of the
+      same kind elsewhere seldom stands against the candidate's terrain and sky);
+    - ``llr = bias + w . (statistic, orientation, vertical, contrast, context)``, the calibration's.
+      Edge directions took the place of session 4's edge *magnitude* score (``score``, still the
+      three-way answer's): renderers disagree on how strong an edge is (a wall in shadow, a red
+      box against a beige wall under a roof), far less on where and which way it runs
+      (BENCHMARKS.md, session 9). The scheduler's ``soft`` backtracking multiplies the
     candidates' likelihoods by it (:mod:`knowledge_sources.scene_analysis`). How well it
     separates, per landmark kind on held-out frames: bench/detectors.py and BENCHMARKS.md.
 
@@ -77,6 +87,9 @@ __all__ = [
     "DetectorRegistry",
     "default_registry",
     "edge_image",
+    "orientation_field",
+    "orientation_fields",
+    "ORIENTATION_PERCENTILE",
     "Calibration",
     "LR_FEATURES",
     "KIND_FAMILY",
@@ -165,7 +178,7 @@ class Calibration:
     """Logistic calibration of a detector's evidence into a log-likelihood ratio.
 
     ``llr = bias + sum_i weights[i] * features[i]``, the features being
-    :data:`LR_FEATURES` (the with/without statistic and the energy-aware score). The
+    :data:`LR_FEATURES` (:meth:`EdgeTemplateDetector.evidence`). The
     coefficients come from a logistic regression on labelled frames (landmark truly visible or
     not) with the training set's prior log-odds removed from the bias, so that ``llr`` is a
     likelihood ratio, not a posterior: the scheduler supplies the prior.
@@ -190,8 +203,12 @@ class Calibration:
         return float(self.bias + sum(w * float(f) for w, f in zip(self.weights, features)))
 
 
-#: the features a :class:`Calibration` weighs, in order
-LR_FEATURES: tuple[str, ...] = ("statistic", "score", "contrast")
+#: the features a :class:`Calibration` weighs, in order (:meth:`EdgeTemplateDetector.evidence`)
+LR_FEATURES: tuple[str, ...] = ("statistic", "orientation", "vertical", "contrast", "context")
+
+#: the percentile of an image's gradient magnitude that soft-normalises its orientation field
+#: (:func:`orientation_field`; 75 and 97 did about as well with a tuning case left out, BENCHMARKS.md)
+ORIENTATION_PERCENTILE = 90.0
 
 
 def edge_image(image: np.ndarray, *, axis: str = "both", blur_sigma: float = 1.0) -> np.ndarray:
@@ -221,6 +238,43 @@ def edge_image(image: np.ndarray, *, axis: str = "both", blur_sigma: float = 1.0
         raise ValueError(f"axis must be 'both', 'x' or 'y', not {axis!r}")
     top = float(np.percentile(mag, 99.5)) or 1.0
     return np.clip(mag / top, 0.0, 1.0)
+
+
+def orientation_field(
+    image: np.ndarray, *, axis: str = "both", percentile: float = ORIENTATION_PERCENTILE, blur_sigma: float = 1.0
+) -> np.ndarray:
+    """The image's edge directions, each weighted by ``|g| / (|g| + tau)`` (``tau`` the
+    ``percentile`` of its gradient magnitude ``|g|``): a soft normalisation that keeps the
+    direction of every clear edge, whatever its contrast, and lets faint texture and noise fade.
+
+    Two renderers seldom agree on how strong an edge is (a wall lit or in shadow, a roof or none,
+    haze) but they agree on where it runs. ``axis``: ``"both"``, the doubled-angle field
+    ``(cos 2 theta, sin 2 theta)`` of the gradient direction ``theta`` (an edge and its reverse
+    polarity, dark on light or light on dark, give the same vector), shape (H, W, 2); ``"x"``,
+    the vertical edges only, ``|d/dcol| / (|g| + tau)``, shape (H, W, 1). float32, values in [-1, 1].
+    """
+    if axis not in ("both", "x"):
+        raise ValueError(f"axis must be 'both' or 'x', not {axis!r}")
+    return orientation_fields(image, percentile=percentile, blur_sigma=blur_sigma)[axis]
+
+
+def orientation_fields(
+    image: np.ndarray, *, percentile: float = ORIENTATION_PERCENTILE, blur_sigma: float = 1.0
+) -> dict[str, np.ndarray]:
+    """:func:`orientation_field` of both axes from one gradient: ``{"both": (H, W, 2), "x": (H, W, 1)}``."""
+    if image.ndim not in (2, 3):
+        raise ValueError(f"image must be (H, W) or (H, W, 3), not shape {image.shape}")
+    gray = _gray(image)
+    if blur_sigma > 0:
+        gray = cv2.GaussianBlur(gray, (0, 0), blur_sigma)
+    gx = cv2.Sobel(gray, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(gray, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.magnitude(gx, gy)
+    soft = 1.0 / (mag + float(np.percentile(mag, percentile)) + 1e-3)
+    # (gx^2 - gy^2, 2 gx gy) / |g| has length |g| and the doubled angle; times 1 / (|g| + tau)
+    scale = soft / (mag + 1e-6)
+    both = np.dstack([(gx * gx - gy * gy) * scale, 2.0 * gx * gy * scale]).astype(np.float32)
+    return {"both": both, "x": (np.abs(gx) * soft)[..., None].astype(np.float32)}
 
 
 @dataclass
@@ -271,28 +325,40 @@ class EdgeTemplateDetector:
     align_px: tuple[int, int] = (9, 16)
     scales: tuple[float, ...] = _DEFAULTS.detector_scales
 
-    def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float] | None:
-        """The uncalibrated evidence (:data:`LR_FEATURES`): ``(statistic, score, contrast)``,
-        ``None`` when the view has no ``without`` image or the landmark too few pixels.
+    def evidence(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float, float, float] | None:
+        """The uncalibrated evidence (:data:`LR_FEATURES`): ``(statistic, orientation, vertical,
+        contrast, context)``, ``None`` when the view has no ``without`` image or the landmark too
+        few pixels.
 
         ``statistic`` compares the camera image with the viewframe with the landmark (``T1``) and
         without it (``T0``, the terrain and sky behind it) over the landmark's silhouette ``M``,
         in chromaticity ``(r, g) / (r + g + b)`` (free of gain, exposure and most of the shading
-        renderers disagree on; the edges carry the shape, in ``score``). Each hypothesis is
+        renderers disagree on; the edges carry the shape). Each hypothesis is
         matched at its best offset within the alignment search (a generalised likelihood ratio:
         the pose error is a nuisance maximised out under each): with a Gaussian error model the
         log-likelihood ratio is proportional to ``SSD0 - SSD1``, ``SSDi = min_offset sum M
         |C - Ti|^2``, and ``statistic = (SSD0 - SSD1) / sum M |T1 - T0|^2`` is about +1 when the
         camera shows the landmark as the viewframe does, -1 when it shows what lies behind it
-        (searched over the template ``scales`` too, the SSDs per pixel of ``M``). The search is ``align_px`` (pose errors) plus a quarter of the landmark's height and half
+        (searched over the template ``scales`` too, the SSDs per pixel of ``M``). The search is
+        ``align_px`` (pose errors) plus a quarter of the landmark's height and half
         its width (parallax: near landmarks move more than the horizon when the camera stands
-        off the route point). ``score`` is :meth:`detect`'s edge score searched over the same
-        shifts and over the template ``scales`` (:meth:`_scaled_edge_score`). ``contrast`` asks what
-        neither needs to trust a renderer's colours for: does the camera image, somewhere within
-        the same search and scales, differ inside the silhouette from a ring around it, as a landmark in
-        front of the terrain does (its best ``|mean_in - mean_ring| / sqrt(var_in + var_ring)``
-        in gray levels), less the same contrast in the view without the landmark (a horizon
-        crossing the silhouette shows contrast with no landmark there).
+        off the route point). ``orientation`` is the energy-aware correlation of the viewframe's
+        edge directions inside ``M`` (dilated: the outline and the box's own edges) with the
+        camera image's, :func:`orientation_field` of both (edges where the viewframe has them,
+        running the same way, whatever their contrast), at the best of the same shifts and
+        template ``scales`` (:meth:`match`); ``vertical`` the same with the vertical edges only
+        (``axis="x"``: a box's walls, which every renderer draws, where roofs and shading differ;
+        its two sides' distance is the landmark's width, so a look-alike of another width scores
+        lower). ``contrast`` asks what neither needs to trust a renderer's colours for: does the
+        camera image, somewhere within the same search and scales, differ inside the silhouette
+        from a ring around it, as a landmark in front of the terrain does (its best
+        ``|mean_in - mean_ring| / sqrt(var_in + var_ring)`` in gray levels), less the same
+        contrast in the view without the landmark (a horizon crossing the silhouette shows
+        contrast with no landmark there). ``context`` is the edge-direction correlation over a
+        ring around the silhouette (its box grown by a quarter of its height and half its width)
+        at ``orientation``'s best shift and scale: does the terrain and sky the landmark stands
+        against in the viewframe stand around the match too (a landmark of the same kind
+        elsewhere, or a look-alike, seldom has the candidate's surroundings).
         """
         sil = self._check(image, view)
         if view.without is None or int(sil.sum()) < self.min_pixels:
@@ -300,7 +366,8 @@ class EdgeTemplateDetector:
         statistic = self._colour_statistic(image, view, sil)
         if statistic is None:
             return None
-        return statistic, self._scaled_edge_score(image, view, sil), self._contrast(image, view, sil)
+        orientation, _, vertical, context = self._scaled_matches(image, view, sil)
+        return statistic, orientation, vertical, self._contrast(image, view, sil), context
 
     def _search(self, rows: int, cols: int) -> tuple[int, int]:
         """The likelihood ratio's alignment search, ``(rows, cols)`` half-sizes, for a landmark box
@@ -325,62 +392,80 @@ class EdgeTemplateDetector:
         behind = _gray(view.without)[r0:r1, c0:c1]
         return best - float(_ring_contrast(behind, m_in, m_ring).max())
 
-    def _scaled_edge_score(self, image: np.ndarray, view: CandidateView, sil: np.ndarray) -> float:
-        """The energy-aware edge correlation of :meth:`_edge_score`, searched over the likelihood
-        ratio's alignment search and over ``scales`` of the template about the silhouette's
-        centre: the likelihood ratio's ``score`` feature."""
-        return self._scaled_edge_match(image, view, sil)[0]
-
     def match(self, image: np.ndarray, *, view: CandidateView) -> tuple[float, float, float] | None:
         """Where the landmark of ``view`` best matches in camera ``image``: ``(row, col, scale)``,
         the centroid of the viewframe's silhouette carried to the best shift and template scale
-        of the likelihood ratio's edge search (:meth:`_scaled_edge_score`; a template is scaled
+        of the likelihood ratio's ``orientation`` search (:meth:`evidence`; a template is scaled
         about its box's centre), in camera pixels, and that scale. ``None`` when the landmark
         covers fewer than ``min_pixels`` or the viewframe shows no edges on it."""
         sil = self._check(image, view)
         if int(sil.sum()) < self.min_pixels:
             return None
-        return self._scaled_edge_match(image, view, sil)[1]
+        return self._scaled_matches(image, view, sil)[1]
 
-    def _scaled_edge_match(
+    def _scaled_matches(
         self, image: np.ndarray, view: CandidateView, sil: np.ndarray
-    ) -> tuple[float, tuple[float, float, float] | None]:
-        """The best scaled edge score and its place (:meth:`match`)."""
+    ) -> tuple[float, tuple[float, float, float] | None, float, float]:
+        """``(orientation, where, vertical, context)`` of :meth:`evidence`, the fields computed once:
+        :meth:`_scaled_match` of the edge directions with the context ring, and of the vertical edges."""
+        camera, template = orientation_fields(image), orientation_fields(view.image)
+        orientation, where, context = self._scaled_match(camera["both"], template["both"], sil, context=True)
+        vertical = self._scaled_match(camera["x"], template["x"], sil)[0]
+        return orientation, where, vertical, context
+
+    def _scaled_match(
+        self, camera: np.ndarray, template: np.ndarray, sil: np.ndarray, *, context: bool = False
+    ) -> tuple[float, tuple[float, float, float] | None, float]:
+        """The best energy-aware correlation ``2 <T, W> / (|T|^2 + |W|^2)`` of the viewframe's
+        :func:`orientation_field` ``template`` (H, W, C) inside the dilated silhouette with the
+        camera image's, ``camera`` (H, W, C), over the likelihood ratio's shifts and template
+        scales; its place (:meth:`match`); and, with ``context``, the same correlation over the
+        ring around the silhouette (its box grown by a quarter of its height and half its width,
+        at least 4 pixels, less the dilated silhouette) at that best shift and scale (else 0)."""
         k = 2 * self.dilate + 1
         region = cv2.dilate(sil.astype(np.uint8), np.ones((k, k), np.uint8)) > 0
         rows, cols = np.nonzero(region)
         r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
-        template = _highpass(edge_image(view.image, axis=self.axis))[r0:r1, c0:c1]
-        tmask = region[r0:r1, c0:c1].astype(np.float32)
         sr, sc = self._search(r1 - r0, c1 - c0)
-        edges = _highpass(edge_image(image, axis=self.axis))
+        ring = None
+        if context:  # the template's box takes in the ring
+            h, w = region.shape
+            pr, pc = max(4, (r1 - r0) // 4), max(4, (c1 - c0) // 2)
+            r0, r1, c0, c1 = max(0, r0 - pr), min(h, r1 + pr), max(0, c0 - pc), min(w, c1 + pc)
+            ring = (~region[r0:r1, c0:c1]).astype(np.float32)
+        template = template[r0:r1, c0:c1]
+        tmask = region[r0:r1, c0:c1].astype(np.float32)
+        power = np.ascontiguousarray((camera * camera).sum(axis=2))  # the camera field's energy per pixel
         srows, scols = np.nonzero(sil)
         # the silhouette's centroid from its box's centre (pixel centres at integers)
         offset = (float(srows.mean()) - (r0 + r1 - 1) / 2, float(scols.mean()) - (c0 + c1 - 1) / 2)
-        best, where = 0.0, None
+        centre = ((r0 + r1) / 2, (c0 + c1) / 2)
+        best, where, around = 0.0, None, 0.0
         for s in self.scales:
             m = _scaled_mask(tmask, s)
-            weighted = cv2.resize(template, (m.shape[1], m.shape[0]), interpolation=cv2.INTER_LINEAR) * m
-            norm = float((weighted * weighted).sum())
-            if norm < 1e-9:
+            windows = [
+                _window(camera[..., ch], *centre, m.shape, sr, sc, mode="constant") for ch in range(camera.shape[2])
+            ]
+            energy = _window(power, *centre, m.shape, sr, sc, mode="constant")
+            scores = _energy_aware(windows, energy, template, m)
+            if scores is None:
                 continue
-            win = _window(edges, (r0 + r1) / 2, (c0 + c1) / 2, m.shape, sr, sc, mode="constant")
-            cross = cv2.matchTemplate(win, weighted, cv2.TM_CCORR)
-            energy = cv2.matchTemplate(win * win, m, cv2.TM_CCORR)
-            scores = 2.0 * cross / (norm + energy + 1e-12)
             i, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
             if where is None or float(scores[i, j]) > best:
                 best = max(best, float(scores[i, j]))
+                if ring is not None:
+                    ring_scores = _energy_aware(windows, energy, template, _scaled_mask(ring, s, like=m))
+                    around = 0.0 if ring_scores is None else float(ring_scores[i, j])
                 # offset (i, j) of the window puts the template's top-left here (see _window)
-                top = int(round((r0 + r1) / 2 - m.shape[0] / 2)) - sr + int(i)
-                left = int(round((c0 + c1) / 2 - m.shape[1] / 2)) - sc + int(j)
+                top = int(round(centre[0] - m.shape[0] / 2)) - sr + int(i)
+                left = int(round(centre[1] - m.shape[1] / 2)) - sc + int(j)
                 sy, sx = m.shape[0] / tmask.shape[0], m.shape[1] / tmask.shape[1]  # the scale, as rounded
                 where = (
                     top + (m.shape[0] - 1) / 2 + sy * offset[0],
                     left + (m.shape[1] - 1) / 2 + sx * offset[1],
                     float(math.sqrt(sy * sx)),
                 )
-        return best, where
+        return best, where, around
 
     def detect(self, image: np.ndarray, *, view: CandidateView) -> Detection:
         sil = self._check(image, view)
@@ -394,8 +479,9 @@ class EdgeTemplateDetector:
         if self.calibration is not None and view.without is not None:
             statistic = self._colour_statistic(image, view, sil)
             if statistic is not None:
-                scaled, where = self._scaled_edge_match(image, view, sil)
-                llr = self.calibration.llr((statistic, scaled, self._contrast(image, view, sil)))
+                orientation, where, vertical, context = self._scaled_matches(image, view, sil)
+                contrast = self._contrast(image, view, sil)
+                llr = self.calibration.llr((statistic, orientation, vertical, contrast, context))
         lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
         if best >= self.threshold:
             why, present = f"score {best:.3f} >= {self.threshold}{lr}", True
@@ -465,12 +551,34 @@ class EdgeTemplateDetector:
         return (ssd0 - ssd1) / d2
 
 
-def _scaled_mask(mask: np.ndarray, scale: float) -> np.ndarray:
-    """A 0/1 float mask resized by ``scale`` (at least 2 x 2 pixels)."""
-    if scale == 1.0:
+def _scaled_mask(mask: np.ndarray, scale: float, *, like: np.ndarray | None = None) -> np.ndarray:
+    """A 0/1 float mask resized by ``scale`` (at least 2 x 2 pixels; ``like``: to that mask's shape)."""
+    if scale == 1.0 and like is None:
         return mask
-    size = (max(2, int(round(mask.shape[1] * scale))), max(2, int(round(mask.shape[0] * scale))))
+    if like is not None:
+        size = (like.shape[1], like.shape[0])
+    else:
+        size = (max(2, int(round(mask.shape[1] * scale))), max(2, int(round(mask.shape[0] * scale))))
     return (cv2.resize(mask, size, interpolation=cv2.INTER_LINEAR) > 0.5).astype(np.float32)
+
+
+def _energy_aware(
+    windows: Sequence[np.ndarray], energy: np.ndarray, template: np.ndarray, mask: np.ndarray
+) -> np.ndarray | None:
+    """``2 <T, W> / (|T|^2 + |W|^2)`` over ``mask`` for every offset of the template inside the
+    windows: ``windows`` one per channel of the camera's field, ``energy`` their summed squares,
+    ``template`` (h, w, C) resized to the mask's shape. ``None`` when the template is empty there."""
+    size = (mask.shape[1], mask.shape[0])
+    cross = None
+    norm = 0.0
+    for ch, win in enumerate(windows):
+        t = cv2.resize(np.ascontiguousarray(template[..., ch]), size, interpolation=cv2.INTER_LINEAR) * mask
+        c = cv2.matchTemplate(win, t, cv2.TM_CCORR)
+        cross = c if cross is None else cross + c
+        norm += float((t * t).sum())
+    if norm < 1e-9 or cross is None:
+        return None
+    return 2.0 * cross / (norm + cv2.matchTemplate(energy, mask, cv2.TM_CCORR) + 1e-12)
 
 
 def _window(

@@ -415,9 +415,10 @@ class MemorySpec(_Spec):
 #: the detectors' calibration, one for every kind ("any", models.detectors.ANY_KIND; a kind or
 #: detector family, models.detectors.KIND_FAMILY, may have its own), fitted by
 #: bench/tuning/calibrate_detectors.py on the evaluation set's tuning split (one calibration did
-#: better than one per family or kind with a tuning case left out: BENCHMARKS.md)
-DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float]] = {
-    "any": (-3.5718, 1.4052, 4.8713, 1.0983),
+#: better than one per family or kind with a tuning case left out: BENCHMARKS.md); the weights are
+#: models.detectors.LR_FEATURES' (statistic, orientation, vertical, contrast, context)
+DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float, float, float]] = {
+    "any": (-8.2229, 1.1922, 3.623, 6.5304, 0.3359, 3.4658),
 }
 
 
@@ -484,18 +485,19 @@ class SchedulerSpec(_Spec):
     detector_scales: tuple[float, ...] = Field(
         default=(0.7, 0.76, 0.83, 0.91, 1.0, 1.1, 1.2, 1.31, 1.43), min_length=1, max_length=16
     )
-    #: detector calibration, {landmark kind, detector family or "any": [bias, w_statistic, w_score, w_contrast]}:
+    #: detector calibration, {landmark kind, detector family or "any": [bias, w_statistic, w_orientation,
+    #: w_vertical, w_contrast, w_context]}:
     #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
     #: by bench/tuning/calibrate_detectors.py on tuning seeds
-    calibration: dict[str, tuple[float, float, float, float]] = Field(
+    calibration: dict[str, tuple[float, float, float, float, float, float]] = Field(
         default_factory=lambda: dict(DETECTOR_CALIBRATION), max_length=64
     )
 
     @field_validator("calibration")
     @classmethod
     def _calibration(
-        cls, value: dict[str, tuple[float, float, float, float]]
-    ) -> dict[str, tuple[float, float, float, float]]:
+        cls, value: dict[str, tuple[float, float, float, float, float, float]]
+    ) -> dict[str, tuple[float, float, float, float, float, float]]:
         for kind, numbers in value.items():
             if not 1 <= len(kind) <= 64:
                 raise ValueError(f"{kind!r}: a landmark kind or detector family of 1 to 64 characters")

@@ -351,12 +351,12 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
     ("max-llr-zero", _set("scheduler.max_llr", 0), "scheduler.max_llr: must be > 0"),
     (
         "calibration-1e300",
-        _set("scheduler.calibration", {"outline": [1e300, 0, 0, 0]}),
+        _set("scheduler.calibration", {"outline": [1e300, 0, 0, 0, 0, 0]}),
         "scheduler.calibration: outline: every number must be within ±1000",
     ),
     (
-        "calibration-three-numbers",
-        _set("scheduler.calibration", {"outline": [1, 2, 3]}),
+        "calibration-five-numbers",
+        _set("scheduler.calibration", {"outline": [1, 2, 3, 4, 5]}),
         "scheduler.calibration.outline",
     ),
     ("expect-top1-two", _set("expect", {"top1_min": 2}), "expect.top1_min: must be <= 1"),

@@ -310,7 +310,7 @@ _VALIDATED_NUMBERS = {
     ("SchedulerSpec", "align_deg"): (1.0, 1e300),
     ("SchedulerSpec", "detector_scales"): (1.0, 1e300),
     ("SchedulerSpec", "position_spread"): (1.0, 1.0, 1e300),
-    ("SchedulerSpec", "calibration"): {"outline": (1e300, 0.0, 0.0, 0.0)},
+    ("SchedulerSpec", "calibration"): {"outline": (1e300, 0.0, 0.0, 0.0, 0.0, 0.0)},
 }
 
 
