@@ -33,7 +33,7 @@ class PoseRefiner(KnowledgeSource):
     Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
     ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too, or refine heading
-    and pitch only). Positions that arrive before the map wait.
+    and pitch only), ``recheck`` (score the heading and pitch found again in a view rendered at them). Positions that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
@@ -55,6 +55,7 @@ class PoseRefiner(KnowledgeSource):
         truncate_deg: float,
         max_roll_deg: float = RefineSpec().max_roll_deg,
         position: bool,
+        recheck: bool = RefineSpec().recheck,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -74,6 +75,7 @@ class PoseRefiner(KnowledgeSource):
             "truncate_deg": float(truncate_deg),
             "max_roll_deg": float(max_roll_deg),
             "position": bool(position),
+            "recheck": bool(recheck),
         }
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None

@@ -67,6 +67,7 @@ DEFAULT_LEVELS = _DEFAULTS.levels
 DEFAULT_GRID = _DEFAULTS.grid
 DEFAULT_EDGE_WEIGHT = _DEFAULTS.edge_weight
 DEFAULT_POSITION = _DEFAULTS.position
+DEFAULT_RECHECK = _DEFAULTS.recheck
 DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
 
 _BLUR_PX = 1.5
@@ -247,6 +248,7 @@ def refine_pose(
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
     max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
     position: bool = DEFAULT_POSITION,
+    recheck: bool = DEFAULT_RECHECK,
     query_skyline: NDArray | None = None,
     start_view: View | None = None,
 ) -> RefinedPose:
@@ -266,6 +268,9 @@ def refine_pose(
     viewframe's image and depth from the viewframe cache entry of this emulator's map: the same
     renderer at the same pose gives the same pixels); used instead of rendering it, so step 1
     renders one view, not two. The caller vouches that it is that view.
+
+    ``recheck`` False: step 1 ends with the first match (its heading, pitch, score and heading
+    uncertainty), without the second view at the heading and pitch it found.
     """
     if levels < 1 or grid < 2:
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
@@ -283,8 +288,9 @@ def refine_pose(
         query_skyline=query_skyline,
     )
     # 1. heading and pitch at the start point, then score it again at that heading
-    _, heading, pitch, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=start_view)
-    s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
+    s0, heading, pitch, sig_h = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=start_view)
+    if recheck:
+        s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
     th = math.radians(start.heading_deg)
     fwd, side = np.array([math.cos(th), math.sin(th)]), np.array([math.sin(th), -math.cos(th)])
     centre = np.zeros(2)  # (along, across) offsets from the start

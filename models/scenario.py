@@ -629,10 +629,14 @@ class RefineSpec(_Spec):
     ``max_roll_deg`` (default 0) is the skyline match's roll bound in the refiner's scores (the
     ranker's is ``skyline.max_roll_deg``): fitting the roll there flattened the score across
     positions, and the position search missed a known offset it finds without
-    (tests/models/test_refine.py)."""
+    (tests/models/test_refine.py). ``recheck`` (default true): the heading and pitch found at the
+    chosen viewframe are scored again in a view rendered at them (the first view is the
+    viewframe's own, read from the viewframe cache when it has it); false keeps the first match's
+    heading, pitch and score, one render less a frame."""
 
     enabled: bool = True
     position: bool = False
+    recheck: bool = True
     along_m: float = Field(default=20.0, ge=0, le=MAX_SIZE_M)
     across_m: float = Field(default=8.0, ge=0, le=MAX_SIZE_M)
     levels: int = Field(default=2, ge=1, le=8)
