@@ -83,6 +83,7 @@ COLUMNS: list[tuple[str, str, Callable[[Sequence[Frame]], float | None]]] = [
     ("err_mean", "{:.1f}", lambda fr: float(np.mean(_errors(fr))) if fr else None),
     ("err_median", "{:.1f}", lambda fr: float(np.median(_errors(fr))) if fr else None),
     # the single-frame decision's heading (the refiner's, when it refined the frame): degrees off the truth
+    ("head_mean", "{:.2f}", lambda fr: float(np.mean(_headings(fr))) if _headings(fr) else None),
     ("head_median", "{:.2f}", lambda fr: _median(_headings(fr))),
     ("head_p90", "{:.2f}", lambda fr: float(np.percentile(_headings(fr), 90)) if _headings(fr) else None),
 ]

@@ -97,5 +97,5 @@ def test_an_entry_of_another_rendering_is_not_read(small_rendered: dict, monkeyp
     monkeypatch.setattr(World, "_cache_key", lambda self: "0" * 64)
     refiner = _refiner()
     poses = _poses(small_rendered, refiner, {0: 2})
-    assert refiner._depths is None and poses[0].renders == 2
+    assert refiner._depths is None and poses[0].renders == 1  # the start view, rendered
     assert np.isfinite(poses[0].heading_deg)
