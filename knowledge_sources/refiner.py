@@ -30,10 +30,16 @@ class PoseRefiner(KnowledgeSource):
     rendering views around the point, coarse to fine). Posts a ``pose`` linked to the position
     and the camera frame; the results' ``position`` and ``heading_deg`` are the pose's.
 
+    The view at the chosen viewframe's pose is the viewframe's own: when the ``map`` names a
+    viewframe cache entry that holds what this refiner's emulator renders (the entry's name is
+    the refiner's world's cache key, :meth:`models.world.World.renders_entry`), its image and
+    depth are read from the entry instead of rendered again (the same pixels); otherwise rendered.
+
     Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too, or refine heading
-    and pitch only), ``recheck`` (score the heading and pitch found again in a view rendered at them). Positions that arrive before the map wait.
+    ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too,
+    or refine heading and pitch only), ``recheck`` (score the heading and pitch found again in a
+    view rendered at them). Positions that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
