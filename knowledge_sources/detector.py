@@ -43,14 +43,11 @@ class LandmarkDetectorAgent(KnowledgeSource):
     viewframes kept, default 64).
 
     Camera frames are kept as they are posted (into the same bounded cache, by an activation rated
-    above the questions'), and when the ``map`` names the viewframe cache entry its viewframes
-    came from, a viewframe's pixels are read from that entry (as the indexers read them): a
-    question then needs no read from the blackboard, each a round trip through the node on the
-    path from the rankings to the decision. Without a map, or one without an entry (inline
-    viewframes), the viewframe is read from the blackboard.
+    above the questions'): a question about a frame then needs no read of it from the blackboard,
+    a round trip through the node on the path from the rankings to the decision.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.SENSOR_FRAME, levels.MAP)
+    consumes: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.SENSOR_FRAME)
     produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
 
     def __init__(
@@ -78,7 +75,6 @@ class LandmarkDetectorAgent(KnowledgeSource):
         self.cache = int(cache)
         self._registry: DetectorRegistry | None = None
         self._store: OrderedDict[str, Hypothesis] = OrderedDict()
-        self._entry: tuple[str, int] | None = None  # the map's viewframe cache entry and its viewframes
 
     def input_error(self, err: Exception) -> str | None:
         from models.errors import CacheEntryError
@@ -105,7 +101,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
         h = event.hypothesis
         if event.kind is not EventKind.POSTED:
             return None
-        if h.level in (levels.SENSOR_FRAME, levels.MAP):
+        if h.level == levels.SENSOR_FRAME:
             return 2.0  # kept (at once: no work) before a waiting question is answered, which may be about it
         return 1.0 if h.addressed_to == self.name else None
 
@@ -132,21 +128,13 @@ class LandmarkDetectorAgent(KnowledgeSource):
         if event.hypothesis.level == levels.SENSOR_FRAME:
             self._keep(event.hypothesis)
             return
-        if event.hypothesis.level == levels.MAP:
-            mp = levels.Map.from_hypothesis(event.hypothesis)
-            self._entry = None if mp.entry is None else (mp.entry, mp.viewframes)
-            return
         q = levels.Query.from_hypothesis(event.hypothesis)
         frame_h = self._get(board, levels.frame_id(q.frame))
+        vf_h = self._get(board, levels.viewframe_id(q.viewframe))
         frame = levels.SensorFrame.from_hypothesis(frame_h)
-        if self._entry is not None and 0 <= q.viewframe < self._entry[1]:  # the pixels from the map's entry
-            entry, count = self._entry
-            px = levels.PixelsRef(index=q.viewframe, entry=entry, count=count).pixels(agent=self.name)
-        else:
-            px = levels.Viewframe.from_hypothesis(self._get(board, levels.viewframe_id(q.viewframe))).pixels(
-                agent=self.name
-            )
+        vf = levels.Viewframe.from_hypothesis(vf_h)
         detector = self._registry.for_kind(q.kind)
+        px = vf.pixels(agent=self.name)
         view = CandidateView.from_mask(px.image, px.mask, q.landmark_index, background=px.background)
         if frame.columns is not None and _outside(view.silhouette, frame.columns):
             from models.detectors import Detection
@@ -176,7 +164,7 @@ class LandmarkDetectorAgent(KnowledgeSource):
                 llr=det.llr,
                 where=where,
             ),
-            links=(event.hypothesis.id, frame_h.id, levels.viewframe_id(q.viewframe)),
+            links=(event.hypothesis.id, frame_h.id, vf_h.id),
             credibility=float(min(1.0, max(0.0, det.score))),
         )
 

@@ -194,32 +194,3 @@ def test_a_question_about_a_frame_it_saw_posted_reads_no_frame_from_the_board(
     (h,) = bb.hypotheses(levels.ANSWER)
     assert levels.frame_id(0) not in reads and vf.id() in reads
     assert levels.frame_id(0) in h.links and levels.Answer.from_hypothesis(h).present is True
-
-
-def test_with_the_maps_cache_entry_a_question_reads_nothing_from_the_board(small_rendered: dict, monkeypatch) -> None:
-    """The map names the viewframe cache entry its viewframes came from: the viewframe's pixels
-    are read from there (as the indexers read them), the frame was kept as it was posted, so a
-    question reads nothing from the blackboard; the answer is the one the blackboard's gives."""
-    from blackboard.memory_board import MemoryBoard
-    from tests.knowledge_sources.rankers import repost
-
-    vf, lm = _visible_landmark(small_rendered)
-    assert small_rendered["map"].body["entry"] is not None
-    answers = {}
-    for with_map in (False, True):
-        reads: list[str] = []
-        plain = MemoryBoard.get
-        monkeypatch.setattr(
-            MemoryBoard, "get", lambda self, i, reads=reads, plain=plain: reads.append(i) or plain(self, i)
-        )
-        bb = MemoryBlackboard()
-        bb.add(LandmarkDetectorAgent("detector-x", camera_height=vf.image.shape[0], fov_y_deg=45.0))
-        if with_map:
-            repost(bb, small_rendered["map"])
-        _ask(bb, vf, lm, vf.image, to="detector-x")
-        bb.run()
-        monkeypatch.setattr(MemoryBoard, "get", plain)
-        (h,) = bb.hypotheses(levels.ANSWER)
-        answers[with_map] = (levels.Answer.from_hypothesis(h), set(h.links))
-        assert reads == ([] if with_map else [vf.id()])
-    assert answers[True] == answers[False]
