@@ -41,13 +41,9 @@ class LandmarkDetectorAgent(KnowledgeSource):
     ``fov_y_deg`` (the scenario camera's rows and vertical field of view: they turn ``align_deg``
     into pixels; without them the detector's own default search); ``cache`` (frames and
     viewframes kept, default 64).
-
-    Camera frames are kept as they are posted (into the same bounded cache, by an activation rated
-    above the questions'): a question about a frame then needs no read of it from the blackboard,
-    a round trip through the node on the path from the rankings to the decision.
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.SENSOR_FRAME)
+    consumes: ClassVar[tuple[str, ...]] = (levels.QUERY,)
     produces: ClassVar[tuple[str, ...]] = (levels.ANSWER,)
 
     def __init__(
@@ -99,17 +95,9 @@ class LandmarkDetectorAgent(KnowledgeSource):
 
     def precondition(self, event: Event) -> float | None:
         h = event.hypothesis
-        if event.kind is not EventKind.POSTED:
+        if event.kind is not EventKind.POSTED or h.addressed_to != self.name:
             return None
-        if h.level == levels.SENSOR_FRAME:
-            return 2.0  # kept (at once: no work) before a waiting question is answered, which may be about it
-        return 1.0 if h.addressed_to == self.name else None
-
-    def _keep(self, h: Hypothesis) -> None:
-        self._store[h.id] = h
-        self._store.move_to_end(h.id)
-        while len(self._store) > self.cache:
-            self._store.popitem(last=False)
+        return 1.0
 
     def _get(self, board: Board, hid: str) -> Hypothesis:
         if hid in self._store:
@@ -118,16 +106,15 @@ class LandmarkDetectorAgent(KnowledgeSource):
         h = board.get(hid)
         if h is None:
             raise LookupError(f"hypothesis {hid!r} is not on the blackboard")
-        self._keep(h)
+        self._store[hid] = h
+        while len(self._store) > self.cache:
+            self._store.popitem(last=False)
         return h
 
     def act(self, event: Event, board: Board) -> None:
         from models.detectors import CandidateView
 
         assert self._registry is not None
-        if event.hypothesis.level == levels.SENSOR_FRAME:
-            self._keep(event.hypothesis)
-            return
         q = levels.Query.from_hypothesis(event.hypothesis)
         frame_h = self._get(board, levels.frame_id(q.frame))
         vf_h = self._get(board, levels.viewframe_id(q.viewframe))

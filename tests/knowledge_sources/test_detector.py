@@ -173,24 +173,3 @@ def test_no_answer_where_a_padded_camera_image_sees_nothing(small_rendered: dict
     assert answers["beside"].present is None and answers["beside"].llr is None
     assert "outside the columns" in answers["beside"].reason
     assert answers["over"].present is True
-
-
-def test_a_question_about_a_frame_it_saw_posted_reads_no_frame_from_the_board(
-    small_rendered: dict, monkeypatch
-) -> None:
-    """Camera frames are kept as they are posted: the question about one reads only the viewframe
-    from the blackboard (a read is a round trip through the node, on the path to the decision),
-    and the answer is the one a read frame gives."""
-    from blackboard.memory_board import MemoryBoard
-
-    vf, lm = _visible_landmark(small_rendered)
-    reads: list[str] = []
-    plain = MemoryBoard.get
-    monkeypatch.setattr(MemoryBoard, "get", lambda self, i: reads.append(i) or plain(self, i))
-    bb = MemoryBlackboard()
-    bb.add(LandmarkDetectorAgent("detector-x"))
-    _ask(bb, vf, lm, vf.image, to="detector-x")
-    bb.run()
-    (h,) = bb.hypotheses(levels.ANSWER)
-    assert levels.frame_id(0) not in reads and vf.id() in reads
-    assert levels.frame_id(0) in h.links and levels.Answer.from_hypothesis(h).present is True
