@@ -2,7 +2,7 @@
 
 Each case of :mod:`bench.evalset` (held-out by default) runs through the real pipeline,
 :func:`knowledge_sources.mission.run_mission` (all agents on the blackboard, in one process), with
-the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline`` override blocks of it,
+the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline``/``--render``/``--refine`` override blocks of it,
 and without the tracker (every frame decided alone; ``--track``: with it, as a mission runs by
 default, so that ``top1`` is the track's). Per terrain and
 over all frames it reports:
@@ -18,7 +18,7 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
 
     python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
-        [--track] [--errors standard|large] [--json-only]
+        [--refine '{"recheck": false}'] [--track] [--errors standard|large] [--json-only]
 
 ``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
@@ -58,6 +58,20 @@ def _errors(frames: Sequence[Frame]) -> list[float]:
     return [f["error_m"] if f.get("error_m") is not None else math.inf for f in frames if f.get("truth")]
 
 
+def _headings(frames: Sequence[Frame]) -> list[float]:
+    """Degrees between each frame's single-frame heading (``frame_only`` when tracking) and its true one."""
+    out = []
+    for f in frames:
+        heading = (f.get("frame_only") or f).get("heading_deg")
+        if f.get("truth") is not None and heading is not None:
+            out.append(abs((float(heading) - float(f["truth"][2]) + 180.0) % 360.0 - 180.0))
+    return out
+
+
+def _median(values: Sequence[float]) -> float | None:
+    return float(np.median(values)) if values else None
+
+
 def _in_ranking(f: Frame, k: int) -> bool:
     return f["truth_viewframe"] in [int(r[0]) for r in (f.get("ranking") or [])[:k]]
 
@@ -70,6 +84,10 @@ COLUMNS: list[tuple[str, str, Callable[[Sequence[Frame]], float | None]]] = [
     ("rank_top5", "{:.3f}", lambda fr: _share(fr, lambda f: _in_ranking(f, 5))),
     ("err_mean", "{:.1f}", lambda fr: float(np.mean(_errors(fr))) if fr else None),
     ("err_median", "{:.1f}", lambda fr: float(np.median(_errors(fr))) if fr else None),
+    # the single-frame decision's heading (the refiner's, when it refined the frame): degrees off the truth
+    ("head_mean", "{:.2f}", lambda fr: float(np.mean(_headings(fr))) if _headings(fr) else None),
+    ("head_median", "{:.2f}", lambda fr: _median(_headings(fr))),
+    ("head_p90", "{:.2f}", lambda fr: float(np.percentile(_headings(fr), 90)) if _headings(fr) else None),
 ]
 
 
@@ -150,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skyline", type=json.loads, default=None, help="JSON skyline block")
     parser.add_argument("--render", type=json.loads, default=None, help='JSON render block, e.g. {"views_per_leg": 3}')
     parser.add_argument("--errors", choices=sorted(ERROR_PROFILES), default="standard", help="pose-error profile")
+    parser.add_argument("--refine", type=json.loads, default=None, help='JSON refine block, e.g. {"recheck": false}')
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -159,6 +178,7 @@ def main(argv: list[str] | None = None) -> int:
             ("scheduler", args.scheduler),
             ("skyline", args.skyline),
             ("render", args.render),
+            ("refine", args.refine),
         )
         if v is not None
     }

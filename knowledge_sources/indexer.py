@@ -109,6 +109,7 @@ class AssociativeIndexer(RouteRanker):
         self.keep_images = keep
         #: the shard's index was loaded from a stored copy (set by build)
         self.loaded = False
+        self._held: np.ndarray | None = None  # the viewframes the index holds, sorted (set by build)
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""
@@ -161,6 +162,7 @@ class AssociativeIndexer(RouteRanker):
 
         index, self.loaded = cached_index(mp.entry, mp.memory, mine, seed=self.shard, images=images)
         self._index = index
+        self._held = np.sort(index.viewframes)
         self._images.clear()
         stored = len(mine) - len(index.featureless)
         levels.post(
@@ -212,12 +214,23 @@ class AssociativeIndexer(RouteRanker):
             finally:
                 self._release_rows()
 
+    def holds_any(self, window: tuple[int, int]) -> bool:
+        """The index holds a viewframe of ``window`` (``(first, last)`` viewframes, inclusive)."""
+        assert self._held is not None
+        return bool(np.searchsorted(self._held, window[1], side="right") > np.searchsorted(self._held, window[0]))
+
     def rank(self, hypothesis: Hypothesis, board: Board) -> None:
+        from models.associative import merge_rankings
+
         assert self._index is not None  # frames wait until the index is built
         frame = levels.SensorFrame.from_hypothesis(hypothesis)
         window = self.window(frame.frame)
-        among = None if window is None else np.arange(window[0], window[1] + 1)
-        ranking = self._ranked(frame.image, among)
+        if window is not None and not self.holds_any(window):
+            # outside the track window: the empty ranking at once, not waiting for the stored
+            # shards' turn (:data:`MAPPED_RANKINGS`) nor mapping rows: on a long route most shards are here
+            ranking = merge_rankings([])
+        else:
+            ranking = self._ranked(frame.image, None if window is None else np.arange(window[0], window[1] + 1))
         levels.post(
             board,
             levels.Ranking.of(

@@ -168,6 +168,7 @@ def agent_plan(
                 "refiner",
                 {
                     "position": ref.position,
+                    "recheck": ref.recheck,
                     "along_m": ref.along_m,
                     "across_m": ref.across_m,
                     "levels": ref.levels,

@@ -14,7 +14,7 @@ from models.scenario import RefineSpec
 
 if TYPE_CHECKING:
     from knowledge_sources.levels import Map
-    from models.camera_emulator import CameraEmulator
+    from models.camera_emulator import CameraEmulator, Pose, View
     from models.world import World
 
 __all__ = ["PoseRefiner"]
@@ -30,10 +30,16 @@ class PoseRefiner(KnowledgeSource):
     rendering views around the point, coarse to fine). Posts a ``pose`` linked to the position
     and the camera frame; the results' ``position`` and ``heading_deg`` are the pose's.
 
+    The view at the chosen viewframe's pose is the viewframe's own: when the ``map`` names a
+    viewframe cache entry that holds what this refiner's emulator renders (the entry's name is
+    the refiner's world's cache key, :meth:`models.world.World.renders_entry`), its image and
+    depth are read from the entry instead of rendered again (the same pixels); otherwise rendered.
+
     Options (the scenario's ``refine`` block and skyline matching settings): ``along_m``,
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too, or refine heading
-    and pitch only). Positions that arrive before the map wait.
+    ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too,
+    or refine heading and pitch only), ``recheck`` (score the heading and pitch found again in a
+    view rendered at them). Positions that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
@@ -55,6 +61,7 @@ class PoseRefiner(KnowledgeSource):
         truncate_deg: float,
         max_roll_deg: float = RefineSpec().max_roll_deg,
         position: bool,
+        recheck: bool = RefineSpec().recheck,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -74,10 +81,14 @@ class PoseRefiner(KnowledgeSource):
             "truncate_deg": float(truncate_deg),
             "max_roll_deg": float(max_roll_deg),
             "position": bool(position),
+            "recheck": bool(recheck),
         }
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None
         self._map: Map | None = None  # (the option ``levels`` shadows the module here)
+        self._depths: np.ndarray | None = (
+            None  # the map's cache entry's depths (memory-mapped), when it is this emulator's
+        )
         self._waiting: list[Hypothesis] = []
 
     def precondition(self, event: Event) -> float | None:
@@ -106,11 +117,32 @@ class PoseRefiner(KnowledgeSource):
                 self._refine(h, board)
 
     def _open(self, mp: levels.Map) -> None:
+        from models.viewframe_cache import entry_field
         from models.world import World
 
         self._world = World.from_scenario(mp.path)
         self._emulator = self._world.emulator
         self._map = mp
+        if mp.entry is not None and self._world.renders_entry(mp.entry):  # the chosen viewframe's view is read
+            depths = entry_field(mp.entry, "depth", count=mp.viewframes)
+            if depths is not None and depths.ndim == 3:
+                self._depths = depths
+
+    def _start_view(self, viewframe: int, start: Pose) -> View | None:
+        """The view of the chosen ``viewframe`` at ``start`` (its pose) from the map's cache entry,
+        when that entry holds what this refiner's emulator renders (:meth:`models.world.World.renders_entry`):
+        copies, the entry's pages given back; None otherwise (rendered)."""
+        import mmap
+
+        from models.camera_emulator import View
+        from models.viewframe_cache import read_pixels, release_pages
+
+        if self._depths is None or self._map is None or self._map.entry is None:
+            return None
+        pixels = read_pixels(self._map.entry, viewframe, count=self._map.viewframes)
+        depth = np.array(self._depths[viewframe], dtype=np.float32)
+        release_pages([self._depths[viewframe]], advice=mmap.MADV_DONTNEED)
+        return View(image=pixels.image, depth=depth, mask=pixels.mask.astype(np.int32), pose=start)
 
     def _profile(self, frame: int, board: Board) -> np.ndarray | None:
         """The camera frame's skyline profile as the skyline ranker extracted it (its ranking of
@@ -134,7 +166,14 @@ class PoseRefiner(KnowledgeSource):
         image = levels.SensorFrame.from_hypothesis(got).image
         x, y, _, heading, pitch = self._map.pose(position.viewframe)
         start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
-        r = refine_pose(image, self._emulator, start, query_skyline=self._profile(position.frame, board), **self.search)
+        r = refine_pose(
+            image,
+            self._emulator,
+            start,
+            query_skyline=self._profile(position.frame, board),
+            start_view=self._start_view(position.viewframe, start),
+            **self.search,
+        )
         levels.post(
             board,
             levels.Pose(

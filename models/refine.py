@@ -50,7 +50,7 @@ from models.skyline import (
 )
 
 if TYPE_CHECKING:
-    from models.camera_emulator import CameraEmulator, Pose
+    from models.camera_emulator import CameraEmulator, Pose, View
 
 __all__ = [
     "RefinedPose",
@@ -67,6 +67,7 @@ DEFAULT_LEVELS = _DEFAULTS.levels
 DEFAULT_GRID = _DEFAULTS.grid
 DEFAULT_EDGE_WEIGHT = _DEFAULTS.edge_weight
 DEFAULT_POSITION = _DEFAULTS.position
+DEFAULT_RECHECK = _DEFAULTS.recheck
 DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
 
 _BLUR_PX = 1.5
@@ -194,10 +195,21 @@ class _Scorer:
         self.px_per_deg = emulator.intrinsics[0] * math.radians(1.0)
         self.renders = 0
 
-    def score(self, x: float, y: float, heading: float, pitch: float, *, max_heading: float | None = None):
-        """(score, heading, pitch, sigma_heading) of the view at (x, y) rendered at heading/pitch."""
-        view = self.emulator.render(self.emulator.pose_at(x, y, heading, pitch_deg=pitch))
-        self.renders += 1
+    def score(
+        self,
+        x: float,
+        y: float,
+        heading: float,
+        pitch: float,
+        *,
+        max_heading: float | None = None,
+        view: View | None = None,
+    ):
+        """(score, heading, pitch, sigma_heading) of the view at (x, y) rendered at heading/pitch
+        (``view``: that view, already rendered: not rendered again)."""
+        if view is None:
+            view = self.emulator.render(self.emulator.pose_at(x, y, heading, pitch_deg=pitch))
+            self.renders += 1
         ref = skyline_from_depth(view.depth, fov_y_deg=self.fov, step_deg=self.step)
         mh = self.max_heading if max_heading is None else max_heading
         m = match_skylines(self.query, ref[None], max_heading_deg=mh, **self.kw)
@@ -236,7 +248,9 @@ def refine_pose(
     truncate_deg: float = DEFAULT_TRUNCATE_DEG,
     max_roll_deg: float = DEFAULT_MAX_ROLL_DEG,
     position: bool = DEFAULT_POSITION,
+    recheck: bool = DEFAULT_RECHECK,
     query_skyline: NDArray | None = None,
+    start_view: View | None = None,
 ) -> RefinedPose:
     """Refine ``start`` (the chosen route point's pose) against the camera ``image`` (H, W, 3).
 
@@ -249,6 +263,14 @@ def refine_pose(
     ``query_skyline``: the image's skyline profile (:func:`models.skyline.skyline_from_image`
     with the emulator's field of view and ``step_deg``), when already extracted (the skyline
     ranker posts it); None, or a profile of another length: extracted here.
+
+    ``start_view``: the view the emulator renders at ``start``, when already rendered (the chosen
+    viewframe's image and depth from the viewframe cache entry of this emulator's map: the same
+    renderer at the same pose gives the same pixels); used instead of rendering it, so step 1
+    renders one view, not two. The caller vouches that it is that view.
+
+    ``recheck`` False: step 1 ends with the first match (its heading, pitch, score and heading
+    uncertainty), without the second view at the heading and pitch it found.
     """
     if levels < 1 or grid < 2:
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
@@ -266,8 +288,9 @@ def refine_pose(
         query_skyline=query_skyline,
     )
     # 1. heading and pitch at the start point, then score it again at that heading
-    _, heading, pitch, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg)
-    s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
+    s0, heading, pitch, sig_h = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=start_view)
+    if recheck:
+        s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
     th = math.radians(start.heading_deg)
     fwd, side = np.array([math.cos(th), math.sin(th)]), np.array([math.sin(th), -math.cos(th)])
     centre = np.zeros(2)  # (along, across) offsets from the start

@@ -195,6 +195,13 @@ class World:
             self._key = cache_key(self.scenario, self.terrain, lod=self._lod)
         return self._key
 
+    def renders_entry(self, entry: str | Path | None) -> bool:
+        """The viewframe cache entry folder ``entry`` holds the viewframes this world's emulator
+        renders, pixel for pixel (its name is this world's cache key: the same terrain, landmarks,
+        route, camera, level of detail and renderer), so a view it would render at a viewframe's
+        pose may be read from the entry instead. False for None or another entry."""
+        return entry is not None and Path(entry).name == self._cache_key()
+
     def summary(self) -> EntrySummary | None:
         """What a map needs of the viewframes (:class:`models.viewframe_cache.EntrySummary`: the
         index and pose of each, the landmarks visible in each with their pixels and centroids),

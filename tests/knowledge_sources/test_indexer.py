@@ -95,6 +95,35 @@ def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small
     assert got[0].viewframes == [] and got[2].viewframes == [] and got[1].viewframes == [4]
 
 
+def test_a_shard_outside_the_track_window_posts_its_empty_ranking_without_ranking(small_rendered: dict) -> None:
+    """A shard none of whose viewframes is in the frame's window posts the empty ranking without
+    going into its index (for a stored shard: without waiting its turn among the process's
+    stored shards, :data:`MAPPED_RANKINGS`, and without mapping its rows): at 10,000 viewframes
+    19 of the 20 shards are outside a tracked frame's window."""
+    bb = MemoryBlackboard()
+    n = len(small_rendered["viewframes"])
+    indexers = [
+        AssociativeIndexer(f"indexer-{b}", shard=b, shards=3, block=3, tracked=True, keep_images=True) for b in range(3)
+    ]
+    for ix in indexers:
+        bb.add(ix)
+    post_map(bb, small_rendered, window_route_points=n, window_margin=0, window_full_every=10)
+    frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    levels.post(bb.user, track(0, "tracking", 4, n))  # frame 1 predicted at route point 4 only: shard 1's
+    bb.run()
+    entered: list[int] = []
+    for ix in indexers:
+        plain = ix._ranked
+        ix._ranked = lambda image, among, ix=ix, plain=plain: entered.append(ix.shard) or plain(image, among)  # type: ignore[method-assign]
+    frames_from_viewframes(bb, small_rendered, [1])
+    bb.run()
+    got = {b: levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(1, b))) for b in range(3)}
+    assert entered == [1]
+    assert got[0].viewframes == [] and got[2].viewframes == [] and got[1].viewframes == [4]
+    assert got[0].reliability == got[2].reliability == 0.0 and got[0].shards == 3 and got[0].frame == 1
+
+
 def test_bad_block_option() -> None:
     with pytest.raises(ValueError, match="block"):
         AssociativeIndexer("indexer", block=0)

@@ -48,7 +48,8 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
         if only["viewframe"] is not None:
             assert f["route_position"] == pytest.approx(SMALL["route"][only["viewframe"]], abs=1e-6)
             assert math.dist(only["position"], f["route_position"]) < 25
-            assert f["pose"]["renders"] >= 2 and f["heading_error_deg"] is not None
+            # the view at the chosen viewframe read from the cache entry (0) or rendered (1), no recheck
+            assert f["pose"]["renders"] in (0, 1) and f["heading_error_deg"] is not None
     s = results["summary"]
     assert {"frames", "top1", "mean_queries", "mean_error_m", "latency_ms_p50"} <= set(s)
     assert s["frames"] == len(SMALL["route"]) and 0.0 <= s["top1"] <= 1.0

@@ -135,3 +135,30 @@ def test_a_frame_that_comes_before_the_track_of_the_frame_before_reads_that_trac
     frames_from_viewframes(bb, small_rendered, [2])  # no track of frame 1 anywhere: everything, no waiting
     bb.run()
     assert ranker.windows[2] is None and set(ranking(bb, kind, 2).viewframes) == set(range(n))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_frame_after_a_lost_track_it_has_ranks_everything_without_reading_the_board(
+    small_rendered: dict, kind: str, monkeypatch
+) -> None:
+    """The track of frame k - 1 came and says ``lost``: frame k is ranked in full, and the ranker
+    does not read that track back from the blackboard (on a long route 21 rankers did so for each
+    such frame, each read a query to the node)."""
+    from blackboard.memory_board import MemoryBoard
+
+    bb = MemoryBlackboard()
+    ranker = make(kind, tracked=True)
+    bb.add(ranker)
+    n = len(small_rendered["viewframes"])
+    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=4)
+    frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    levels.post(bb.user, track(0, "lost", 2, n))
+    bb.run()
+    reads: list[tuple[str, str]] = []
+    plain = MemoryBoard.get
+    monkeypatch.setattr(MemoryBoard, "get", lambda self, i: reads.append((self.agent, i)) or plain(self, i))
+    frames_from_viewframes(bb, small_rendered, [1])
+    bb.run()
+    assert ranker.windows[1] is None and set(ranking(bb, kind, 1).viewframes) == set(range(n))
+    assert (ranker.name, levels.track_id(0)) not in reads

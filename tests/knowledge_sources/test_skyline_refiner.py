@@ -67,7 +67,7 @@ def test_disabled_skyline_and_refiner_leave_todays_pipeline(small_data, tmp_path
 def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_path):
     small_data["skyline"] = {"weight": 2.5, "max_heading_deg": 8.0, "max_roll_deg": 1.5}
     small_data["memory"] = {"weight": 0.5}
-    small_data["refine"] = {"along_m": 12.0, "grid": 3, "position": True, "max_roll_deg": 0.5}
+    small_data["refine"] = {"along_m": 12.0, "grid": 3, "position": True, "max_roll_deg": 0.5, "recheck": False}
     path = tmp_path / "opts.yaml"
     path.write_text(yaml.safe_dump(small_data))
     plan = {name: opts for _, name, opts in agent_plan(load_scenario(path))}
@@ -75,6 +75,7 @@ def test_scenario_skyline_and_refine_blocks_reach_the_agents(small_data, tmp_pat
     assert plan["skyline"]["max_heading_deg"] == 8.0 and plan["skyline"]["fov_y_deg"] == 45
     assert plan["skyline"]["max_roll_deg"] == 1.5 and plan["refiner"]["max_roll_deg"] == 0.5
     assert plan["refiner"]["along_m"] == 12.0 and plan["refiner"]["grid"] == 3 and plan["refiner"]["position"]
+    assert plan["refiner"]["recheck"] is False
 
 
 def test_the_refiner_reuses_the_skyline_rankers_profile_of_the_frame(small_data, tmp_path, monkeypatch):

@@ -65,9 +65,33 @@ def test_refinement_options_are_checked(emulator):
 def test_heading_only_refinement_keeps_the_position_and_renders_two_views(emulator):
     start = emulator.pose_at(420.0, 380.0, 60.0)
     view = emulator.render(emulator.pose_at(425.0, 383.0, 64.0))
-    r = refine_pose(view.image, emulator, start, position=False)
+    r = refine_pose(view.image, emulator, start, position=False, recheck=True)
     assert (r.x, r.y) == (start.x, start.y) and r.renders == 2
     assert r.heading_deg == pytest.approx(64.0, abs=0.75)
+
+
+def test_without_recheck_the_first_match_is_kept_one_view_fewer(emulator):
+    """``recheck=False`` (the default): the heading and pitch of the first match at the start view
+    are the answer (not scored again in a view rendered at them): one render, the heading still found."""
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    view = emulator.render(emulator.pose_at(425.0, 383.0, 64.0))
+    r = refine_pose(view.image, emulator, start, position=False)
+    assert (r.x, r.y) == (start.x, start.y) and r.renders == 1
+    assert r.heading_deg == pytest.approx(64.0, abs=0.75) and r.score == r.start_score
+
+
+def test_a_start_view_given_is_not_rendered_again(emulator):
+    """``start_view``: the view at the start pose already rendered (the viewframe's, from the
+    cache) is scored instead of rendering it: one render fewer, the same refinement."""
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    image = emulator.render(emulator.pose_at(425.0, 383.0, 63.0)).image
+    refine_pose(image, emulator, start)  # the first refinement in a fresh emulator may differ (see below)
+    want = refine_pose(image, emulator, start, recheck=True)
+    got = refine_pose(image, emulator, start, recheck=True, start_view=emulator.render(start))
+    assert got.renders == want.renders - 1
+    assert got.heading_deg == pytest.approx(want.heading_deg, abs=1e-6)
+    assert got.pitch_deg == pytest.approx(want.pitch_deg, abs=1e-6)
+    assert got.score == pytest.approx(want.score, abs=1e-6)
 
 
 @pytest.mark.parametrize("position", [False, True])
