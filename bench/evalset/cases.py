@@ -591,11 +591,13 @@ def _drive_poses(
 ) -> list[dict[str, Any]]:
     """A drive in time order (1 s apart): cruising at 0.4-1.2 route spacings a frame, stops of
     1-3 frames, gaps of 2.5-5 spacings, smooth lateral, heading, pitch and roll errors within
-    ``bounds`` (:data:`ERROR_PROFILES`); with ``kidnap`` one jump by 35-65 % of the route length, a
-    third of the way in."""
+    ``bounds`` (:data:`ERROR_PROFILES`; each an autoregressive walk whose steps scale with its bound
+    against :data:`ERROR_BOUNDS`', so that a larger profile wanders further, not only clips later);
+    with ``kidnap`` one jump by 35-65 % of the route length, a third of the way in."""
     pts, arc = _polyline(route)
     total = float(arc[-1])
     b = bounds
+    k = {name: b[name] / ERROR_BOUNDS[name] for name in ("lateral_m", "heading_deg", "pitch_deg", "roll_deg")}
     s = rng.uniform(0.0, 0.15) * total
     lat = rng.uniform(-0.5, 0.5) * b["lateral_m"]
     herr = pitch = roll = 0.0
@@ -618,10 +620,10 @@ def _drive_poses(
                 event = ""
             if s > total:  # turn the drive around at the end of the route (keep every frame on it)
                 s = total - rng.uniform(0.0, 0.3) * spacing
-        lat = float(np.clip(0.8 * lat + rng.normal(0, 1.2), -b["lateral_m"], b["lateral_m"]))
-        herr = float(np.clip(0.6 * herr + rng.normal(0, 2.5), -b["heading_deg"], b["heading_deg"]))
-        pitch = float(np.clip(0.6 * pitch + rng.normal(0, 1.0), -b["pitch_deg"], b["pitch_deg"]))
-        roll = float(np.clip(0.6 * roll + rng.normal(0, 1.0), -b["roll_deg"], b["roll_deg"]))
+        lat = float(np.clip(0.8 * lat + rng.normal(0, 1.2 * k["lateral_m"]), -b["lateral_m"], b["lateral_m"]))
+        herr = float(np.clip(0.6 * herr + rng.normal(0, 2.5 * k["heading_deg"]), -b["heading_deg"], b["heading_deg"]))
+        pitch = float(np.clip(0.6 * pitch + rng.normal(0, 1.0 * k["pitch_deg"]), -b["pitch_deg"], b["pitch_deg"]))
+        roll = float(np.clip(0.6 * roll + rng.normal(0, 1.0 * k["roll_deg"]), -b["roll_deg"], b["roll_deg"]))
         p, th = _at_arc(pts, arc, s)
         n = np.array([-math.sin(math.radians(th)), math.cos(math.radians(th))])
         out.append(
@@ -646,10 +648,16 @@ def _drive_poses(
 # generation
 
 
+#: the drives of a profile other than ``standard`` walk with steps scaled to its bounds (the
+#: standard drives, the same as before, keep their hashes)
+_SCALED_DRIVES = "drive steps scaled to the bounds"
+
+
 def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None, errors: str = "standard") -> str:
-    blob = json.dumps(
-        [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_PROFILES[errors]], sort_keys=True, default=str
-    )
+    spec: list[Any] = [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_PROFILES[errors]]
+    if errors != "standard":
+        spec.append(_SCALED_DRIVES)
+    blob = json.dumps(spec, sort_keys=True, default=str)
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
