@@ -77,7 +77,7 @@ from typing import Any, Protocol, runtime_checkable
 import cv2
 import numpy as np
 
-from models.scenario import SchedulerSpec
+from models.scenario import CALIBRATION_FEATURES, SchedulerSpec
 
 __all__ = [
     "CandidateView",
@@ -204,7 +204,7 @@ class Calibration:
 
 
 #: the features a :class:`Calibration` weighs, in order (:meth:`EdgeTemplateDetector.evidence`)
-LR_FEATURES: tuple[str, ...] = ("statistic", "orientation", "vertical", "contrast", "context")
+LR_FEATURES: tuple[str, ...] = CALIBRATION_FEATURES
 
 #: the percentile of an image's gradient magnitude that soft-normalises its orientation field
 #: (:func:`orientation_field`; 75 and 97 did about as well with a tuning case left out, BENCHMARKS.md)

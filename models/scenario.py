@@ -416,10 +416,14 @@ class MemorySpec(_Spec):
 #: detector family, models.detectors.KIND_FAMILY, may have its own), fitted by
 #: bench/tuning/calibrate_detectors.py on the evaluation set's tuning split (one calibration did
 #: better than one per family or kind with a tuning case left out: BENCHMARKS.md); the weights are
-#: models.detectors.LR_FEATURES' (statistic, orientation, vertical, contrast, context)
-DETECTOR_CALIBRATION: dict[str, tuple[float, float, float, float, float, float]] = {
+#: the features' (:data:`CALIBRATION_FEATURES`)
+DETECTOR_CALIBRATION: dict[str, tuple[float, ...]] = {
     "any": (-8.2229, 1.1922, 3.623, 6.5304, 0.3359, 3.4658),
 }
+
+#: the evidence a detector calibration weighs, in order (models.detectors.LR_FEATURES): a
+#: calibration is ``[bias, w_statistic, w_orientation, w_vertical, w_contrast, w_context]``
+CALIBRATION_FEATURES: tuple[str, ...] = ("statistic", "orientation", "vertical", "contrast", "context")
 
 
 class SchedulerSpec(_Spec):
@@ -489,18 +493,21 @@ class SchedulerSpec(_Spec):
     #: w_vertical, w_contrast, w_context]}:
     #: the log-likelihood ratio is bias + w . features (models.detectors.Calibration); fitted
     #: by bench/tuning/calibrate_detectors.py on tuning seeds
-    calibration: dict[str, tuple[float, float, float, float, float, float]] = Field(
-        default_factory=lambda: dict(DETECTOR_CALIBRATION), max_length=64
-    )
+    calibration: dict[str, tuple[float, ...]] = Field(default_factory=lambda: dict(DETECTOR_CALIBRATION), max_length=64)
 
     @field_validator("calibration")
     @classmethod
-    def _calibration(
-        cls, value: dict[str, tuple[float, float, float, float, float, float]]
-    ) -> dict[str, tuple[float, float, float, float, float, float]]:
+    def _calibration(cls, value: dict[str, tuple[float, ...]]) -> dict[str, tuple[float, ...]]:
         for kind, numbers in value.items():
             if not 1 <= len(kind) <= 64:
                 raise ValueError(f"{kind!r}: a landmark kind or detector family of 1 to 64 characters")
+            if len(numbers) != len(CALIBRATION_FEATURES) + 1:
+                raise ValueError(
+                    f"{kind}: a calibration is {len(CALIBRATION_FEATURES) + 1} numbers, [bias, "
+                    + ", ".join(f"w_{f}" for f in CALIBRATION_FEATURES)
+                    + f"], not {len(numbers)} (the four of before session 9 weigh other evidence: "
+                    "refit with bench/tuning/calibrate_detectors.py, or leave the default)"
+                )
             if not all(abs(v) <= MAX_CALIBRATION for v in numbers):
                 raise ValueError(f"{kind}: every number must be within ±{MAX_CALIBRATION:g}")
         return value

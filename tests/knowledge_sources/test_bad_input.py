@@ -355,9 +355,9 @@ SCENARIOS: list[tuple[str, Mutate, str]] = [
         "scheduler.calibration: outline: every number must be within ±1000",
     ),
     (
-        "calibration-five-numbers",
-        _set("scheduler.calibration", {"outline": [1, 2, 3, 4, 5]}),
-        "scheduler.calibration.outline",
+        "calibration-four-numbers",
+        _set("scheduler.calibration", {"outline": [1, 2, 3, 4]}),
+        "scheduler.calibration: outline: a calibration is 6 numbers, [bias, w_statistic",
     ),
     ("expect-top1-two", _set("expect", {"top1_min": 2}), "expect.top1_min: must be <= 1"),
 ]
