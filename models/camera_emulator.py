@@ -458,6 +458,34 @@ class CameraEmulator:
             r._platform = None
             r._renderer = None
 
+    def __del__(self) -> None:
+        """Collected without :meth:`close`: destroy this context only, without making it current.
+
+        Garbage collection runs at any allocation, in any thread, possibly in the middle of
+        another emulator's render there: it must not switch the thread's current context (as
+        :meth:`close` does to delete the GL objects; destroying the context frees them too) nor
+        let pyrender's own ``__del__`` call ``eglTerminate`` on the shared display, which ended
+        every other renderer of the process."""
+        r = getattr(self, "_renderer", None)
+        if r is None:
+            return
+        self._renderer = None
+        platform = getattr(r, "_platform", None)
+        context = getattr(platform, "_egl_context", None)
+        try:
+            if context is not None:
+                from OpenGL.EGL import eglDestroyContext
+
+                eglDestroyContext(platform._egl_display, context)  # deferred by EGL while current somewhere
+        except Exception:  # noqa: BLE001, S110 - nothing else to do at collection
+            pass
+        finally:
+            if platform is not None and context is not None:
+                platform._egl_context = None
+                platform._egl_display = None
+                r._platform = None
+                r._renderer = None
+
     def __enter__(self) -> CameraEmulator:
         return self
 

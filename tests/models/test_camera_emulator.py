@@ -210,6 +210,25 @@ def test_closing_one_emulator_leaves_another_working(caplog):
     assert "closing the offscreen renderer" not in caplog.text
 
 
+def test_an_emulator_never_closed_leaves_another_working_when_collected():
+    """An emulator dropped without close() (an agent that never shut down, a test's leftover) is
+    collected at whatever moment: it must not terminate the shared EGL display (pyrender's own
+    __del__ does) nor take the GL context of a renderer in use."""
+    import gc
+
+    terrain = Terrain(heights=np.zeros((11, 11)), cell_size=10.0)
+    b = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
+    before = b.render(Pose(10.0, 50.0, 2.0, 0.0))
+    a = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
+    a.render(Pose(20.0, 50.0, 2.0, 90.0))
+    del a
+    gc.collect()
+    after = b.render(Pose(10.0, 50.0, 2.0, 0.0))
+    np.testing.assert_array_equal(after.image, before.image)
+    np.testing.assert_array_equal(after.depth, before.depth)
+    b.close()
+
+
 def test_shader_folder_is_shared_by_processes_and_outlives_them(tmp_path):
     """Two fresh processes render with one content-named shader folder and leave no other folder."""
     import os
