@@ -463,13 +463,20 @@ class CameraEmulator:
 
         Garbage collection runs at any allocation, in any thread, possibly in the middle of
         another emulator's render there: it must not switch the thread's current context (as
-        :meth:`close` does to delete the GL objects; destroying the context frees them too) nor
-        let pyrender's own ``__del__`` call ``eglTerminate`` on the shared display, which ended
-        every other renderer of the process."""
+        :meth:`close` does to delete the GL objects; destroying the context frees them too), nor
+        let pyrender's renderer delete its objects by id in the context that happens to be
+        current (another renderer's objects of the same ids), nor let pyrender's own ``__del__``
+        call ``eglTerminate`` on the shared display, which ended every other renderer of the
+        process."""
         r = getattr(self, "_renderer", None)
         if r is None:
             return
         self._renderer = None
+        inner = getattr(r, "_renderer", None)
+        if inner is not None:
+            # pyrender's Renderer deletes its buffers, arrays and programs by id in whatever context
+            # is current when it is collected, i.e. another renderer's objects of the same ids
+            inner.delete = lambda: None
         platform = getattr(r, "_platform", None)
         context = getattr(platform, "_egl_context", None)
         try:

@@ -221,6 +221,7 @@ def test_an_emulator_never_closed_leaves_another_working_when_collected():
     before = b.render(Pose(10.0, 50.0, 2.0, 0.0))
     a = CameraEmulator(EnvironmentModel(terrain, []), CAMERA)
     a.render(Pose(20.0, 50.0, 2.0, 90.0))
+    b.render(Pose(10.0, 50.0, 2.0, 0.0))  # b's context current (its GL objects' ids are a's too)
     del a
     gc.collect()
     after = b.render(Pose(10.0, 50.0, 2.0, 0.0))
