@@ -480,7 +480,7 @@ class CameraEmulator:
         platform = getattr(r, "_platform", None)
         context = getattr(platform, "_egl_context", None)
         try:
-            if context is not None:
+            if platform is not None and context is not None:
                 from OpenGL.EGL import eglDestroyContext
 
                 eglDestroyContext(platform._egl_display, context)  # deferred by EGL while current somewhere
