@@ -65,7 +65,6 @@ class RouteRanker(KnowledgeSource):
         self._windows: TrackWindows | None = None  # the track window rule, set once the map is built
         self._route_points: np.ndarray | None = None  # the map's route point of each viewframe (None: the same)
         self._early: list[tuple[int, str, list | None]] = []  # tracks that came before the map
-        self._have: set[int] = set()  # the latest frames whose track this ranker has (any state)
         self._waiting: list[Hypothesis] = []  # camera frames that came before the map
         #: per ranking posted: the frame and the (first, last) route points ranked, None: all
         self.windows: dict[int, tuple[int, int] | None] = {}
@@ -132,18 +131,12 @@ class RouteRanker(KnowledgeSource):
         windows, k = self._windows, int(frame.body["frame"])
         if windows is None or not windows.enabled or k <= 0 or k % windows.full_every == 0:
             return
-        if windows.window(k) is not None or k - 1 in self._have:  # the track of frame k - 1 is here (any state)
+        if windows.has(k - 1):  # the track of frame k - 1 is here (any state)
             return
         got = board.get(levels.track_id(k - 1))
         if got is not None:
             track = levels.Track.from_hypothesis(got)
-            self._add_track(track)
-
-    def _add_track(self, track: levels.Track) -> None:
-        assert self._windows is not None
-        self._windows.add(track.frame, track.state, track.window_next)
-        self._have.add(track.frame)
-        self._have -= {f for f in self._have if f < track.frame - self._windows.KEEP}
+            windows.add(track.frame, track.state, track.window_next)
 
     def precondition(self, event: Event) -> float | None:
         if event.kind is not EventKind.POSTED:
@@ -170,7 +163,6 @@ class RouteRanker(KnowledgeSource):
             self._route_points = mp.route_points
             for early in self._early:
                 self._windows.add(*early)
-                self._have.add(early[0])
             self._early.clear()
             waiting, self._waiting = self._waiting, []
             for frame in waiting:
@@ -187,4 +179,4 @@ class RouteRanker(KnowledgeSource):
             if self._windows is None:
                 self._early.append((track.frame, track.state, track.window_next))
             else:
-                self._add_track(track)
+                self._windows.add(track.frame, track.state, track.window_next)

@@ -133,6 +133,10 @@ class TrackWindows:
         for old in [f for f in self._tracks if f < frame - self.KEEP]:
             del self._tracks[old]  # only the latest tracks can still be the previous frame's
 
+    def has(self, frame: int) -> bool:
+        """The track of ``frame`` is held (in any state)."""
+        return frame in self._tracks
+
     def window(self, frame: int) -> tuple[int, int] | None:
         """The route points ``(first, last)`` to rank for ``frame``, or None: all of them (frame 0,
         every ``full_every``-th frame, no track of the frame before yet, that track lost or without
