@@ -44,7 +44,7 @@ import shutil  # noqa: E402
 import tempfile  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import TYPE_CHECKING  # noqa: E402
+from typing import TYPE_CHECKING, Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
@@ -451,12 +451,7 @@ class CameraEmulator:
         except Exception as exc:  # noqa: BLE001 - best effort at teardown
             log.warning("closing the offscreen renderer: %s", exc)
         finally:
-            # OffscreenRenderer.__del__ and the platform's __del__ would call eglTerminate on the
-            # shared display: leave them nothing to do
-            platform._egl_context = None
-            platform._egl_display = None
-            r._platform = None
-            r._renderer = None
+            _disarm(r)
 
     def __del__(self) -> None:
         """Collected without :meth:`close`: destroy this context only, without making it current.
@@ -472,32 +467,41 @@ class CameraEmulator:
         if r is None:
             return
         self._renderer = None
-        inner = getattr(r, "_renderer", None)
-        if inner is not None:
-            # pyrender's Renderer deletes its buffers, arrays and programs by id in whatever context
-            # is current when it is collected, i.e. another renderer's objects of the same ids
-            inner.delete = lambda: None
         platform = getattr(r, "_platform", None)
         context = getattr(platform, "_egl_context", None)
+        if platform is None or context is None:
+            return
         try:
-            if platform is not None and context is not None:
-                from OpenGL.EGL import eglDestroyContext
+            from OpenGL.EGL import eglDestroyContext
 
-                eglDestroyContext(platform._egl_display, context)  # deferred by EGL while current somewhere
+            eglDestroyContext(platform._egl_display, context)  # deferred by EGL while current somewhere
         except Exception:  # noqa: BLE001, S110 - nothing else to do at collection
             pass
         finally:
-            if platform is not None and context is not None:
-                platform._egl_context = None
-                platform._egl_display = None
-                r._platform = None
-                r._renderer = None
+            _disarm(r)
 
     def __enter__(self) -> CameraEmulator:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _disarm(renderer: Any) -> None:
+    """Leave the ``__del__`` methods of pyrender's ``OffscreenRenderer`` ``renderer`` nothing to do,
+    its EGL context destroyed (or being destroyed) by the caller: its ``Renderer`` would delete
+    its buffers, arrays and programs by id in whatever context is current when it is collected
+    (another renderer's objects of the same ids), its platform would call ``eglTerminate`` on the
+    process-wide display (ending every other renderer)."""
+    inner = getattr(renderer, "_renderer", None)
+    if inner is not None:
+        inner.delete = lambda: None
+    platform = getattr(renderer, "_platform", None)
+    if platform is not None:
+        platform._egl_context = None
+        platform._egl_display = None
+    renderer._platform = None
+    renderer._renderer = None
 
 
 class _UniformCachingProgram(ShaderProgram):
