@@ -81,18 +81,12 @@ ASSOCIATIVE_CALIBRATION = {
     "speed_persistence": 0.0,
 }
 #: what a run may observe, each with its calibration: ``associative`` (above), ``fused-robust``
-#: (the fused ranking re-standardised per frame at the calibration of the first fusion rule: the
-#: tracker before its observation was refitted to the calibrated fusion), ``fused`` (the defaults)
+#: (the fused ranking re-standardised per frame at the calibration of the first fusion rule, the
+#: same numbers: the tracker before its observation was refitted to the calibrated fusion),
+#: ``fused`` (the defaults)
 CALIBRATIONS: dict[str, dict] = {
     "associative": ASSOCIATIVE_CALIBRATION,
-    "fused-robust": {
-        "temperature": 1.11,
-        "spread": 0.45,
-        "eps": 1e-4,
-        "margin_scale": 0.0,
-        "scores": "robust",
-        "speed_persistence": 0.0,
-    },
+    "fused-robust": dict(ASSOCIATIVE_CALIBRATION),
     "fused": {},
 }
 
