@@ -86,9 +86,8 @@ class PoseRefiner(KnowledgeSource):
         self._world: World | None = None
         self._emulator: CameraEmulator | None = None
         self._map: Map | None = None  # (the option ``levels`` shadows the module here)
-        self._depths: np.ndarray | None = (
-            None  # the map's cache entry's depths (memory-mapped), when it is this emulator's
-        )
+        #: the map's cache entry's depths (memory-mapped), when the entry is this emulator's
+        self._depths: np.ndarray | None = None
         self._waiting: list[Hypothesis] = []
 
     def precondition(self, event: Event) -> float | None:
