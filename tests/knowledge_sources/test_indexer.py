@@ -65,9 +65,9 @@ def test_bad_shard_options() -> None:
         AssociativeIndexer("indexer", shard=2, shards=2)
 
 
-def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small_rendered: dict) -> None:
-    """Shards of consecutive route points (``block``): a windowed frame's ranking comes from the
-    shards the window covers; the others post an empty ranking; together the full order within it."""
+def _block_shards(small_rendered: dict) -> tuple[MemoryBlackboard, list[AssociativeIndexer], int]:
+    """Three tracked shards of three consecutive route points each (``block``) on a board with the
+    map (every route point windowed, no margin): ``(board, indexers, viewframes)``."""
     bb = MemoryBlackboard()
     n = len(small_rendered["viewframes"])
     indexers = [
@@ -76,6 +76,13 @@ def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small
     for ix in indexers:
         bb.add(ix)
     post_map(bb, small_rendered, window_route_points=n, window_margin=0, window_full_every=10)
+    return bb, indexers, n
+
+
+def test_consecutive_shards_outside_the_track_window_post_an_empty_ranking(small_rendered: dict) -> None:
+    """Shards of consecutive route points (``block``): a windowed frame's ranking comes from the
+    shards the window covers; the others post an empty ranking; together the full order within it."""
+    bb, indexers, n = _block_shards(small_rendered)
     bb.run()
     stored = {i.shard: i.viewframes for i in (levels.Index.from_hypothesis(h) for h in bb.hypotheses(levels.INDEX))}
     assert stored == {0: 3, 1: 3, 2: 2}
@@ -100,14 +107,7 @@ def test_a_shard_outside_the_track_window_posts_its_empty_ranking_without_rankin
     going into its index (for a stored shard: without waiting its turn among the process's
     stored shards, :data:`MAPPED_RANKINGS`, and without mapping its rows): at 10,000 viewframes
     19 of the 20 shards are outside a tracked frame's window."""
-    bb = MemoryBlackboard()
-    n = len(small_rendered["viewframes"])
-    indexers = [
-        AssociativeIndexer(f"indexer-{b}", shard=b, shards=3, block=3, tracked=True, keep_images=True) for b in range(3)
-    ]
-    for ix in indexers:
-        bb.add(ix)
-    post_map(bb, small_rendered, window_route_points=n, window_margin=0, window_full_every=10)
+    bb, indexers, n = _block_shards(small_rendered)
     frames_from_viewframes(bb, small_rendered, [0])
     bb.run()
     levels.post(bb.user, track(0, "tracking", 4, n))  # frame 1 predicted at route point 4 only: shard 1's

@@ -21,6 +21,22 @@ def _image(h: int = 6, w: int = 8) -> np.ndarray:
     return np.random.default_rng(0).integers(0, 256, (h, w, 3), dtype=np.uint8)
 
 
+def _map_between(route_points, *, memory: dict | None = None):
+    """A map of 3 viewframes on a route of 2 points (render.views_per_leg: 2) with ``route_points``
+    and ``memory`` settings."""
+    return levels.Map.of(
+        scenario="s",
+        path="/tmp/s.yaml",
+        priors={},
+        landmarks=[],
+        route=[[0.0, 0.0], [10.0, 0.0]],
+        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
+        visible={},
+        memory=memory or {},
+        route_points=route_points,
+    )
+
+
 #: one valid message of every level
 SAMPLES: list[levels.Message] = [
     levels.Scenario(path="/tmp/s.yaml", strategy="associative"),
@@ -43,17 +59,7 @@ SAMPLES: list[levels.Message] = [
         placements={0: {"H1": [1.0, -2.0, 3.5]}},
         memory={"size": 64},
     ),
-    levels.Map.of(  # viewframes between the route points (render.views_per_leg: 2)
-        scenario="s",
-        path="/tmp/s.yaml",
-        priors={},
-        landmarks=[],
-        route=[[0.0, 0.0], [10.0, 0.0]],
-        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
-        visible={},
-        memory={"size": 64},
-        route_points=[0, 0, 1],
-    ),
+    _map_between([0, 0, 1], memory={"size": 64}),  # viewframes between the route points
     levels.Index(shard=1, shards=3, viewframes=12),
     levels.SensorFrame(frame=4, image=_image(), source="simulated"),
     levels.Truth(frame=4, pose=[1.0, 2.0, 45.0]),
@@ -520,21 +526,6 @@ def test_sensor_frame_columns_are_checked_against_the_image():
     for bad in ([12, 4], [0, 17], [-1, 8], [1.5, 8], ["a", 8]):
         with pytest.raises(levels.MessageError, match="columns"):
             levels.SensorFrame(frame=0, image=image, source="f.png", columns=bad)
-
-
-def _map_between(route_points):
-    """A map of 3 viewframes on a route of 2 points (render.views_per_leg: 2) with ``route_points``."""
-    return levels.Map.of(
-        scenario="s",
-        path="/tmp/s.yaml",
-        priors={},
-        landmarks=[],
-        route=[[0.0, 0.0], [10.0, 0.0]],
-        poses=[[0.0, 0.0, 2.0, 0.0, 0.0], [5.0, 0.0, 2.0, 0.0, 0.0], [10.0, 0.0, 2.0, 0.0, 0.0]],
-        visible={},
-        memory={},
-        route_points=route_points,
-    )
 
 
 @pytest.mark.parametrize(

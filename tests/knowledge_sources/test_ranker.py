@@ -109,6 +109,19 @@ def test_while_tracking_the_ranking_holds_the_tracks_neighbourhood_and_when_lost
     assert set(ranking(bb, kind, 4).viewframes) == set(range(n))  # every 4th frame: everything
 
 
+def _ranked_frame_0(small_rendered: dict, kind: str) -> tuple[MemoryBlackboard, RouteRanker, int]:
+    """A tracked ranker of ``kind`` on a board with the map (every route point windowed, margin 1,
+    a full ranking every 4th frame) that has ranked frame 0: ``(board, ranker, viewframes)``."""
+    bb = MemoryBlackboard()
+    ranker = make(kind, tracked=True)
+    bb.add(ranker)
+    n = len(small_rendered["viewframes"])
+    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=4)
+    frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    return bb, ranker, n
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_a_frame_that_comes_before_the_track_of_the_frame_before_reads_that_track_from_the_board(
     small_rendered: dict, kind: str
@@ -117,13 +130,7 @@ def test_a_frame_that_comes_before_the_track_of_the_frame_before_reads_that_trac
     two reach a ranker by different subscriptions: when the frame comes first, the ranker reads the
     track from the blackboard and ranks the track's window, as if the track had come first (it
     ranked everything before); a track that is not on the board is not waited for."""
-    bb = MemoryBlackboard()
-    ranker = make(kind, tracked=True)
-    bb.add(ranker)
-    n = len(small_rendered["viewframes"])
-    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=4)
-    frames_from_viewframes(bb, small_rendered, [0])
-    bb.run()
+    bb, ranker, n = _ranked_frame_0(small_rendered, kind)
     plain = ranker.precondition
     # frames now rated above tracks: the frame's event is taken before the track's (the race)
     ranker.precondition = lambda e: 3.0 if e.hypothesis.level == levels.SENSOR_FRAME else plain(e)  # type: ignore[method-assign]
@@ -146,13 +153,7 @@ def test_a_frame_after_a_lost_track_it_has_ranks_everything_without_reading_the_
     such frame, each read a query to the node)."""
     from blackboard.memory_board import MemoryBoard
 
-    bb = MemoryBlackboard()
-    ranker = make(kind, tracked=True)
-    bb.add(ranker)
-    n = len(small_rendered["viewframes"])
-    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=4)
-    frames_from_viewframes(bb, small_rendered, [0])
-    bb.run()
+    bb, ranker, n = _ranked_frame_0(small_rendered, kind)
     levels.post(bb.user, track(0, "lost", 2, n))
     bb.run()
     reads: list[tuple[str, str]] = []

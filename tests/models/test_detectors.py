@@ -239,16 +239,21 @@ def _red(image: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
     return out
 
 
+def _red_view(rng) -> CandidateView:
+    """A viewframe with a red box at :data:`BOX` and its view without it (both drawn from ``rng``)."""
+    sil = np.zeros((H, W), bool)
+    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
+    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
+    return CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+
+
 def test_scale_search_finds_a_landmark_nearer_than_its_viewframe_shows_it():
     """A camera frame taken nearer the landmark than the viewframe shows it 1.3 times larger: the
     likelihood ratio's edge score and contrast searched over template scales find it better than
     at the viewframe's scale alone, and the view without it scores lower than both."""
 
     rng = np.random.default_rng(9)
-    sil = np.zeros((H, W), bool)
-    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
-    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
-    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    view = _red_view(rng)
     r0, c0, r1, c1 = BOX
     big = (r0 - 4, c0 - 5, r1 + 5, c1 + 4)  # 39 x 39 pixels instead of 30 x 30
     frame = _red(_scene(np.random.default_rng(10), box=big, noise=3.0), big)
@@ -398,10 +403,7 @@ def test_context_is_the_landmarks_surroundings():
     elsewhere): the edge directions on the box itself agree alike, the context ring only in the
     first."""
     rng = np.random.default_rng(15)
-    sil = np.zeros((H, W), bool)
-    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
-    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
-    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    view = _red_view(rng)
     same = _red(_scene(np.random.default_rng(16), box=BOX, noise=3.0), BOX)
     elsewhere = same.copy()
     elsewhere[80:100] = _scene(np.random.default_rng(17), box=None, noise=3.0)[40:60]  # sky down to row 100
@@ -429,10 +431,7 @@ def test_the_match_reports_where_and_how_large_the_landmark_is(box, scale):
     image within a pixel, and its scale against the viewframe's silhouette within one step of the
     scale search."""
     rng = np.random.default_rng(12)
-    sil = np.zeros((H, W), bool)
-    sil[BOX[0] : BOX[2], BOX[1] : BOX[3]] = True
-    image = _red(_scene(rng, box=BOX, noise=0.0), BOX)
-    view = CandidateView.from_mask(image, np.where(sil, 0, -1), 0, background=_scene(rng, box=None, noise=0.0))
+    view = _red_view(rng)
     frame = _red(_scene(np.random.default_rng(13), box=box, noise=3.0), box)
     det = _registry().for_kind("house")
     found = det.detect(frame, view=view)
