@@ -361,13 +361,23 @@ class EdgeTemplateDetector:
         elsewhere, or a look-alike, seldom has the candidate's surroundings).
         """
         sil = self._check(image, view)
-        if view.without is None or int(sil.sum()) < self.min_pixels:
+        if int(sil.sum()) < self.min_pixels:
+            return None
+        got = self._features(image, view, sil)
+        return None if got is None else got[0]
+
+    def _features(
+        self, image: np.ndarray, view: CandidateView, sil: np.ndarray
+    ) -> tuple[tuple[float, float, float, float, float], tuple[float, float, float] | None] | None:
+        """The evidence of :meth:`evidence` (in :data:`LR_FEATURES`' order) and the match's place
+        (:meth:`match`); None without a view without the landmark or a colour statistic."""
+        if view.without is None:
             return None
         statistic = self._colour_statistic(image, view, sil)
         if statistic is None:
             return None
-        orientation, _, vertical, context = self._scaled_matches(image, view, sil)
-        return statistic, orientation, vertical, self._contrast(image, view, sil), context
+        orientation, where, vertical, context = self._scaled_matches(image, view, sil)
+        return (statistic, orientation, vertical, self._contrast(image, view, sil), context), where
 
     def _search(self, rows: int, cols: int) -> tuple[int, int]:
         """The likelihood ratio's alignment search, ``(rows, cols)`` half-sizes, for a landmark box
@@ -476,12 +486,11 @@ class EdgeTemplateDetector:
         if loc is None:
             return Detection(None, 0.0, None, why)
         llr = statistic = where = None
-        if self.calibration is not None and view.without is not None:
-            statistic = self._colour_statistic(image, view, sil)
-            if statistic is not None:
-                orientation, where, vertical, context = self._scaled_matches(image, view, sil)
-                contrast = self._contrast(image, view, sil)
-                llr = self.calibration.llr((statistic, orientation, vertical, contrast, context))
+        got = None if self.calibration is None else self._features(image, view, sil)
+        if got is not None:
+            assert self.calibration is not None
+            features, where = got
+            statistic, llr = features[0], self.calibration.llr(features)
         lr = "" if llr is None else f"; log-likelihood ratio {llr:+.2f}"
         if best >= self.threshold:
             why, present = f"score {best:.3f} >= {self.threshold}{lr}", True
