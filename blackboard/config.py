@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import re
 import socket
 from dataclasses import dataclass, field
@@ -25,10 +26,13 @@ import zenoh
 
 from blackboard.errors import TransportError
 
+logger = logging.getLogger(__name__)
+
 __all__ = [
     "ZenohOptions",
     "zenoh_config",
     "open_session",
+    "close_session",
     "add_zenoh_arguments",
     "zenoh_options_from_args",
     "free_port",
@@ -201,6 +205,24 @@ def open_session(config: zenoh.Config) -> zenoh.Session:
         return zenoh.open(config)
     except zenoh.ZError as err:
         raise TransportError(f"cannot open a zenoh session: {err}") from None
+
+
+def close_session(session: zenoh.Session, *, owner: str) -> bool:
+    """Close ``session`` (``owner`` names it in the warning) unless it is closed already.
+
+    Zenoh's close waits a bounded time for its links to flush and raises when they do not (a
+    loaded machine, a peer still sending megabytes). The session is gone either way and nothing
+    of the run is in it (the node writes its trace itself), so a timed-out close is a warning, not
+    a reason to skip what the caller does next (end and close the trace). Returns whether it
+    closed cleanly."""
+    if session.is_closed():
+        return True
+    try:
+        session.close()
+    except zenoh.ZError as err:
+        logger.warning("%s: the zenoh session did not close cleanly: %s", owner, err)
+        return False
+    return True
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:

@@ -38,7 +38,7 @@ import zenoh
 
 from blackboard.agent import NODE_SENDER
 from blackboard.codec import DEFAULT_MAX_BYTES, decode, encode
-from blackboard.config import ZenohOptions, loopback_endpoint, open_session, zenoh_config
+from blackboard.config import ZenohOptions, close_session, loopback_endpoint, open_session, zenoh_config
 from blackboard.deadlines import Deadlines
 from blackboard.errors import BlackboardError, CodecError, TransportError
 from blackboard.hypothesis import NAME_PATTERN, Hypothesis
@@ -153,8 +153,8 @@ class BlackboardNode:
             self._refuse_run_id_in_use()
         except BaseException:
             for opened in (self._session, self._router):
-                if opened is not None and not opened.is_closed():
-                    opened.close()
+                if opened is not None:
+                    close_session(opened, owner="blackboard node")
             self._session = None
             raise
         put = self._inbox.put
@@ -220,15 +220,17 @@ class BlackboardNode:
             self._inbox.put(("stop", None))
             self._thread.join(max(1.0, 2 * grace_s))
             self._thread = None
-        for session in (self._session, self._router):
-            if session is not None and not session.is_closed():
-                session.close()
-        self._entities.clear()
-        end: dict[str, Any] = {"stats": dict(self.stats)}
-        if reason is not None:
-            end["reason"] = reason
-        self._trace.write(TraceKind.RUN_END, **end)
-        self._trace.close()
+        try:
+            for session in (self._session, self._router):
+                if session is not None:
+                    close_session(session, owner="blackboard node")
+            self._entities.clear()
+        finally:
+            end: dict[str, Any] = {"stats": dict(self.stats)}
+            if reason is not None:
+                end["reason"] = reason
+            self._trace.write(TraceKind.RUN_END, **end)
+            self._trace.close()
 
     def post_local(self, hyp: Hypothesis) -> None:
         """Post ``hyp`` from this process (the runtime's inputs); published by the worker."""

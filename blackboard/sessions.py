@@ -32,7 +32,7 @@ from typing import Any
 
 import zenoh
 
-from blackboard.config import open_session
+from blackboard.config import close_session, open_session
 
 __all__ = ["SESSIONS", "SharedSession", "SessionRegistry"]
 
@@ -103,8 +103,8 @@ class SessionRegistry:
                     del self._open[key]
                 else:
                     self._open[key] = (session, count)
-        if last and not session.is_closed():
-            session.close()
+        if last:
+            close_session(session, owner="shared agent session")
 
     def holders(self, config: zenoh.Config, *, scope: str = "") -> int:
         """How many agents hold the session of ``config`` within ``scope`` (0: none open)."""

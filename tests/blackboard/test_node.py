@@ -165,3 +165,35 @@ def test_trace_reads_after_the_run_is_killed(run_id: str, tmp_path: Path) -> Non
     data = trace.read_bytes()
     trace.write_bytes(data + data[:7])
     assert len(read_trace(trace)) == len(records)
+
+
+class _SlowToClose:
+    """A real zenoh session whose close, like one over a loaded link, closes it and then reports
+    zenoh's "close operation timed out!"."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self._session = session
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self._session, name)
+
+    def close(self) -> None:
+        self._session.close()
+        raise zenoh.ZError("close operation timed out!")
+
+
+@pytest.mark.parametrize("which", ["_session", "_router"])
+def test_a_session_close_that_times_out_still_ends_and_closes_the_trace(
+    which: str, run_id: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    trace = tmp_path / "t.trace"
+    with Runtime(run_id=run_id, trace_path=trace) as rt:
+        rt.add(f"{AGENTS}:Doubler", name="doubler")
+        rt.post("number", {"x": 2})
+        rt.run(timeout_s=10)
+        setattr(rt.node, which, _SlowToClose(getattr(rt.node, which)))
+    records = read_trace(trace)
+    assert records[-1]["kind"] == "run_end"
+    writer = rt.node._trace._writer
+    assert writer is not None and writer._file is None  # closed: no file left for the GC to warn about
+    assert "did not close cleanly: close operation timed out!" in caplog.text

@@ -15,7 +15,7 @@ import pytest
 import zenoh
 
 from blackboard.codec import decode, encode
-from blackboard.config import ZenohOptions, open_session, zenoh_config
+from blackboard.config import ZenohOptions, close_session, open_session, zenoh_config
 from blackboard.errors import CodecError, TransportError
 from blackboard.hypothesis import Hypothesis
 from blackboard.keys import RunKeys
@@ -181,7 +181,7 @@ def test_forgery_from_an_outside_session_is_refused_and_traced(case: str, run_id
                 rt.post("number", {"x": x})
             outcome = rt.run(timeout_s=30)  # no stall
         finally:
-            outsider.close()
+            close_session(outsider, owner="outsider")
         assert sorted(h.body["x"] for h in rt.hypotheses("doubled")) == [2, 4, 6]
         assert sorted(h.body["x"] for h in rt.hypotheses("echo")) == [2, 4, 6]
         assert {h.source for h in rt.hypotheses()} == {"user", "doubler", "echo"}
@@ -236,7 +236,7 @@ def test_a_join_copied_off_the_wire_is_refused_and_gains_nothing(run_id: str, tm
             nonce = send(outsider, {"op": "challenge", "agent": "doubler"})[0]["nonce"]
             answers.append(send(outsider, {**copied, "nonce": nonce}))  # a fresh nonce, the old proof
         finally:
-            outsider.close()
+            close_session(outsider, owner="outsider")
         assert rt.node.agents["doubler"].state == "stopped"  # nobody joined under its name
     for replies in answers:
         assert len(replies) == 1 and replies[0]["ok"] is False and "keys" not in replies[0], replies
@@ -283,7 +283,7 @@ def test_the_truth_is_for_the_runs_own_user_side_only(run_id: str, tmp_path: Pat
             everything = [r for r in outsider.get(f"{keys.root}/**", timeout=5) if r.ok is not None]
             replies += [r for r in everything if "/truth/" in str(r.ok.key_expr)]
         finally:
-            outsider.close()
+            close_session(outsider, owner="outsider")
         assert everything  # the other levels are served
         poses = sorted(h.body["pose"] for h in rt.hypotheses("truth"))
         assert poses == [[21.25, 42.5, 0.75], [123.25, 456.5, 7.75]]  # the user side reads both
@@ -497,7 +497,7 @@ def test_fuzzed_control_and_hypothesis_messages_never_crash_or_stall_the_node(ru
                 rt.post("number", {"x": x})
             outcome = rt.run(timeout_s=60)
         finally:
-            outsider.close()
+            close_session(outsider, owner="outsider")
         took = time.monotonic() - started
         assert rt.node._thread is not None and rt.node._thread.is_alive()
         assert sorted(h.body["x"] for h in rt.hypotheses("doubled")) == [2, 4, 6]
