@@ -16,10 +16,13 @@ of each pose-error component's size (which component the misses go with).
 
     python bench/pose_ablation.py [--split tuning] [--profiles standard large large-roll ...]
         [--kinds sweep drive kidnap] [--memory '{"max_shift": [8, 24]}'] [--skyline '{...}']
-        [--derotate '{...}'] [--json-only]
+        [--derotate '{...}'] [--rolls '[-3, 0, 3]'] [--extra] [--json-only]
 
 ``--memory`` / ``--skyline`` override fields of the scenario's blocks (as ``bench/single_frame.py``
-does), so that an alternative is compared on the same frames. Prints JSON, then a table.
+does), so that an alternative is compared on the same frames; ``--rolls`` is the memory's
+``roll_search_deg`` (``[0]``: the match without the roll search, as before it); ``--derotate``
+levels each camera image by its skyline match first (:func:`models.derotate.level_image`);
+``--extra`` (tuning) adds bench/tracking.py's extra tuning drives (640 frames in all). Prints JSON, then a table.
 """
 
 from __future__ import annotations
@@ -91,7 +94,6 @@ def rank_frame(
     scenario,
     image: np.ndarray,
     derotate: dict[str, Any] | None = None,
-    rolls: list[float] | None = None,
 ) -> dict[str, Any]:
     """The three sources' rankings of one camera image ``image`` (H, W, 3) at the camera's size:
     ``{source: [(viewframe, score), ...] best first}``, and the seconds each source took."""
@@ -108,21 +110,7 @@ def rank_frame(
         from models.derotate import level_image
 
         image = level_image(image, m, fov_y_deg=cam.fov_y_deg, **derotate)
-    if rolls:
-        from models.associative import merge_rankings
-        from models.derotate import level_image
-
-        parts = [terrain.index.rank(level_image(image, fov_y_deg=cam.fov_y_deg, roll_deg=a)) for a in rolls]
-        best: dict[int, float] = {}
-        for p in parts:
-            for k, v in zip(p.viewframes.tolist(), p.variances.tolist()):
-                best[k] = min(v, best.get(k, v))
-        rk = merge_rankings([])
-        from models.associative import Ranking
-
-        rk = Ranking(np.array(list(best), dtype=np.int64), np.array(list(best.values())), 0.0)
-    else:
-        rk = terrain.index.rank(image)
+    rk = terrain.index.rank(image)
     t2 = time.perf_counter()
     per = {
         "associative": (rk.viewframes.tolist(), rk.variances.tolist()),
@@ -159,14 +147,30 @@ def run(
     skyline: dict[str, Any] | None = None,
     derotate: dict[str, Any] | None = None,
     rolls: list[float] | None = None,
+    extra: bool = False,
 ) -> dict[str, Any]:
-    """Every frame of every case of ``split`` under each profile: the truth's place per source."""
+    """Every frame of every case of ``split`` under each profile: the truth's place per source;
+    ``extra``: with bench/tracking.py's extra tuning drives (more frames of the tuning terrains,
+    and of the same families at other seeds)."""
     from models.sensor import load_frame_image
 
+    if rolls is not None:  # the memory's roll search (MemorySpec.roll_search_deg)
+        memory = {**(memory or {}), "roll_search_deg": tuple(float(a) for a in rolls)}
     terrains: dict[str, Terrain] = {}
     records: list[dict[str, Any]] = []
+    extra_cases: list[Any] = []
+    if extra:
+        from bench.tracking import extra_tuning_drives
+
+        if split != "tuning":
+            raise ValueError("extra: only the tuning split has more cases (bench/tracking.py's extra tuning drives)")
+        extra_cases = extra_tuning_drives()
     for profile in profiles:
-        for case in cases(split, kinds=kinds, names=names, errors=profile):
+        more: list[Any] = []
+        for t in extra_cases:  # a terrain again with its other drive kinds ("-x": its sweep is the split's own)
+            only = [k for k in (kinds or ("sweep", *t.drives)) if k != "sweep" or not t.name.endswith("-x")]
+            more.extend(cases(split, kinds=only, names=names, errors=profile, terrains=[t]) if only else [])
+        for case in (*cases(split, kinds=kinds, names=names, errors=profile), *more):
             sc = _scenario(case, memory, skyline)
             if case.terrain not in terrains:
                 terrains[case.terrain] = Terrain(sc)
@@ -174,7 +178,7 @@ def run(
             t0 = time.perf_counter()
             for fr in case.frames:
                 image = load_frame_image(fr.image, width=sc.camera.width, height=sc.camera.height)
-                r = rank_frame(ter, sc, image, derotate, rolls)
+                r = rank_frame(ter, sc, image, derotate)
                 rec = {
                     "profile": profile,
                     "case": case.name,
@@ -289,8 +293,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--skyline", type=json.loads, default=None, help="JSON fields replacing the scenario's skyline's")
     ap.add_argument("--derotate", type=json.loads, default=None, help="JSON options of models.derotate.level_image")
     ap.add_argument(
-        "--rolls", type=json.loads, default=None, help="JSON list of roll angles the memory is searched over"
+        "--rolls", type=json.loads, default=None, help="JSON list: the memory's roll_search_deg ([0]: the plain match)"
     )
+    ap.add_argument("--extra", action="store_true", help="tuning: with bench/tracking.py's extra tuning drives")
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args(argv)
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
@@ -304,6 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         skyline=args.skyline,
         derotate=args.derotate,
         rolls=args.rolls,
+        extra=args.extra,
     )
     res["options"] = {
         "memory": args.memory,
@@ -311,6 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         "derotate": args.derotate,
         "rolls": args.rolls,
         "kinds": args.kinds,
+        "extra": args.extra,
     }
     res["machine"] = {
         "load_at_start": load,

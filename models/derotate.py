@@ -9,12 +9,13 @@ horizon's vertical offset (the pitch), for every viewframe it matches
 best skyline matches and turns the camera image back to a level view: a rotation about the
 principal point by the roll, and optionally a vertical shift by the pitch.
 
-Not in the pipeline: on the evaluation set's tuning split it lifted the memory's own ranking
+Levelling by the skyline is not in the pipeline (the memory searches fixed rolls instead,
+:func:`rolled` with ``MemorySpec.roll_search_deg``): on the evaluation set's tuning split it lifted the memory's own ranking
 under the larger pose errors (top-1 0.525 -> 0.595 with the pitch too) but lowered it under the
 standard ones (0.695 -> 0.655), and the fused ranking not at all (0.610 -> 0.600 large, 0.735 ->
-0.730 standard); searching the memory over fixed rolls (``roll_deg`` given, the best of each
-viewframe kept) did no better (BENCHMARKS.md, "Larger pose errors, component by component";
-``bench/pose_ablation.py --derotate`` / ``--rolls``).
+0.730 standard; on 640 frames with the extra tuning drives 0.589 -> 0.608 and 0.702 -> 0.705,
+against 0.636 and 0.705 for the roll search; BENCHMARKS.md, "Larger pose errors, component by
+component"; ``bench/pose_ablation.py --derotate`` / ``--rolls``).
 
 Conventions (those of :mod:`models.skyline` and :mod:`models.camera_emulator`): images are
 indexed (row, col), row 0 at the top, principal point at the image centre
@@ -36,13 +37,31 @@ from numpy.typing import NDArray
 
 from models.skyline import SkylineMatch
 
-__all__ = ["LEVEL_CANDIDATES", "LEVEL_MAX_ERROR_DEG", "level_pose", "level_image"]
+__all__ = ["LEVEL_CANDIDATES", "LEVEL_MAX_ERROR_DEG", "rolled", "level_pose", "level_image"]
 
 #: the skyline matches whose roll and pitch are taken (their median): the best five
 LEVEL_CANDIDATES = 5
 #: a best skyline error above this many degrees says nothing of the roll (the horizon was not found):
 #: the fusion's skyline trust reaches zero there too (:data:`knowledge_sources.fusion.ABSOLUTE_TRUST`)
 LEVEL_MAX_ERROR_DEG = 1.0
+
+
+def rolled(image: NDArray, roll_deg: float, *, dy: float = 0.0) -> NDArray:
+    """``image`` (H, W[, C]) turned by ``roll_deg`` degrees counter-clockwise as seen (OpenCV's
+    positive angle; rows down) about the principal point ``((W - 1) / 2, (H - 1) / 2)`` in (x, y) =
+    (col, row) pixels, then moved down by ``dy`` rows; same shape and dtype. Pixels brought in
+    from outside the frame repeat its border (no edge is made there). ``roll_deg`` 0 and ``dy``
+    0: the image itself. The memory's roll search (:class:`models.scenario.MemorySpec`'s
+    ``roll_search_deg``) matches the camera image turned so."""
+    img = np.asarray(image)
+    if img.ndim not in (2, 3) or min(img.shape[:2]) < 2:
+        raise ValueError(f"image must have shape (H, W) or (H, W, C), not {img.shape}")
+    if roll_deg == 0.0 and dy == 0.0:
+        return img
+    h, w = img.shape[:2]
+    m = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), float(roll_deg), 1.0)
+    m[1, 2] += dy
+    return cv2.warpAffine(img, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
 
 def level_pose(
@@ -98,10 +117,6 @@ def level_image(
     if pitch and pitch_deg:
         f = (h / 2) / math.tan(math.radians(fov_y_deg) / 2)
         dy = -f * math.tan(math.radians(float(pitch_deg)))  # pitched up: the scene moves up by dy < 0
-    if roll == 0.0 and dy == 0.0:
-        return img
     # a horizon falling to the right (roll > 0) is levelled by a counter-clockwise turn as seen
     # in the image: OpenCV's positive angle (origin at the top-left, rows down)
-    m = cv2.getRotationMatrix2D(((w - 1) / 2, (h - 1) / 2), roll, 1.0)
-    m[1, 2] += dy
-    return cv2.warpAffine(img, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return rolled(img, roll, dy=dy)
