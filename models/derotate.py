@@ -10,12 +10,13 @@ best skyline matches and turns the camera image back to a level view: a rotation
 principal point by the roll, and optionally a vertical shift by the pitch.
 
 Levelling by the skyline is not in the pipeline (the memory searches fixed rolls instead,
-:func:`rolled` with ``MemorySpec.roll_search_deg``): on the evaluation set's tuning split it lifted the memory's own ranking
-under the larger pose errors (top-1 0.525 -> 0.595 with the pitch too) but lowered it under the
-standard ones (0.695 -> 0.655), and the fused ranking not at all (0.610 -> 0.600 large, 0.735 ->
-0.730 standard; on 640 frames with the extra tuning drives 0.589 -> 0.608 and 0.702 -> 0.705,
-against 0.636 and 0.705 for the roll search; BENCHMARKS.md, "Larger pose errors, component by
-component"; ``bench/pose_ablation.py --derotate`` / ``--rolls``).
+:func:`rolled` with ``MemorySpec.roll_search_deg``): on the evaluation set's tuning split it
+lifted the memory's own ranking under the larger pose errors (top-1 0.525 -> 0.595 with the
+pitch too) but lowered it under the standard ones (0.695 -> 0.655), and the fused ranking not at
+all (0.610 -> 0.600 large, 0.735 -> 0.730 standard; on 640 frames with the extra tuning drives
+0.589 -> 0.608 and 0.702 -> 0.705, against 0.636 and 0.705 for the roll search; BENCHMARKS.md,
+"Larger pose errors, component by component"; ``bench/pose_ablation.py --derotate`` /
+``--rolls``).
 
 Conventions (those of :mod:`models.skyline` and :mod:`models.camera_emulator`): images are
 indexed (row, col), row 0 at the top, principal point at the image centre
