@@ -9,11 +9,18 @@ coarse stage's product of one indexer shard took 3.6 ms of CPU with the pool and
 (``bench/coarse.py``), and a 10,000-viewframe drive localized 1.2-2.1 frames/s with it and
 3.1-3.3 without (``bench/scale.py``; BENCHMARKS.md, "Associative coarse stage").
 
-:func:`single_blas_thread` sets OpenBLAS's thread count to one for the duration of a ``with``
-block (a mission): in this process through the library numpy loaded (found among the process's
-mapped libraries: Linux), and for the processes started meanwhile (agents in processes mode)
-through ``OPENBLAS_NUM_THREADS``. Either is left alone when the user has set
-``OPENBLAS_NUM_THREADS`` or ``OMP_NUM_THREADS``; elsewhere (no OpenBLAS found) it does nothing.
+Best is OpenBLAS started with one thread (``OPENBLAS_NUM_THREADS=1`` before numpy is first
+imported): then each agent's call runs in its own thread, several at once. Set later, at run
+time, its calls take one thread but one call at a time: 20 threads each making small products
+took 9.5 s of wall with the pool, 2.4 s set at run time and 1.4 s started with one thread
+(``bench`` script in BENCHMARKS.md). So :func:`default_single_thread` (called as
+:mod:`knowledge_sources` is imported, before numpy is: the command line, agent hosts) sets
+``OPENBLAS_NUM_THREADS=1`` unless the user set it or ``OMP_NUM_THREADS``; and
+:func:`single_blas_thread` (a mission: :func:`knowledge_sources.mission.run_mission`), when numpy
+was loaded with a pool all the same, sets OpenBLAS's count to one at run time for the mission
+(through the library numpy loaded, found among the process's mapped libraries: Linux; elsewhere
+nothing) and ``OPENBLAS_NUM_THREADS=1`` for the processes it starts (agents in processes mode).
+A count the user set is always left alone.
 """
 
 from __future__ import annotations
@@ -25,11 +32,30 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ["single_blas_thread", "openblas_threads"]
+__all__ = ["default_single_thread", "single_blas_thread", "openblas_threads"]
 
 log = logging.getLogger(__name__)
 
 _USER_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS")
+#: OPENBLAS_NUM_THREADS was set by :func:`default_single_thread`, not by the user
+_OURS = "_MAPINTERP_BLAS_DEFAULT"
+
+
+def _user_set() -> bool:
+    """The user chose a BLAS thread count (not :func:`default_single_thread`)."""
+    if os.environ.get("OMP_NUM_THREADS"):
+        return True
+    return bool(os.environ.get("OPENBLAS_NUM_THREADS")) and os.environ.get(_OURS) != "1"
+
+
+def default_single_thread() -> None:
+    """``OPENBLAS_NUM_THREADS=1`` in this process's environment, for numpy's first import and the
+    processes started from here, unless the user set a count (module docstring)."""
+    if not _user_set() and not os.environ.get("OPENBLAS_NUM_THREADS"):
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+        os.environ[_OURS] = "1"
+
+
 _SETTERS = ("openblas_set_num_threads", "scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads")
 _GETTERS = ("openblas_get_num_threads", "scipy_openblas_get_num_threads64_", "scipy_openblas_get_num_threads")
 
@@ -71,18 +97,20 @@ def single_blas_thread() -> Iterator[None]:
     """One OpenBLAS thread in this process and ``OPENBLAS_NUM_THREADS=1`` for the processes it
     starts, until the block ends (then as before); nothing when the user set the thread count
     (``OPENBLAS_NUM_THREADS``, ``OMP_NUM_THREADS``) or no OpenBLAS is found (module docstring)."""
-    if any(os.environ.get(v) for v in _USER_VARS):
+    if _user_set():
         yield
         return
     found = _openblas()
     before = None if found is None else int(found[1]())
-    if found is not None:
+    if found is not None and before != 1:
         found[0](1)
+    env_before = os.environ.get("OPENBLAS_NUM_THREADS")
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
     log.debug("BLAS: one thread (was %s)", before)
     try:
         yield
     finally:
-        os.environ.pop("OPENBLAS_NUM_THREADS", None)
-        if found is not None and before is not None:
+        if env_before is None:
+            os.environ.pop("OPENBLAS_NUM_THREADS", None)
+        if found is not None and before is not None and before != 1:
             found[0](before)
