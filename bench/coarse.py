@@ -8,11 +8,17 @@ top-1). Prints JSON, then a table.
 
     python bench/coarse.py [--size 500] [--frames 60] [--json-only]
     python bench/coarse.py --evalset heldout     # the held-out sweeps of bench/evalset instead
-    python bench/coarse.py --memory tuning       # the memory's coarse stage (models.coarse.MemoryCoarse)
+    python bench/coarse.py --memory tuning [--variant SIGMA STEP_R STEP_C ...]
+    python bench/coarse.py --route ROUTE.yaml --cache-dir DIR [--stride 50]
 
-With ``--evalset SPLIT`` it runs on the sweeps of ``bench.evalset`` (other terrains, camera
-frames from another renderer, other sizes, larger pose errors), one route per terrain; the
-truth is the frame's ``route_index``.
+With ``--evalset SPLIT`` it runs the prototype (:class:`models.coarse.CoarseIndex`) on the sweeps
+of ``bench.evalset`` (other terrains, camera frames from another renderer, other sizes, larger
+pose errors), one route per terrain; the truth is the frame's ``route_index``. ``--memory SPLIT``
+measures the indexer's coarse stage (:class:`models.coarse.MemoryCoarse`, what
+``memory.coarse_candidates`` uses) on the split's routes pooled in one index
+(:func:`memory_coarse`), ``--variant`` its low-pass and shift grid; ``--route`` on a long route's
+shards as the indexer loads them from a viewframe cache (:func:`route_coarse`). Run them with
+``OPENBLAS_NUM_THREADS=1`` for single-thread CPU times.
 """
 
 from __future__ import annotations
@@ -299,6 +305,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stride", type=int, default=50, help="--route: also frames at every stride-th route point")
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
+    if args.route and args.cache_dir is None:
+        parser.error("--route needs --cache-dir (the viewframe cache holding the route's entry and stored indices)")
+    if args.route and not args.route.is_file():
+        parser.error(f"--route {args.route}: no such scenario file")
+    if args.variant and any(v[0] <= 0 or v[1] < 1 or v[2] < 1 for v in args.variant):
+        parser.error("--variant: SIGMA must be > 0 and the steps >= 1")
     if args.route:
         load0 = os.getloadavg()
         res = route_coarse(args.route, args.cache_dir, stride=args.stride)
