@@ -79,7 +79,8 @@ class AssociativeIndexer(RouteRanker):
 
     The coarse stage: a frame ranked in full (no window) is first compared with every viewframe of
     the shard by :class:`models.coarse.MemoryCoarse` (the memory's low-passed similarity on a
-    truncated spectrum, its rows made once as the index is built or loaded: 1.8 KB a viewframe),
+    truncated spectrum at a grid of lags, its rows made once as the index is built or loaded:
+    6.2 KB a viewframe),
     and only the ``memory.coarse_candidates`` best are ranked (``among`` them); the ranking holds
     those. A shard holding no more viewframes than that, or ``coarse_candidates`` null, ranks
     every one.

@@ -343,10 +343,6 @@ class SensorSpec(_Spec):
         return self
 
 
-#: the associative coarse stage's candidates per shard (MemorySpec.coarse_candidates)
-COARSE_CANDIDATES_DEFAULT: int | None = 32
-
-
 class MemorySpec(_Spec):
     """Associative memory and preprocessing settings.
 
@@ -410,7 +406,7 @@ class MemorySpec(_Spec):
     window_route_points: int | None = Field(default=2000, ge=1, le=MAX_ROUTE_POINTS)
     window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
-    coarse_candidates: int | None = Field(default=COARSE_CANDIDATES_DEFAULT, ge=1, le=MAX_ROUTE_POINTS)
+    coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
 
     @field_validator("max_shift")
     @classmethod
