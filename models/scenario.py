@@ -691,7 +691,7 @@ class TrackingSpec(_Spec):
     about where the camera is: ``eps`` is then unused); 0 is the floor ``eps_f`` above, as before.
     ``temperature`` 0.67, ``spread`` 0.2, ``outlier`` 0.03 and ``evidence: views`` were chosen
     together on the TUNING drives only (session 10, issue 9; BENCHMARKS.md "Session 10: the
-    observation's sharpness and where its evidence stands"): the fused posterior taken at
+    tracker's observation, sharper and where its views stand"): the fused posterior taken at
     temperature 1 is under-confident (its route points of probability 0.3-0.5 are right 46-64 % of
     the time, those of 0.01-0.03 only 0.1-0.3 %), its maximum-likelihood sharpening with a uniform
     outlier part is temperature 0.33-0.38 with an outlier weight of 1 % (over-confident for
