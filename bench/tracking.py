@@ -66,7 +66,7 @@ from models.tracking import RouteFilter, smooth  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 WARM_UP = 3
 sys.path.insert(0, str(ROOT / "bench"))
-from tracking_data import observed  # noqa: E402
+from tracking_data import observed, views_per_leg  # noqa: E402
 
 sys.path.pop(0)
 #: the observation model's parameters fitted for the associative ranking alone on the evaluation
@@ -79,6 +79,8 @@ ASSOCIATIVE_CALIBRATION = {
     "margin_scale": 0.0,
     "scores": "robust",
     "speed_persistence": 0.0,
+    "outlier": 0.0,
+    "evidence": "points",
 }
 #: what a run may observe, each with its calibration: ``associative`` (above), ``fused-robust``
 #: (the fused ranking re-standardised per frame at the calibration of the first fusion rule, the
@@ -121,11 +123,14 @@ def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list
     return out
 
 
-def track_drive(d: dict, spec: TrackingSpec, observations: np.ndarray) -> dict:
+def track_drive(d: dict, spec: TrackingSpec, observations: np.ndarray, *, views_per_leg: int = 1) -> dict:
     """Run the online filter (and the smoother) over one ranked drive observing ``observations``
-    ``(T, N)`` (bench/tracking_data.observed); per-frame results."""
-    f = RouteFilter(d["route"], spec=spec)
-    n = len(d["route"])
+    ``(T, N)`` per route point, or with ``views_per_leg`` > 1 and ``spec.evidence`` ``views``
+    ``(T, V)`` per viewframe (bench/tracking_data.observed); per-frame results."""
+    f = RouteFilter(d["route"], spec=spec, views_per_leg=views_per_leg)
+    n = observations.shape[1]
+    if n != (len(d["route"]) if not f.observes_views else f.view_arcs.size):
+        raise ValueError(f"{d['name']}: {n} observed values a frame do not fit the filter's evidence places")
     times = d["times"]
     logliks, dts, online, costs = [], [], [], []
     for t, v in enumerate(observations):
@@ -400,10 +405,15 @@ def main() -> None:
             if args.no_times:
                 d["times"] = np.full(len(d["true_point"]), np.nan)
             runs = {}
+            per_leg = views_per_leg(d)
             for o in args.observe:
                 obs = observed(d, source_of(o))
                 sp = TrackingSpec(**{**tracking.model_dump(), **overrides, **CALIBRATIONS[o]})
-                runs[o] = (obs, track_drive(d, sp, obs))
+                if per_leg > 1 and sp.evidence == "views":  # each viewframe's evidence where it stands
+                    seen = observed(d, source_of(o), point="view")
+                    runs[o] = (obs, track_drive(d, sp, seen, views_per_leg=per_leg))
+                else:
+                    runs[o] = (obs, track_drive(d, sp, obs))
             r = score(d, runs, tracking)
             r["kind"] = d["kind"]
             results.append(r)

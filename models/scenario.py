@@ -681,7 +681,25 @@ class TrackingSpec(_Spec):
     the parameters were measured on the fused ranking of the evaluation set's tuning split
     (maximum likelihood, then the tracked top-1 over a grid; ``gain`` fixed; ``spread`` and
     ``speed_persistence`` refitted with three viewframes a leg on the tuning drives;
-    bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
+    bench/tracking_calibrate.py, BENCHMARKS.md). ``evidence``: where a ranking's evidence stands
+    along the route with viewframes between the route points: ``views``, each viewframe's at its
+    own arc length (the default), or ``points``, its viewframes' total lumped at the route point
+    (the tracker before session 10, which threw away where along a leg the ranking puts the
+    camera). ``outlier`` > 0: the likelihood is the mixture ``(1 - outlier) D(s) + outlier / length``
+    of the frame's density over arc length ``D`` (the evidence weights ``exp(-z / temperature)``
+    normalised, each spread by its Gaussian) and a uniform one (a frame whose ranking says nothing
+    about where the camera is: ``eps`` is then unused); 0 is the floor ``eps_f`` above, as before.
+    ``temperature`` 0.67, ``spread`` 0.2, ``outlier`` 0.03 and ``evidence: views`` were chosen
+    together on the TUNING drives only (session 10, issue 9; BENCHMARKS.md "Session 10: the
+    tracker's observation, sharper and where its views stand"): the fused posterior taken at
+    temperature 1 is under-confident (its route points of probability 0.3-0.5 are right 46-64 % of
+    the time, those of 0.01-0.03 only 0.1-0.3 %), its maximum-likelihood sharpening with a uniform
+    outlier part is temperature 0.33-0.38 with an outlier weight of 1 % (over-confident for
+    tracking: consecutive frames' errors are correlated), and the tracked top-1 of every tuning
+    source is on a plateau at temperature 0.5-0.67, outlier 0.01-0.03, spread 0.2 (route
+    spacings) with the evidence at the viewframes; of it 0.67, the softer end, because at 0.5 a
+    stop with every third ranking confidently wrong (tests/models/test_tracking.py) drifts onto
+    the wrong point. ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
     ``smoothing``: offline forward-backward over the whole drive (frames from files).
@@ -701,11 +719,13 @@ class TrackingSpec(_Spec):
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
     speed_persistence: float = Field(default=0.3, ge=0, lt=1)
     speed_walk: float = Field(default=0.25, ge=0, le=1)
-    temperature: float = Field(default=1.0, gt=0, le=1000)
+    temperature: float = Field(default=0.67, gt=0, le=1000)
     gain: float = Field(default=0.0, ge=-100, le=100)
     eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0, le=1000)
-    spread: float = Field(default=0.3, ge=0, le=1000)
+    spread: float = Field(default=0.2, ge=0, le=1000)
+    outlier: float = Field(default=0.03, ge=0, lt=1)
+    evidence: Literal["views", "points"] = "views"
     scores: Literal["nats", "robust"] = "nats"
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)
