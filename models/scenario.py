@@ -702,11 +702,16 @@ class TrackingSpec(_Spec):
     the wrong point. ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
-    ``smoothing``: offline forward-backward over the whole drive (frames from files).
+    ``smoothing``: offline forward-backward over the whole drive (frames from files), with the
+    plain kernel (``smoother: plain``) or over the joint (speed class, cell) state of the speed
+    state (``speed``; :func:`models.tracking.smooth`). ``plain`` is the default because on the
+    TUNING drives the joint smoother was right less often (pooled 74.5 against 75.3 %, session
+    10, helper trackgap; on synthetic drives whose speed persists it is the better one).
     """
 
     enabled: bool = True
     smoothing: bool = False
+    smoother: Literal["plain", "speed"] = "plain"
     cell_m: float = Field(default=2.0, gt=0, le=MAX_SIZE_M)
     tail: float = Field(default=0.5, ge=0, le=100)
     max_speed_mps: float = Field(default=30.0, gt=0, le=MAX_SPEED_MPS)
