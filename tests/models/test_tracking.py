@@ -573,6 +573,45 @@ def test_a_smoothed_stop_holds_with_the_speed_state():
     assert [e.arc_m for e in a] == [e.arc_m for e in b]
 
 
+def _measured_moves(rng: np.random.Generator, s: float, end: float) -> tuple[float, bool]:
+    """One move of the tuning drives' measured kind (bench: 66 % at 0.4-1.2 spacings, 12-16 % stops,
+    12 % gaps of 2.5-5 spacings): ``(new arc, a gap)``, turned back a little at the route's end."""
+    u = rng.random()
+    gap = 0.12 <= u < 0.27
+    if u >= 0.12:
+        s += rng.uniform(2.5, 5.0) * SPACING if gap else rng.uniform(0.4, 1.2) * SPACING
+    if s > end:
+        s = end - rng.uniform(0.0, 0.3) * SPACING
+    return s, gap
+
+
+def test_the_skip_model_follows_gaps_of_several_route_points():
+    """Frames that skip 2.5-5 route points (the tuning drives' measured gaps) under a flat
+    ranking: the skip model measured on the tuning drives (p_skip 0.3 up to 5 spacings) follows
+    them more often than the one before (0.15 up to 6), and is right more often on every seed."""
+    before = TrackingSpec(p_skip=0.15, max_skip_points=6.0)
+    right: dict[str, list[float]] = {"now": [], "before": []}
+    at_gaps: dict[str, list[bool]] = {"now": [], "before": []}
+    for seed in range(8):
+        for name, spec in (("now", TrackingSpec()), ("before", before)):
+            rng = np.random.default_rng(300 + seed)
+            f = RouteFilter(_route(40), spec=spec, views_per_leg=_PER_LEG)
+            s, r, g = 20.0, [], []
+            for t in range(30):
+                gap = False
+                if t:
+                    s, gap = _measured_moves(rng, s, f.grid.arc[-1])
+                scores = _view_scores(f, s, rng, margin=1.5)
+                est = f.step(f.route_loglik(list(range(scores.size)), scores), dt=1.0)
+                r.append(est.route_point == _true_point(f.grid, s))
+                g.append(gap)
+            right[name].append(float(np.mean(r[3:])))
+            at_gaps[name].extend(np.array(r)[np.array(g)].tolist())
+    assert np.mean(right["now"]) > np.mean(right["before"]) + 0.03, right
+    assert all(a >= b for a, b in zip(right["now"], right["before"])), right
+    assert np.mean(at_gaps["now"]) > np.mean(at_gaps["before"]), at_gaps
+
+
 def test_a_track_near_the_routes_end_does_not_overshoot():
     """A drive up to the route's end (the vehicle turned back a little there, as the evaluation
     set's drives are) under flat rankings: the track is never more than one route point ahead of
