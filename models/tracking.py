@@ -120,7 +120,16 @@ Estimate
 
 Smoothing
     :func:`smooth` runs the same model forward and backward over a whole drive (offline, frames
-    from files): the posterior of each frame given every frame.
+    from files): the posterior of each frame given every frame; with ``smoother: speed`` over the
+    joint (speed class, cell) state (the class a step keeps or draws afresh,
+    :meth:`MotionModel.class_transition`; each class's move and its transpose,
+    :meth:`MotionModel.class_moves` / :meth:`MotionModel.class_adjoint`), by default with the
+    plain kernel (measured: :class:`models.scenario.TrackingSpec`).
+
+Cost
+    The tracker asks :meth:`RouteFilter.prior` after each step (the next frame's window for the
+    ranker); the next :meth:`RouteFilter.step` of the same ``dt`` reuses that prediction instead
+    of computing it again (one prediction a frame, not two).
 
 World coordinates are metres, ``(x, y)`` in the map plane.
 """
