@@ -666,3 +666,19 @@ def test_the_prediction_asked_after_a_step_serves_the_next_step():
         pred[:] = 0.0  # a caller's change does not reach the filter
         assert len(calls) == before + 1
     assert len(calls) == 12 + 3  # 12 priors, and a fresh prediction for each of the steps after 2 s (t 3, 6, 9)
+
+
+def test_the_joint_smoother_takes_steps_whose_times_change_the_speed_classes():
+    """Frames whose times give another number of speed classes (a long step's cruise box is the
+    whole route) are smoothed too: a fresh class draw across the change, decisive frames where
+    their evidence says."""
+    route = np.c_[np.arange(6) * 3.0, np.zeros(6)]
+    spec = TrackingSpec(smoother="speed", cell_m=1.0)
+    f = RouteFilter(route, spec=spec)
+    dts = [None, 0.01, 50.0, None, 1.0, 0.01]
+    assert len({f.motion.speed_classes(dt)[2].size for dt in dts}) == 2
+    points = [0, 1, None, 4, 5, 5]
+    lls = [None if k is None else f.grid.from_points(np.log(np.where(np.arange(6) == k, 1.0, 1e-3))) for k in points]
+    out = smooth(route, lls, spec=spec, dts=dts)
+    assert [e.route_point for t, e in enumerate(out) if points[t] is not None] == [0, 1, 4, 5, 5]
+    assert all(e.belief is not None and e.belief.sum() == pytest.approx(1.0) for e in out)
