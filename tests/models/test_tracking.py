@@ -682,3 +682,19 @@ def test_the_joint_smoother_takes_steps_whose_times_change_the_speed_classes():
     out = smooth(route, lls, spec=spec, dts=dts)
     assert [e.route_point for t, e in enumerate(out) if points[t] is not None] == [0, 1, 4, 5, 5]
     assert all(e.belief is not None and e.belief.sum() == pytest.approx(1.0) for e in out)
+
+
+def test_a_joint_smoothing_too_large_to_keep_is_the_plain_one_and_says_so(monkeypatch, caplog):
+    import logging
+
+    import models.tracking as tracking
+
+    route = _route(8)
+    f = RouteFilter(route, spec=TrackingSpec())
+    rng = np.random.default_rng(4)
+    lls = [_loglik(f, _variances(20.0 + 30.0 * t, f.grid, rng)) for t in range(6)]
+    monkeypatch.setattr(tracking, "SMOOTH_JOINT_MAX", 10)
+    with caplog.at_level(logging.WARNING, logger="models.tracking"):
+        big = smooth(route, lls, spec=TrackingSpec(smoother="speed"))
+    assert "plain kernel" in caplog.text and "6 frames" in caplog.text
+    assert [e.arc_m for e in big] == [e.arc_m for e in smooth(route, lls, spec=TrackingSpec(smoother="plain"))]
