@@ -702,17 +702,29 @@ class TrackingSpec(_Spec):
     the wrong point. ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
-    ``smoothing``: offline forward-backward over the whole drive (frames from files).
+    ``smoothing``: offline forward-backward over the whole drive (frames from files), with the
+    plain kernel (``smoother: plain``) or over the joint (speed class, cell) state of the speed
+    state (``speed``; :func:`models.tracking.smooth`). ``plain`` is the default because on the
+    TUNING drives the joint smoother was right less often (pooled 75.2 against 76.4 %, session
+    10, helper trackgap; on synthetic drives whose speed persists it is the better one).
+    ``max_skip_points`` 5 and ``p_skip`` 0.3 (were 6 and 0.15; session 10, trackgap): the
+    one-step maximum likelihood of the kernel at the true moves of the tuning drives (evaluation
+    set tuning split and its extra tuning drives, 484 moves; bench/tracking_calibrate.py's
+    simulated drives, 284) is at a skip bound of 5 spacings, flat in ``p_skip`` over 0.15-0.3
+    (within 0.012 nats a move); of that range the tracked top-1 of the tuning sources is best at
+    0.3 (pooled 74.7 against 73.8 %, kidnaps and sweeps no worse; BENCHMARKS.md "Session 10:
+    gaps, the route's end and the smoother").
     """
 
     enabled: bool = True
     smoothing: bool = False
+    smoother: Literal["plain", "speed"] = "plain"
     cell_m: float = Field(default=2.0, gt=0, le=MAX_SIZE_M)
     tail: float = Field(default=0.5, ge=0, le=100)
     max_speed_mps: float = Field(default=30.0, gt=0, le=MAX_SPEED_MPS)
     cruise_points: float = Field(default=2.0, gt=0, le=MAX_ROUTE_POINTS)
-    max_skip_points: float = Field(default=6.0, gt=0, le=MAX_ROUTE_POINTS)
-    p_skip: float = Field(default=0.15, ge=0, le=1)
+    max_skip_points: float = Field(default=5.0, gt=0, le=MAX_ROUTE_POINTS)
+    p_skip: float = Field(default=0.3, ge=0, le=1)
     p_stop: float = Field(default=0.1, ge=0, lt=1)
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)

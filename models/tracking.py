@@ -39,7 +39,7 @@ Prediction (motion model)
     drives whose speed persists (the simulated drives, stops of several frames) it holds the
     track where the plain kernel drifted ahead; on the evaluation set's generated drives, whose
     speed is drawn afresh every frame, it costs a little; 0.3 is the plateau of the pooled tuning
-    drives. The offline smoother uses the plain kernel.
+    drives. The offline smoother uses the plain kernel unless ``smoother: speed`` (:func:`smooth`).
 
 Update (observation model)
     The frame's ranking gives a value ``v_k`` per route point ``k`` (lower is better): the
@@ -120,7 +120,16 @@ Estimate
 
 Smoothing
     :func:`smooth` runs the same model forward and backward over a whole drive (offline, frames
-    from files): the posterior of each frame given every frame.
+    from files): the posterior of each frame given every frame; with ``smoother: speed`` over the
+    joint (speed class, cell) state (the class a step keeps or draws afresh,
+    :meth:`MotionModel.class_transition`; each class's move and its transpose,
+    :meth:`MotionModel.class_moves` / :meth:`MotionModel.class_adjoint`), by default with the
+    plain kernel (measured: :class:`models.scenario.TrackingSpec`).
+
+Cost
+    The tracker asks :meth:`RouteFilter.prior` after each step (the next frame's window for the
+    ranker); the next :meth:`RouteFilter.step` of the same ``dt`` reuses that prediction instead
+    of computing it again (one prediction a frame, not two).
 
 World coordinates are metres, ``(x, y)`` in the map plane.
 """
@@ -128,6 +137,7 @@ World coordinates are metres, ``(x, y)`` in the map plane.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -135,6 +145,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from models.scenario import TrackingSpec
+
+_log = logging.getLogger(__name__)
 
 __all__ = [
     "RouteGrid",
@@ -162,6 +174,9 @@ SCORES = ("nats", "robust")
 #: with a speed state (``speed_persistence`` > 0): the cruise box's speed classes, and the skip box's
 CRUISE_CLASSES = 8
 SKIP_CLASSES = 4
+#: the offline smoother with a speed state keeps (frames x speed classes x cells) numbers; above
+#: this many it smooths with the plain kernel (and says so)
+SMOOTH_JOINT_MAX = 50_000_000
 
 
 @dataclass(frozen=True)
@@ -619,38 +634,94 @@ class MotionModel:
         is a stop; reversals that would pass the first point stop there."""
         a, b, _ = self.speed_classes(dt)
         n = belief.size
-        e = min(self.end_cell, n - 1)
         c = np.zeros(n + 1)
         np.cumsum(belief, out=c[1:])
         rows = np.empty((a.size, n))
         for j, (lo, hi) in enumerate(zip(a.tolist(), b.tolist())):
-            o = rows[j]
-            lo, hi = min(lo, n - 1), min(hi, n - 1)
-            if lo == 0 and hi == 0:
-                o[:] = belief
-            elif lo > 0:  # forward: o[i] = sum of belief[i - hi .. i - lo] / width
-                o[:lo] = 0.0
-                o[lo:] = c[1 : n - lo + 1]
-                o[hi:] -= c[: n - hi]
-                w = hi - lo + 1
-                o *= 1.0 / w
-                o[e + 1 :] = 0.0
-                # the cells nearer the end than the class's longest move: their moves renormalised
-                k0, k1 = max(0, e - hi + 1), e - lo
-                if k1 >= k0:
-                    count = (e - lo + 1) - np.arange(k0, k1 + 1)
-                    o[k0 + lo : e + 1] += np.cumsum((1.0 / count - 1.0 / w) * belief[k0 : k1 + 1])
-                s0 = max(0, e - lo + 1)
-                o[e] += float(belief[s0:e].sum())  # nearer than its shortest move: to the last point
-                o[e:] += belief[e:]  # on the last point or past it: a stop
-            else:  # a reversal: o[i] = sum of belief[i + 1 .. i + back] / back
-                back = -lo
-                o[: n - back] = c[back + 1 :]
-                o[n - back :] = c[n]
-                o -= c[1:]
-                o *= 1.0 / back
-                o[0] += float(c[n]) - float(o.sum())
+            self._class_move(belief, c, lo, hi, rows[j])
         return rows
+
+    def class_moves(self, beliefs: np.ndarray, dt: float | None) -> np.ndarray:
+        """``(J, C)``: row j of ``beliefs`` ``(J, C)`` moved by speed class j alone (each its own
+        belief, unlike :meth:`class_rows`: the joint (class, cell) prediction of :func:`smooth`)."""
+        a, b, _ = self.speed_classes(dt)
+        if beliefs.shape[0] != a.size:
+            raise ValueError(f"{beliefs.shape[0]} rows for {a.size} speed classes")
+        n = beliefs.shape[1]
+        c = np.zeros(n + 1)
+        rows = np.empty_like(beliefs, dtype=np.float64)
+        for j, (lo, hi) in enumerate(zip(a.tolist(), b.tolist())):
+            np.cumsum(beliefs[j], out=c[1:])
+            self._class_move(beliefs[j], c, lo, hi, rows[j])
+        return rows
+
+    def _class_move(self, belief: np.ndarray, c: np.ndarray, lo: int, hi: int, o: np.ndarray) -> None:
+        """``o`` ``(C,)`` := ``belief`` moved uniformly by ``lo .. hi`` cells (``c`` its cumulative
+        sums, ``(C + 1,)`` from 0), with the route's ends of :meth:`class_rows`."""
+        n = belief.size
+        e = min(self.end_cell, n - 1)
+        lo, hi = min(lo, n - 1), min(hi, n - 1)
+        if lo == 0 and hi == 0:
+            o[:] = belief
+        elif lo > 0:  # forward: o[i] = sum of belief[i - hi .. i - lo] / width
+            o[:lo] = 0.0
+            o[lo:] = c[1 : n - lo + 1]
+            o[hi:] -= c[: n - hi]
+            w = hi - lo + 1
+            o *= 1.0 / w
+            o[e + 1 :] = 0.0
+            # the cells nearer the end than the class's longest move: their moves renormalised
+            k0, k1 = max(0, e - hi + 1), e - lo
+            if k1 >= k0:
+                count = (e - lo + 1) - np.arange(k0, k1 + 1)
+                o[k0 + lo : e + 1] += np.cumsum((1.0 / count - 1.0 / w) * belief[k0 : k1 + 1])
+            s0 = max(0, e - lo + 1)
+            o[e] += float(belief[s0:e].sum())  # nearer than its shortest move: to the last point
+            o[e:] += belief[e:]  # on the last point or past it: a stop
+        else:  # a reversal: o[i] = sum of belief[i + 1 .. i + back] / back
+            back = -lo
+            o[: n - back] = c[back + 1 :]
+            o[n - back :] = c[n]
+            o -= c[1:]
+            o *= 1.0 / back
+            o[0] += float(c[n]) - float(o.sum())
+
+    def class_adjoint(self, messages: np.ndarray, dt: float | None) -> np.ndarray:
+        """The transpose of :meth:`class_moves` applied to backward messages ``(J, C)`` (row j
+        through class j's move; not normalised)."""
+        a, b, _ = self.speed_classes(dt)
+        if messages.shape[0] != a.size:
+            raise ValueError(f"{messages.shape[0]} rows for {a.size} speed classes")
+        n = messages.shape[1]
+        e = min(self.end_cell, n - 1)
+        m = np.zeros(n + 1)
+        out = np.empty_like(messages, dtype=np.float64)
+        for j, (lo, hi) in enumerate(zip(a.tolist(), b.tolist())):
+            msg, o = messages[j], out[j]
+            lo, hi = min(lo, n - 1), min(hi, n - 1)
+            np.cumsum(msg, out=m[1:])
+            if lo == 0 and hi == 0:
+                o[:] = msg
+            elif lo > 0:  # cell k sends to k + lo .. min(k + hi, e), evenly; nearer the end: to e; from e on: stays
+                o[:] = msg
+                k = np.arange(max(0, e - lo + 1))
+                top = np.minimum(k + hi, e)
+                o[: k.size] = (m[top + 1] - m[k + lo]) / (top - k - lo + 1)
+                o[k.size : e] = msg[e]
+            else:  # cell k sends to k - back .. k - 1, those before the first cell to cell 0
+                back = -lo
+                k = np.arange(n)
+                o[:] = (m[k] - m[np.maximum(k - back, 0)] + np.maximum(back - k, 0) * msg[0]) / back
+        return out
+
+    def class_transition(self, previous: int, dt: float | None) -> np.ndarray:
+        """``(J, J')``: the next step's class probabilities given the last step's class, as
+        :meth:`class_weights` (``M @ q`` is ``class_weights(q, dt)`` for a distribution ``q``
+        over the ``previous`` (J') classes; drawn afresh when the classes differ)."""
+        pi = self.speed_classes(dt)[2]
+        if previous != pi.size:
+            return np.repeat(pi[:, None], previous, axis=1)
+        return np.stack([self.class_weights(np.eye(pi.size)[j], dt) for j in range(pi.size)], axis=1)
 
     def class_weights(self, q: np.ndarray | None, dt: float | None) -> np.ndarray:
         """The next step's speed-class probabilities ``(J,)`` given this step's posterior ``q``
@@ -779,17 +850,34 @@ class RouteFilter:
         self.speed: np.ndarray | None = None
         self.state = "lost"
         self.frames = 0
+        self._predicted: tuple | None = None
 
     @property
     def speed_state(self) -> bool:
         """Whether the filter keeps a speed state (``speed_persistence`` > 0)."""
         return self.motion.persistence > 0
 
-    def _predict_classes(self, dt: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(rows (J, C), weights (J,), prediction (C,))`` of the next frame with a speed state."""
-        rows = self.motion.class_rows(self.belief, dt)
-        weights = self.motion.class_weights(self.speed, dt)
-        return rows, weights, self.motion.mix(rows, weights)
+    def _predict(self, dt: float | None) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+        """``(rows (J, C), weights (J,), prediction (C,))`` of the next frame (rows and weights None
+        without a speed state), kept for the same belief and ``dt``: the tracker asks
+        :meth:`prior` after each step (the next frame's window) and :meth:`step` predicts the
+        same again when the next frame comes ``dt`` later."""
+        key = (self.frames, None if dt is None else float(dt))
+        got = self._predicted
+        if got is not None and got[0] == key and got[1] is self.belief:
+            return got[2]
+        if self.speed_state:
+            rows = self.motion.class_rows(self.belief, dt)
+            weights = self.motion.class_weights(self.speed, dt)
+            out: tuple[np.ndarray | None, np.ndarray | None, np.ndarray] = (
+                rows,
+                weights,
+                self.motion.mix(rows, weights),
+            )
+        else:
+            out = (None, None, self.motion.predict(self.belief, dt))
+        self._predicted = (key, self.belief, out)
+        return out
 
     def route_loglik(
         self,
@@ -817,9 +905,7 @@ class RouteFilter:
         """The predicted belief ``(C,)`` of the next frame, before its evidence."""
         if self.frames == 0:
             return self.belief.copy()
-        if self.speed_state:
-            return self._predict_classes(dt)[2]
-        return self.motion.predict(self.belief, dt)
+        return self._predict(dt)[2].copy()
 
     def window_next(self, prediction: np.ndarray, *, tail: float) -> tuple[int, int] | None:
         """The route points ``(first, last)`` holding all but ``tail`` of ``prediction`` (``(C,)``, from
@@ -840,15 +926,16 @@ class RouteFilter:
 
     def step(self, route_loglik: np.ndarray | None, *, dt: float | None = None) -> TrackEstimate:
         """Predict (``dt`` seconds since the previous frame, or None: no time) and update."""
-        if self.speed_state and self.frames > 0:
+        if self.frames == 0:
+            self.belief = _update(self.grid, self.belief, route_loglik)
+        else:
             mass = float(self.belief.sum())  # every class row's
-            rows, weights, pred = self._predict_classes(dt)
+            rows, weights, pred = self._predict(dt)
             like = None if route_loglik is None else _cell_likelihood(self.grid, route_loglik)
             self.belief = _posterior(pred, like)
-            self.speed = _speed_posterior(rows, weights, like, self.motion.p_kidnap, mass=mass)
-        else:
-            pred = self.prior(dt)
-            self.belief = _update(self.grid, pred, route_loglik)
+            if rows is not None and weights is not None:
+                self.speed = _speed_posterior(rows, weights, like, self.motion.p_kidnap, mass=mass)
+        self._predicted = None
         self.frames += 1
         est = _estimate(self.grid, self.belief, self.state, route_loglik is not None)
         self.state = _next_state(self.state, est.confidence, self.spec)
@@ -905,9 +992,14 @@ def smooth(
 
     ``logliks[t]`` is frame t's log-likelihood at the grid's samples (None: no evidence), ``dts[t]``
     the time since frame t - 1 (ignored for t = 0; None: no time). The state (tracking/lost)
-    follows the same hysteresis over the smoothed confidences. The motion is the plain kernel
-    (``speed_persistence`` is the online filter's; a backward pass over the speed classes is
-    not implemented).
+    follows the same hysteresis over the smoothed confidences. With ``smoother: speed`` and a
+    speed state (``speed_persistence`` > 0) it runs over the joint state (speed class, cell): the
+    class of a step kept from the last one's or drawn afresh as in the online filter
+    (:meth:`MotionModel.class_transition`), the cell moved by its class
+    (:meth:`MotionModel.class_moves`, the backward pass its transpose), exact where the online
+    filter keeps one class distribution for the whole belief; O(J C) a frame, J C T numbers kept
+    (above :data:`SMOOTH_JOINT_MAX` the plain kernel, with a warning). Otherwise (the default,
+    ``smoother: plain``; why: :class:`models.scenario.TrackingSpec`) the plain kernel.
     """
     f = RouteFilter(route, spec=spec)
     grid, motion = f.grid, f.motion
@@ -915,32 +1007,88 @@ def smooth(
     dts = list(dts) if dts is not None else [None] * n
     if len(dts) != n:
         raise ValueError("dts must have one entry per frame")
-    alphas, likes = [], []
-    belief = np.full(grid.cells, 1.0 / grid.cells)
-    for t, ll in enumerate(logliks):
-        pred = belief if t == 0 else motion.predict(belief, dts[t])
-        like = (
-            np.ones(grid.cells)
-            if ll is None
-            else np.exp(np.maximum((c := grid.cell_loglik(ll)) - c.max(), -_LOG_RATIO_CAP))
+    likes = [
+        np.ones(grid.cells)
+        if ll is None
+        else np.exp(np.maximum((c := grid.cell_loglik(ll)) - c.max(), -_LOG_RATIO_CAP))
+        for ll in logliks
+    ]
+    joint = spec.smoother == "speed" and motion.persistence > 0 and n > 1
+    if joint and n * grid.cells * len(motion.speed_classes(dts[1])[2]) > SMOOTH_JOINT_MAX:
+        _log.warning(
+            "smoothing %d frames of %d cells with the plain kernel: the speed state's joint grid would hold "
+            "more than %d numbers",
+            n,
+            grid.cells,
+            SMOOTH_JOINT_MAX,
         )
+        joint = False
+    posts = _smooth_joint(grid, motion, likes, dts) if joint else _smooth_plain(grid, motion, likes, dts)
+    out: list[TrackEstimate] = []
+    state = "lost"
+    for t, post in enumerate(posts):
+        est = _estimate(grid, post, state, logliks[t] is not None)
+        state = _next_state(state, est.confidence, spec)
+        out.append(dataclasses.replace(est, state=state))
+    return out
+
+
+def _smooth_plain(
+    grid: RouteGrid, motion: MotionModel, likes: list[np.ndarray], dts: list[float | None]
+) -> list[np.ndarray]:
+    """Smoothed beliefs ``(C,)`` per frame under the plain kernel."""
+    alphas = []
+    belief = np.full(grid.cells, 1.0 / grid.cells)
+    for t, like in enumerate(likes):
+        pred = belief if t == 0 else motion.predict(belief, dts[t])
         belief = np.maximum(pred * like, _TINY)
         belief /= max(belief.sum(), 1e-300)
         alphas.append(belief)
-        likes.append(like)
-    out: list[TrackEstimate] = [None] * n  # type: ignore[list-item]
     beta = np.ones(grid.cells)
-    state = "lost"
     posts = []
-    for t in range(n - 1, -1, -1):
+    for t in range(len(likes) - 1, -1, -1):
         post = alphas[t] * beta
         posts.append(post / max(post.sum(), 1e-300))
         if t > 0:
             beta = motion.adjoint(likes[t] * beta, dts[t])
             beta /= max(beta.max(), 1e-300)
     posts.reverse()
-    for t, post in enumerate(posts):
-        est = _estimate(grid, post, state, logliks[t] is not None)
-        state = _next_state(state, est.confidence, spec)
-        out[t] = dataclasses.replace(est, state=state)
-    return out
+    return posts
+
+
+def _smooth_joint(
+    grid: RouteGrid, motion: MotionModel, likes: list[np.ndarray], dts: list[float | None]
+) -> list[np.ndarray]:
+    """Smoothed beliefs ``(C,)`` per frame over the joint (speed class, cell) state: frame 0 has
+    no class; frame t >= 1 the class of the step into it (frame 1's drawn from the kernel's)."""
+    pk = motion.p_kidnap
+    cells = grid.cells
+    first = np.full(cells, 1.0 / cells) * likes[0]
+    first /= max(first.sum(), 1e-300)
+    alphas: list[np.ndarray] = [first]
+    trans: list[np.ndarray | None] = [None, None]
+    for t in range(1, len(likes)):
+        pi = motion.speed_classes(dts[t])[2]
+        if t == 1:
+            m = pi[:, None] * first[None, :]
+        else:
+            trans.append(motion.class_transition(alphas[-1].shape[0], dts[t]))
+            m = trans[t] @ alphas[-1]
+        pred = (1.0 - pk) * motion.class_moves(m, dts[t]) + pk * m.sum(axis=1, keepdims=True) / cells
+        a = np.maximum(pred * likes[t][None, :], _TINY)
+        a /= max(float(a.sum()), 1e-300)
+        alphas.append(a)
+    beta = np.ones_like(alphas[-1])
+    posts = []
+    for t in range(len(likes) - 1, -1, -1):
+        post = alphas[t] * beta
+        post = post if post.ndim == 1 else post.sum(axis=0)
+        posts.append(post / max(float(post.sum()), 1e-300))
+        if t > 0:
+            g = likes[t][None, :] * beta
+            h = (1.0 - pk) * motion.class_adjoint(g, dts[t]) + pk * g.mean(axis=1, keepdims=True)
+            pi = motion.speed_classes(dts[t])[2]
+            beta = pi @ h if t == 1 else trans[t].T @ h  # type: ignore[union-attr]
+            beta /= max(float(beta.max()), 1e-300)
+    posts.reverse()
+    return posts
