@@ -73,7 +73,14 @@ _FORMAT = 1
 #: memory settings that decide what is ranked, never what is stored (the shard size decides the
 #: membership, which is in the key itself): left out of the key, so changing them is a hit. Every
 #: other field, including any added to MemorySpec later, is in the key.
-NOT_IN_KEY = ("shard_size", "weight", "window_route_points", "window_margin", "window_full_every")
+NOT_IN_KEY = (
+    "shard_size",
+    "weight",
+    "window_route_points",
+    "window_margin",
+    "window_full_every",
+    "coarse_candidates",
+)
 _ARRAYS = ("rows", "viewframes", "bank_rows", "bank_energy_sq")
 
 

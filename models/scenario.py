@@ -372,6 +372,16 @@ class MemorySpec(_Spec):
     the evidence against it. Short routes always rank everything: there the full ranking is
     cheap, and a window can only lose evidence.
 
+    The coarse stage: a frame ranked in full (no track window) is first compared, in each shard,
+    with every viewframe of the shard by the memory's own low-passed similarity on the few
+    spectral bins the blur leaves, over a coarse grid of shifts (:class:`models.coarse.MemoryCoarse`),
+    and only the shard's ``coarse_candidates`` best are ranked in full (null: every viewframe);
+    the shard's ranking holds those, as a window's ranking holds the window's viewframes. A
+    shard of no more viewframes (the evaluation set's routes of 32), and a track window's frames,
+    are ranked in full. 32 is the fewest whose candidates held the full ranking's first for 99.5 %
+    of the frames of the evaluation set's tuning split with its four routes pooled in one index
+    (``bench/coarse.py --memory tuning``; BENCHMARKS.md, "Associative coarse stage").
+
     The defaults were chosen on the tuning split of the evaluation set (``bench/evalset``,
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
@@ -396,6 +406,7 @@ class MemorySpec(_Spec):
     window_route_points: int | None = Field(default=2000, ge=1, le=MAX_ROUTE_POINTS)
     window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
+    coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
 
     @field_validator("max_shift")
     @classmethod

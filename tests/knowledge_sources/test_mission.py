@@ -69,10 +69,16 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
     assert llrs and any(abs(abs(v) - implied) > 1e-3 for v in llrs), llrs
 
 
-@pytest.mark.parametrize("views", [1, 3], ids=["a-view-a-point", "views-between-points"])
-def test_same_results_in_one_process_and_in_processes(small_data, tmp_path, views):
+@pytest.mark.parametrize(
+    "views, memory",
+    [(1, {}), (3, {}), (1, {"shard_size": 4, "coarse_candidates": 2})],
+    ids=["a-view-a-point", "views-between-points", "coarse-stage-shards"],
+)
+def test_same_results_in_one_process_and_in_processes(small_data, tmp_path, views, memory):
     small = tmp_path / "small.yaml"
-    small.write_text(yaml.safe_dump({**small_data, "render": {"views_per_leg": views}}))
+    data = {**small_data, "render": {"views_per_leg": views}}
+    data["memory"] = {**data.get("memory", {}), **memory}  # coarse: two shards, each ranks its 2 best of 4
+    small.write_text(yaml.safe_dump(data))
     a = run_mission(small)
     b = run_mission(small, processes=True)
     keys = ("frame", "viewframe", "view", "queries", "backtracks", "correct")
