@@ -224,6 +224,7 @@ def banks(count: int) -> dict:
 
 _CHILD = """
 import cProfile, json, os, resource, sys, time
+import knowledge_sources  # before numpy, as the command line imports it (a checkout's BLAS default applies)
 import numpy as np
 from knowledge_sources.mission import run_mission
 opts = json.loads(sys.argv[3])

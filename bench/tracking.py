@@ -66,7 +66,7 @@ from models.tracking import RouteFilter, smooth  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 WARM_UP = 3
 sys.path.insert(0, str(ROOT / "bench"))
-from tracking_data import observed  # noqa: E402
+from tracking_data import observed, views_per_leg  # noqa: E402
 
 sys.path.pop(0)
 #: the observation model's parameters fitted for the associative ranking alone on the evaluation
@@ -79,6 +79,8 @@ ASSOCIATIVE_CALIBRATION = {
     "margin_scale": 0.0,
     "scores": "robust",
     "speed_persistence": 0.0,
+    "outlier": 0.0,
+    "evidence": "points",
 }
 #: what a run may observe, each with its calibration: ``associative`` (above), ``fused-robust``
 #: (the fused ranking re-standardised per frame at the calibration of the first fusion rule, the
@@ -121,11 +123,14 @@ def kidnap_frames_from_truth(true_point: np.ndarray, *, max_skip: float) -> list
     return out
 
 
-def track_drive(d: dict, spec: TrackingSpec, observations: np.ndarray) -> dict:
+def track_drive(d: dict, spec: TrackingSpec, observations: np.ndarray, *, views_per_leg: int = 1) -> dict:
     """Run the online filter (and the smoother) over one ranked drive observing ``observations``
-    ``(T, N)`` (bench/tracking_data.observed); per-frame results."""
-    f = RouteFilter(d["route"], spec=spec)
-    n = len(d["route"])
+    ``(T, N)`` per route point, or with ``views_per_leg`` > 1 and ``spec.evidence`` ``views``
+    ``(T, V)`` per viewframe (bench/tracking_data.observed); per-frame results."""
+    f = RouteFilter(d["route"], spec=spec, views_per_leg=views_per_leg)
+    n = observations.shape[1]
+    if n != (len(d["route"]) if not f.observes_views else f.view_arcs.size):
+        raise ValueError(f"{d['name']}: {n} observed values a frame do not fit the filter's evidence places")
     times = d["times"]
     logliks, dts, online, costs = [], [], [], []
     for t, v in enumerate(observations):
@@ -219,7 +224,10 @@ def pooled(results: list[dict]) -> dict:
 def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
     """Median cost of one online step (prediction, likelihood from a ranking, update, estimate)
     on a straight route of 10,000 cells, 40 m between route points: wall time, and the CPU time of
-    this thread (on a loaded machine the wall time includes waiting for a core). Measured for
+    this thread (on a loaded machine the wall time includes waiting for a core); ``frame_cpu_ms``
+    a frame of the tracker agent, the step and the next frame's prior after it (the step reuses
+    the prior of the frame before when its ``dt`` is the same: ``step_cpu_ms`` alone leaves the
+    prediction out). Measured for
     ``spec`` and, alternating step by step in the same run, for ``spec`` without the speed state
     (``speed_persistence`` 0: the filter before it), under ``without_speed_state``."""
     points = int(10_000 * spec.cell_m / 40.0) + 1
@@ -232,16 +240,18 @@ def cost_10000(spec: TrackingSpec, *, repeats: int = 300) -> dict:
     per: dict[str, dict[str, list[float]]] = {}
     for k, f in filters.items():
         f.step(f.route_loglik(viewframes, variances[0]))
-        per[k] = {"step_ms": [], "predict_ms": [], "step_cpu_ms": []}
+        per[k] = {"step_ms": [], "predict_ms": [], "step_cpu_ms": [], "frame_cpu_ms": []}
     for i in range(repeats):
         for k, f in filters.items():
             t0, c0 = time.perf_counter(), time.thread_time()
             f.step(f.route_loglik(viewframes, variances[i % 8]), dt=None)
             per[k]["step_ms"].append((time.perf_counter() - t0) * 1e3)
-            per[k]["step_cpu_ms"].append((time.thread_time() - c0) * 1e3)
+            c1 = time.thread_time()
+            per[k]["step_cpu_ms"].append((c1 - c0) * 1e3)
             t0 = time.perf_counter()
             f.prior(None)
             per[k]["predict_ms"].append((time.perf_counter() - t0) * 1e3)
+            per[k]["frame_cpu_ms"].append((time.thread_time() - c0) * 1e3)
     f = filters["with"]
     out: dict = {"cells": f.grid.cells, "route_points": points}
     out.update({k + "_p50": float(np.median(v)) for k, v in per["with"].items()})
@@ -400,10 +410,15 @@ def main() -> None:
             if args.no_times:
                 d["times"] = np.full(len(d["true_point"]), np.nan)
             runs = {}
+            per_leg = views_per_leg(d)
             for o in args.observe:
                 obs = observed(d, source_of(o))
                 sp = TrackingSpec(**{**tracking.model_dump(), **overrides, **CALIBRATIONS[o]})
-                runs[o] = (obs, track_drive(d, sp, obs))
+                if per_leg > 1 and sp.evidence == "views":  # each viewframe's evidence where it stands
+                    seen = observed(d, source_of(o), point="view")
+                    runs[o] = (obs, track_drive(d, sp, seen, views_per_leg=per_leg))
+                else:
+                    runs[o] = (obs, track_drive(d, sp, obs))
             r = score(d, runs, tracking)
             r["kind"] = d["kind"]
             results.append(r)
@@ -470,7 +485,8 @@ def main() -> None:
     for label, cc in (("", c), (" (without the speed state)", c["without_speed_state"])):
         print(
             f"tracker cost{label}, {c['cells']} cells: step p50 {cc['step_ms_p50']:.3f} ms wall, "
-            f"{cc['step_cpu_ms_p50']:.3f} ms CPU; prediction p50 {cc['predict_ms_p50']:.3f} ms"
+            f"{cc['step_cpu_ms_p50']:.3f} ms CPU; prediction p50 {cc['predict_ms_p50']:.3f} ms; "
+            f"a frame (step and the next prior) p50 {cc['frame_cpu_ms_p50']:.3f} ms CPU"
         )
     if whole:
         for k, v in whole.items():

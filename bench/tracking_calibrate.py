@@ -10,8 +10,11 @@ best, in nats for the calibrated fusion, ``--scores nats``, or in robust spreads
 says about where the camera is (a uniform prior); the parameters maximise the mean log of that
 probability at the true route point (nearest to the true position) over all tuning frames
 (Nelder-Mead in log-parameters). Also printed: the histograms of ``z`` for true and for other
-route points (their log ratio is what ``log L`` estimates) and a reliability table (the fitted
-single-frame probability of the best route point against how often it is right).
+route points (their log ratio is what ``log L`` estimates), a reliability table (the fitted
+single-frame probability of the best route point against how often it is right), the fit with a
+uniform outlier part instead of the floor (``tracking.outlier``; temperature, spread, outlier
+weight) and each route point's probability under the observed posterior at temperature 1
+against how often it is the truth (session 10: under-confident).
 
 What a frame's ranking is (``--observe``): ``fused`` (the default, what the tracker observes),
 every ranking source of the drive (associative memory and skyline) fused by the scheduler's rule
@@ -165,6 +168,68 @@ def fit(frames, scores: str) -> dict:
     }
 
 
+def _mixture_model(params: np.ndarray, scores: str) -> ObservationModel:
+    temperature, spread = np.exp(params[:2])
+    outlier = 1.0 / (1.0 + math.exp(-float(params[2])))
+    return ObservationModel(float(temperature), 0.0, 0.0, 0.0, float(spread), scores, float(outlier))
+
+
+def fit_mixture(frames, scores: str) -> dict:
+    """The observation with a uniform outlier part (``tracking.outlier``, session 10): temperature,
+    spread and outlier weight maximising the same mean log density at the true arc length."""
+
+    def objective(p: np.ndarray) -> float:
+        m = _mixture_model(p, scores)
+        if not (0.05 < m.temperature < 20 and 0.02 < m.spread < 3):
+            return 1e9
+        total = 0.0
+        for grid, v, s in frames:
+            ll = m.loglik(v, grid)
+            top = ll.max()
+            norm = np.trapezoid(np.exp(ll - top), grid.samples)
+            total += float(np.interp(s, grid.samples, ll)) - top - math.log(norm)
+        return -total / len(frames)
+
+    res = minimize(objective, np.array([math.log(0.7), math.log(0.3), -3.0]), method="Nelder-Mead")
+    m = _mixture_model(res.x, scores)
+    return {"temperature": m.temperature, "spread": m.spread, "outlier": m.outlier, "mean_log_density": float(-res.fun)}
+
+
+def point_reliability(zs, truths) -> list[dict]:
+    """Each route point's probability under the observed posterior at temperature 1 (``exp(-z)``
+    normalised over the route points: what the tracker took as it is before session 10) against
+    how often the truth is that point: under-confident where the frequency is above the mean."""
+    probs, hits = [], []
+    for z, t in zip(zs, truths):
+        p = np.exp(-np.nan_to_num(z, nan=np.inf))
+        p /= p.sum()
+        probs.append(p)
+        hits.append(np.arange(p.size) == t)
+    pr, hit = np.concatenate(probs), np.concatenate(hits)
+    out = []
+    for a, b in (
+        (0, 1e-3),
+        (1e-3, 0.01),
+        (0.01, 0.03),
+        (0.03, 0.1),
+        (0.1, 0.2),
+        (0.2, 0.3),
+        (0.3, 0.5),
+        (0.5, 0.7),
+        (0.7, 1.01),
+    ):
+        sel = (pr >= a) & (pr < b)
+        out.append(
+            {
+                "p": f"{a:g}-{min(b, 1):g}",
+                "points": int(sel.sum()),
+                "mean_p": float(pr[sel].mean()) if sel.any() else None,
+                "truth": float(hit[sel].mean()) if sel.any() else None,
+            }
+        )
+    return out
+
+
 def histograms(zs, truths) -> list[dict]:
     edges = np.array([0, 0.25, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 12, np.inf])
     true_z = np.array([z[t] for z, t in zip(zs, truths)])
@@ -269,6 +334,8 @@ def main() -> None:
         "fit": params,
         "histogram": histograms(zs, truths),
         "reliability": reliability(params, frames),
+        "fit_outlier": fit_mixture(frames, scores),
+        "point_reliability": point_reliability(zs, truths),
     }
     print(json.dumps(out, indent=1))
     print()
@@ -278,6 +345,16 @@ def main() -> None:
     for h in out["histogram"]:
         lr = "" if h["log_ratio"] is None else f"{h['log_ratio']:.2f}"
         print(f"{h['z']:>8} {h['true']:>6} {h['other']:>7} {lr:>10}")
+    fo = out["fit_outlier"]
+    print(
+        f"fit with an outlier part: temperature {fo['temperature']:.3g}, spread {fo['spread']:.3g}, "
+        f"outlier {fo['outlier']:.3g}, mean log density {fo['mean_log_density']:.4g}"
+    )
+    print(f"{'p(point) at T 1':>16} {'points':>7} {'mean p':>7} {'truth':>6}")
+    for r in out["point_reliability"]:
+        mp = "" if r["mean_p"] is None else f"{r['mean_p']:.4f}"
+        rt = "" if r["truth"] is None else f"{r['truth']:.4f}"
+        print(f"{r['p']:>16} {r['points']:>7} {mp:>7} {rt:>6}")
     print(f"{'p(best)':>8} {'frames':>7} {'mean p':>7} {'right':>6}")
     for r in out["reliability"]:
         mp = "" if r["mean_p"] is None else f"{r['mean_p']:.2f}"

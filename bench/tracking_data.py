@@ -28,7 +28,7 @@ from models.scenario import Scenario, load_scenario  # noqa: E402
 from models.tracking import ranking_vector  # noqa: E402
 from models.world import World  # noqa: E402
 
-__all__ = ["ranked_drive", "with_drive", "observed", "per_point", "OBSERVE"]
+__all__ = ["ranked_drive", "with_drive", "observed", "per_point", "views_per_leg", "OBSERVE"]
 
 #: what the tracker may observe: the associative memory alone, or every ranking source fused
 OBSERVE = ("associative", "fused")
@@ -106,6 +106,13 @@ def ranked_drive(
     }
 
 
+def views_per_leg(drive: dict[str, Any]) -> int:
+    """Viewframes per leg of a :func:`ranked_drive` (1 when its viewframes are the route points)."""
+    n = len(drive["route"])
+    v = len(drive.get("route_points", range(n)))
+    return max(1, (v - 1) // (n - 1)) if n > 1 else 1
+
+
 def per_point(drive: dict[str, Any], scores: np.ndarray, *, nats: bool) -> np.ndarray:
     """Scores per viewframe ``(T, V)`` of a :func:`ranked_drive` as scores per route point ``(T, N)``
     by the tracker's rule (:func:`knowledge_sources.tracker.by_route_point`: ``nats``, a point's
@@ -135,17 +142,21 @@ def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np
     log posterior in nats, which orders the viewframes as the fused ranking does (for a drive
     without the skyline: the memory's weighted robust z-scores, an affine map of its errors).
     With viewframes between the route points, ``point`` says how a route point's fused value
-    comes from its viewframes': ``"total"`` their total probability (the tracker's rule),
-    ``"best"`` its best viewframe's (the scene analysis's rule, knowledge_sources.scheduler)."""
+    comes from its viewframes': ``"total"`` their total probability (the tracker's rule with
+    ``tracking.evidence: points``), ``"best"`` its best viewframe's (the scene analysis's rule,
+    knowledge_sources.scheduler); ``"view"``: per viewframe ``(T, V)``, not reduced (the
+    tracker's observation with ``evidence: views``, the default)."""
     from knowledge_sources.fusion import fused_log_posterior
     from models.scenario import MemorySpec, SkylineSpec
 
     if observe not in OBSERVE:
         raise ValueError(f"observe must be one of {OBSERVE}, not {observe!r}")
+    if point not in ("total", "best", "view"):
+        raise ValueError(f"point must be 'total', 'best' or 'view', not {point!r}")
     v = np.asarray(drive["variances"], dtype=np.float64)
     sky = drive.get("skyline")
     if observe == "associative":
-        return per_point(drive, v, nats=False)
+        return v if point == "view" else per_point(drive, v, nats=False)
     n = v.shape[1]
     labels = np.arange(n)
     weights = {
@@ -161,6 +172,4 @@ def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np
             per[src] = (labels[ok].tolist(), errors[t][ok].tolist())
         lab, log_p = fused_log_posterior(per, weights={s: weights[s] for s in per})
         out[t] = ranking_vector(lab.tolist(), (-log_p).tolist(), n)
-    if point not in ("total", "best"):
-        raise ValueError(f"point must be 'total' or 'best', not {point!r}")
-    return per_point(drive, out, nats=point == "total")
+    return out if point == "view" else per_point(drive, out, nats=point == "total")

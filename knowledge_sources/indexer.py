@@ -18,6 +18,7 @@ from knowledge_sources.ranker import RouteRanker
 
 if TYPE_CHECKING:
     from models.associative import Ranking
+    from models.coarse import MemoryCoarse
     from models.index import ViewframeIndex
     from models.scenario import MemorySpec
 
@@ -75,6 +76,14 @@ class AssociativeIndexer(RouteRanker):
     The indexer never waits for a track: a dead or late tracker costs the window, never a
     ranking. So which frames get the window depends on timing: frames paced as a camera's are
     ranked after the previous frame's track, frames posted in a burst mostly before it.
+
+    The coarse stage: a frame ranked in full (no window) is first compared with every viewframe of
+    the shard by :class:`models.coarse.MemoryCoarse` (the memory's low-passed similarity on a
+    truncated spectrum at a grid of lags, its rows made once as the index is built or loaded:
+    6.2 KB a viewframe),
+    and only the ``memory.coarse_candidates`` best are ranked (``among`` them); the ranking holds
+    those. A shard holding no more viewframes than that, or ``coarse_candidates`` null, ranks
+    every one.
     """
 
     produces: ClassVar[tuple[str, ...]] = (levels.RANKING, levels.INDEX)
@@ -110,6 +119,8 @@ class AssociativeIndexer(RouteRanker):
         #: the shard's index was loaded from a stored copy (set by build)
         self.loaded = False
         self._held: np.ndarray | None = None  # the viewframes the index holds, sorted (set by build)
+        self._coarse: MemoryCoarse | None = None  # the coarse stage (set by build; None: every frame in full)
+        self._coarse_k = 0
 
     def mine(self, index: int) -> bool:
         """Viewframe ``index`` is of this shard."""
@@ -164,6 +175,7 @@ class AssociativeIndexer(RouteRanker):
         self._index = index
         self._held = np.sort(index.viewframes)
         self._images.clear()
+        self._build_coarse(index)
         stored = len(mine) - len(index.featureless)
         levels.post(
             board,
@@ -186,6 +198,26 @@ class AssociativeIndexer(RouteRanker):
                 index.featureless[:20],
             )
         return index.settings
+
+    def _build_coarse(self, index: ViewframeIndex) -> None:
+        """The coarse stage's rows, when ``memory.coarse_candidates`` is fewer than the shard holds;
+        a stored index's rows are read once for them (while at most :data:`MAPPED_RANKINGS` shards
+        of this process map theirs, then given back, as after a ranking)."""
+        from models.coarse import MemoryCoarse
+
+        k = index.settings.coarse_candidates
+        self._coarse, self._coarse_k = None, 0
+        if k is None or len(index) <= k:
+            return
+        if self.loaded:
+            with _MAPPED:
+                try:
+                    self._coarse = MemoryCoarse(index.memory)
+                finally:
+                    self._release_rows()
+        else:
+            self._coarse = MemoryCoarse(index.memory)
+        self._coarse_k = int(k)
 
     def _release_rows(self) -> None:
         """A stored index's ranking rows are memory-mapped from its file: the pages a ranking read
@@ -214,6 +246,20 @@ class AssociativeIndexer(RouteRanker):
             finally:
                 self._release_rows()
 
+    def _coarse_ranked(self, image: np.ndarray) -> Ranking:
+        """The ranking of ``image`` among the coarse stage's candidates: the frame's pattern and key
+        are made once, the coarse rows (in memory) give the ``coarse_candidates`` best, and only
+        their ranking rows are read (with the roll search, for each turned query) (not waiting for :data:`MAPPED_RANKINGS`: a few rows, not the
+        shard's; a stored index's pages are given back after)."""
+        assert self._index is not None and self._coarse is not None
+        pattern = self._index.pattern(image)
+        among = self._coarse.candidates(self._index.memory.banks[0].query_key(pattern), k=self._coarse_k)
+        try:  # the candidates ranked with the roll search (memory.roll_search_deg), the pattern not made again
+            return self._index.rank(image, among=among, pattern=pattern)
+        finally:
+            if self.loaded:
+                self._release_rows()
+
     def holds_any(self, window: tuple[int, int]) -> bool:
         """The index holds a viewframe of ``window`` (``(first, last)`` viewframes, inclusive)."""
         assert self._held is not None
@@ -229,6 +275,8 @@ class AssociativeIndexer(RouteRanker):
             # outside the track window: the empty ranking at once, not waiting for the stored
             # shards' turn (:data:`MAPPED_RANKINGS`) nor mapping rows: on a long route most shards are here
             ranking = merge_rankings([])
+        elif window is None and self._coarse is not None:
+            ranking = self._coarse_ranked(frame.image)
         else:
             ranking = self._ranked(frame.image, None if window is None else np.arange(window[0], window[1] + 1))
         levels.post(

@@ -9,7 +9,10 @@ scheduler's own rule (same weights): with ``tracking.scores: nats`` (the default
 fusion's negative log posterior of each viewframe
 (:func:`knowledge_sources.fusion.shards_log_posterior`), with ``robust`` the fused scores of
 :func:`knowledge_sources.fusion.fuse_shards` as the scheduler has them, so the track and the
-single-frame decision rest on the same ranking. For each frame it posts a ``track`` hypothesis: the
+single-frame decision rest on the same ranking. With viewframes between the route points
+and ``tracking.evidence: views`` (the default) each viewframe's evidence stands at its own arc
+length (:attr:`models.tracking.RouteFilter.observes_views`), else its route point's total
+(:func:`by_route_point`). For each frame it posts a ``track`` hypothesis: the
 route point, arc length, ``(x, y)``, heading, confidence, ``tracking``/``lost`` state, the
 posterior mass of each route point (``belief``), the predicted probability of each route point for the next frame (``prior_next``, which the
 scheduler uses to condition the next frame's questions), the frame's per-route-point evidence
@@ -36,7 +39,7 @@ from knowledge_sources import levels
 if TYPE_CHECKING:
     from models.tracking import RouteFilter
 
-__all__ = ["Tracker", "FrameOrder", "by_route_point"]
+__all__ = ["Tracker", "FrameOrder", "by_route_point", "views_per_leg_of"]
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +145,22 @@ def by_route_point(
     return list(out), list(out.values())
 
 
+def views_per_leg_of(mp: levels.Map) -> int:
+    """The map's viewframes per leg F (:func:`models.route_views.view_route`: V = F (N - 1) + 1
+    viewframes, their route points :func:`models.route_views.view_points`); 1 when they are the
+    route points or do not stand on the route that way (then the tracker observes route points,
+    by :func:`by_route_point`)."""
+    from models.route_views import view_points
+
+    rp, n = mp.route_points, len(mp.route)
+    if rp is None or n < 2 or (rp.size - 1) % (n - 1):
+        return 1
+    f = (rp.size - 1) // (n - 1)
+    if f < 2 or not np.array_equal(view_points(n, f), rp):
+        return 1
+    return f
+
+
 def answers_of(steps: list[dict[str, Any]]) -> list[tuple[str, bool]]:
     """The landmark answers (landmark, present) of a position's steps; undecided ones left out."""
     return [(s["landmark"], bool(s["present"])) for s in steps if s.get("present") is not None]
@@ -220,7 +239,7 @@ class Tracker(KnowledgeSource):
 
         if self._filter is not None:
             return
-        self._filter = RouteFilter(mp.route, spec=self.spec)
+        self._filter = RouteFilter(mp.route, spec=self.spec, views_per_leg=views_per_leg_of(mp))
         self._route_points = mp.route_points
         visible = mp.visible_sets(min_pixels=self.min_pixels)
         if mp.route_points is not None:  # viewframes between the route points: a point sees what its views see
@@ -247,7 +266,7 @@ class Tracker(KnowledgeSource):
         else:  # the scheduler's fused ranking as it is (scores standardised by the filter)
             fused = fuse_shards(shards, weights=self.sources)
             viewframes, scores = [k for k, _ in fused], [e for _, e in fused]
-        if self._route_points is not None:
+        if self._route_points is not None and not f.observes_views:
             viewframes, scores = by_route_point(viewframes, scores, self._route_points, nats=self.spec.scores == "nats")
         ll = f.route_loglik(
             viewframes,

@@ -249,11 +249,12 @@ class ViewframeIndex:
         if next(source, None) is not None:
             raise AssociativeMemoryError(f"write: more patterns than the {len(vfs)} viewframes")
 
-    def rank(self, image: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
+    def rank(self, image: ArrayLike, *, among: ArrayLike | None = None, pattern: ArrayLike | None = None) -> Ranking:
         """Every stored viewframe (or those ``among`` the viewframe indices given:
         :meth:`models.associative.BankedMemory.rank`) ordered by the error variance of
         ``image``'s recall, best first. ``among`` naming none of the stored viewframes: the empty
-        ranking, without preprocessing the image (a shard outside a track window).
+        ranking, without preprocessing the image (a shard outside a track window). ``pattern``:
+        ``image``'s own :meth:`pattern`, when the caller made it already (not made again).
 
         The roll search (``roll_search_deg`` of the settings): ``image`` (H, W[, C], indexed
         (row, col)) is ranked turned by each of those rolls about its centre
@@ -262,13 +263,17 @@ class ViewframeIndex:
         across banks and shards."""
         if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
             return merge_rankings([])
-        rolls = self.settings.roll_search_deg
-        if tuple(rolls) == (0.0,):
-            return self.memory.rank(self.pattern(image), among=among)
         from models.derotate import rolled
 
         img = np.asarray(image)
-        return best_of_rankings([self.memory.rank(self.pattern(rolled(img, a)), among=among) for a in rolls])
+
+        def query(roll: float) -> ArrayLike:
+            return pattern if roll == 0.0 and pattern is not None else self.pattern(rolled(img, roll))
+
+        rolls = tuple(self.settings.roll_search_deg)
+        if rolls == (0.0,):
+            return self.memory.rank(query(0.0), among=among)
+        return best_of_rankings([self.memory.rank(query(a), among=among) for a in rolls])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""

@@ -27,6 +27,7 @@ if TYPE_CHECKING:
 __all__ = [
     "view_count",
     "view_route",
+    "view_points",
     "view_poses",
     "route_points_of",
     "view_on_point",
@@ -61,12 +62,23 @@ def view_route(route: ArrayLike, views_per_leg: int = 1) -> tuple[np.ndarray, np
     if f == 1 or len(pts) < 2:
         return pts.copy(), heads, np.arange(len(pts), dtype=np.int64)
     t = np.arange(f, dtype=np.float64) / f
-    legs = len(pts) - 1
     xy = (pts[:-1, None, :] + t[None, :, None] * (pts[1:] - pts[:-1])[:, None, :]).reshape(-1, 2)
     xy = np.vstack([xy, pts[-1:]])
     heading = np.append(np.repeat(heads[:-1], f), heads[-1])
-    point = np.append((np.arange(legs)[:, None] + (t[None, :] > 0.5)).ravel(), legs).astype(np.int64)
-    return xy, heading, point
+    return xy, heading, view_points(len(pts), f)
+
+
+def view_points(points: int, views_per_leg: int = 1) -> np.ndarray:
+    """The route point of each viewframe ``(V,)`` of a route of ``points`` route points
+    (:func:`view_route`'s third array, without the route: on the leg from k to k + 1 the views up
+    to half of it are k's, those beyond k + 1's)."""
+    f, legs = int(views_per_leg), int(points) - 1
+    if f < 1:
+        raise ValueError(f"views_per_leg must be >= 1, got {views_per_leg}")
+    if f == 1 or legs < 1:
+        return np.arange(max(int(points), 0), dtype=np.int64)
+    t = np.arange(f, dtype=np.float64) / f
+    return np.append((np.arange(legs)[:, None] + (t[None, :] > 0.5)).ravel(), legs).astype(np.int64)
 
 
 def view_poses(scenario: Scenario, terrain: Terrain) -> list[Pose]:

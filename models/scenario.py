@@ -374,6 +374,16 @@ class MemorySpec(_Spec):
     the evidence against it. Short routes always rank everything: there the full ranking is
     cheap, and a window can only lose evidence.
 
+    The coarse stage: a frame ranked in full (no track window) is first compared, in each shard,
+    with every viewframe of the shard by the memory's own low-passed similarity on the few
+    spectral bins the blur leaves, over a coarse grid of shifts (:class:`models.coarse.MemoryCoarse`),
+    and only the shard's ``coarse_candidates`` best are ranked in full (null: every viewframe);
+    the shard's ranking holds those, as a window's ranking holds the window's viewframes. A
+    shard of no more viewframes (the evaluation set's routes of 32), and a track window's frames,
+    are ranked in full. 32 is the fewest whose candidates held the full ranking's first for 99.5 %
+    of the frames of the evaluation set's tuning split with its four routes pooled in one index
+    (``bench/coarse.py --memory tuning``; BENCHMARKS.md, "Associative coarse stage").
+
     The defaults were chosen on the tuning split of the evaluation set (``bench/evalset``,
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
@@ -409,6 +419,7 @@ class MemorySpec(_Spec):
     window_route_points: int | None = Field(default=2000, ge=1, le=MAX_ROUTE_POINTS)
     window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
+    coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
     roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
 
     @field_validator("roll_search_deg")
@@ -704,31 +715,63 @@ class TrackingSpec(_Spec):
     the parameters were measured on the fused ranking of the evaluation set's tuning split
     (maximum likelihood, then the tracked top-1 over a grid; ``gain`` fixed; ``spread`` and
     ``speed_persistence`` refitted with three viewframes a leg on the tuning drives;
-    bench/tracking_calibrate.py, BENCHMARKS.md). ``reliability``: assumed landmark
+    bench/tracking_calibrate.py, BENCHMARKS.md). ``evidence``: where a ranking's evidence stands
+    along the route with viewframes between the route points: ``views``, each viewframe's at its
+    own arc length (the default), or ``points``, its viewframes' total lumped at the route point
+    (the tracker before session 10, which threw away where along a leg the ranking puts the
+    camera). ``outlier`` > 0: the likelihood is the mixture ``(1 - outlier) D(s) + outlier / length``
+    of the frame's density over arc length ``D`` (the evidence weights ``exp(-z / temperature)``
+    normalised, each spread by its Gaussian) and a uniform one (a frame whose ranking says nothing
+    about where the camera is: ``eps`` is then unused); 0 is the floor ``eps_f`` above, as before.
+    ``temperature`` 0.67, ``spread`` 0.2, ``outlier`` 0.03 and ``evidence: views`` were chosen
+    together on the TUNING drives only (session 10, issue 9; BENCHMARKS.md "Session 10: the
+    tracker's observation, sharper and where its views stand"): the fused posterior taken at
+    temperature 1 is under-confident (its route points of probability 0.3-0.5 are right 46-64 % of
+    the time, those of 0.01-0.03 only 0.1-0.3 %), its maximum-likelihood sharpening with a uniform
+    outlier part is temperature 0.33-0.38 with an outlier weight of 1 % (over-confident for
+    tracking: consecutive frames' errors are correlated), and the tracked top-1 of every tuning
+    source is on a plateau at temperature 0.5-0.67, outlier 0.01-0.03, spread 0.2 (route
+    spacings) with the evidence at the viewframes; of it 0.67, the softer end, because at 0.5 a
+    stop with every third ranking confidently wrong (tests/models/test_tracking.py) drifts onto
+    the wrong point. ``reliability``: assumed landmark
     detector reliability for the scene analysis's answers. State: ``tracking`` from a confidence
     (posterior mass on the chosen route point) of ``enter`` on, ``lost`` below ``exit``.
-    ``smoothing``: offline forward-backward over the whole drive (frames from files).
+    ``smoothing``: offline forward-backward over the whole drive (frames from files), with the
+    plain kernel (``smoother: plain``) or over the joint (speed class, cell) state of the speed
+    state (``speed``; :func:`models.tracking.smooth`). ``plain`` is the default because on the
+    TUNING drives the joint smoother was right less often (pooled 75.2 against 76.4 %, session
+    10, helper trackgap; on synthetic drives whose speed persists it is the better one).
+    ``max_skip_points`` 5 and ``p_skip`` 0.3 (were 6 and 0.15; session 10, trackgap): the
+    one-step maximum likelihood of the kernel at the true moves of the tuning drives (evaluation
+    set tuning split and its extra tuning drives, 484 moves; bench/tracking_calibrate.py's
+    simulated drives, 284) is at a skip bound of 5 spacings, flat in ``p_skip`` over 0.15-0.3
+    (within 0.012 nats a move); of that range the tracked top-1 of the tuning sources is best at
+    0.3 (pooled 74.7 against 73.8 %, kidnaps and sweeps no worse; BENCHMARKS.md "Session 10:
+    gaps, the route's end and the smoother").
     """
 
     enabled: bool = True
     smoothing: bool = False
+    smoother: Literal["plain", "speed"] = "plain"
     cell_m: float = Field(default=2.0, gt=0, le=MAX_SIZE_M)
     tail: float = Field(default=0.5, ge=0, le=100)
     max_speed_mps: float = Field(default=30.0, gt=0, le=MAX_SPEED_MPS)
     cruise_points: float = Field(default=2.0, gt=0, le=MAX_ROUTE_POINTS)
-    max_skip_points: float = Field(default=6.0, gt=0, le=MAX_ROUTE_POINTS)
-    p_skip: float = Field(default=0.15, ge=0, le=1)
+    max_skip_points: float = Field(default=5.0, gt=0, le=MAX_ROUTE_POINTS)
+    p_skip: float = Field(default=0.3, ge=0, le=1)
     p_stop: float = Field(default=0.1, ge=0, lt=1)
     p_reverse: float = Field(default=0.02, ge=0, lt=1)
     reverse_m: float = Field(default=10.0, ge=0, le=MAX_COORD_M)
     p_kidnap: float = Field(default=0.02, ge=0, lt=1)
     speed_persistence: float = Field(default=0.3, ge=0, lt=1)
     speed_walk: float = Field(default=0.25, ge=0, le=1)
-    temperature: float = Field(default=1.0, gt=0, le=1000)
+    temperature: float = Field(default=0.67, gt=0, le=1000)
     gain: float = Field(default=0.0, ge=-100, le=100)
     eps: float = Field(default=1e-4, ge=0, le=1)
     margin_scale: float = Field(default=0.0, ge=0, le=1000)
-    spread: float = Field(default=0.3, ge=0, le=1000)
+    spread: float = Field(default=0.2, ge=0, le=1000)
+    outlier: float = Field(default=0.03, ge=0, lt=1)
+    evidence: Literal["views", "points"] = "views"
     scores: Literal["nats", "robust"] = "nats"
     reliability: float = Field(default=0.8, gt=0.5, lt=1)
     enter: float = Field(default=0.5, gt=0, le=1)

@@ -21,7 +21,8 @@ SMALL = {
     "route": [[220, 260], [260, 290], [300, 300], [340, 320], [380, 350], [420, 370], [460, 400], [500, 420]],
     "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
     "sensor": {"simulate": {"per_point": 1, "jitter_m": 0.5, "jitter_deg": 1.0, "advance": 0.05}},
-    "scheduler": {"query_timeout_s": 3.0},
+    # the scheduler's own query timeout (10 s): a question answered late on a loaded machine is
+    # still answered, so one run's results equal another's; tests of dead agents set a short one
     # a viewframe per route point: the agents' tests count and index them by route point;
     # viewframes between the points (the default on short routes) in test_views.py
     "render": {"views_per_leg": 1},

@@ -308,3 +308,62 @@ def test_stored_shards_of_one_process_rank_a_few_at_a_time(small_rendered: dict,
             t.join()
         assert most[0] == bound and len(got) == 3
         assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
+
+
+def test_a_frame_ranked_in_full_ranks_the_coarse_candidates_only(small_rendered: dict, tmp_path: Path) -> None:
+    """``memory.coarse_candidates`` k: a frame without a track window is ranked among the shard's
+    k best by the coarse stage (the ranking holds those k, its first the full ranking's: each
+    frame is a viewframe), built and loaded alike; a windowed frame is ranked in full within the
+    window; k at least the shard's viewframes ranks every one."""
+    from models.coarse import MemoryCoarse
+    from models.index import ViewframeIndex
+
+    entry = _entry_copy(small_rendered, tmp_path)
+    n = len(small_rendered["viewframes"])
+    _, full = _run_shards(small_rendered, entry, 1, viewframes=True, coarse_candidates=None)
+    other = _entry_copy(small_rendered, tmp_path / "other")
+    (built,), got = _run_shards(small_rendered, other, 1, viewframes=True, coarse_candidates=3)
+    (loaded,), again = _run_shards(small_rendered, entry, 1, viewframes=False, coarse_candidates=3)
+    assert not built.loaded and loaded.loaded and isinstance(loaded._coarse, MemoryCoarse)
+    plain = ViewframeIndex(small_rendered["map"].body["memory"])
+    images = [levels.Viewframe.from_hypothesis(h).pixels(agent="test").image for h in small_rendered["viewframes"]]
+    plain.add(images, range(n))
+    coarse = MemoryCoarse(plain.memory)
+    for f in range(n):
+        r = got[(f, 0)]
+        assert len(r.viewframes) == 3 and r.viewframes[0] == f == full[(f, 0)].viewframes[0]
+        pattern = plain.pattern(images[f])
+        among = coarse.candidates(plain.memory.banks[0].query_key(pattern), k=3)  # of the frame as it is
+        want = plain.rank(images[f], among=among, pattern=pattern)  # with the memory's roll search
+        assert r.viewframes == want.viewframes.tolist()
+        np.testing.assert_allclose(r.variances, want.variances, rtol=1e-5, atol=1e-9)
+        assert again[(f, 0)].viewframes == r.viewframes
+    (wide,), every = _run_shards(small_rendered, entry, 1, viewframes=False, coarse_candidates=n)
+    assert wide._coarse is None and all(every[k].viewframes == full[k].viewframes for k in full)
+    # a windowed frame: the window's viewframes in full, not the coarse stage's
+    bb = MemoryBlackboard()
+    ix = AssociativeIndexer("indexer-0", tracked=True, keep_images=True)
+    bb.add(ix)
+    post_map(bb, small_rendered, window_route_points=n, window_margin=1, window_full_every=10, coarse_candidates=1)
+    bb.run()
+    frames_from_viewframes(bb, small_rendered, [0])
+    bb.run()
+    levels.post(bb.user, track(0, "tracking", 4, n))
+    bb.run()
+    frames_from_viewframes(bb, small_rendered, [1])
+    bb.run()
+    first, second = (levels.Ranking.from_hypothesis(bb.user.get(levels.ranking_id(f, 0))) for f in (0, 1))
+    assert first.viewframes == [0] and ix.windows[1] == (3, 5) and sorted(second.viewframes) == [3, 4, 5]
+
+
+@needs_smaps
+def test_the_coarse_stage_of_a_stored_index_leaves_none_of_its_rows_resident(
+    small_rendered: dict, tmp_path: Path
+) -> None:
+    """The coarse rows are made from a loaded shard's memory-mapped ranking rows once, which are
+    then given back, and a coarse ranking gives back the candidates' rows it read."""
+    entry = _entry_copy(small_rendered, tmp_path)
+    _run_shards(small_rendered, entry, 1, viewframes=True, coarse_candidates=3)
+    (ix,), got = _run_shards(small_rendered, entry, 1, viewframes=False, coarse_candidates=3)
+    assert ix.loaded and ix._coarse is not None and all(len(r.viewframes) == 3 for r in got.values())
+    assert resident_kb(int(ix._index.memory.ranking_matrix.ctypes.data)) == 0

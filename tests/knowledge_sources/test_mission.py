@@ -69,10 +69,16 @@ def test_results_follow_the_contract_and_round_trip(small, small_data, tmp_path)
     assert llrs and any(abs(abs(v) - implied) > 1e-3 for v in llrs), llrs
 
 
-@pytest.mark.parametrize("views", [1, 3], ids=["a-view-a-point", "views-between-points"])
-def test_same_results_in_one_process_and_in_processes(small_data, tmp_path, views):
+@pytest.mark.parametrize(
+    "views, memory",
+    [(1, {}), (3, {}), (1, {"shard_size": 4, "coarse_candidates": 2})],
+    ids=["a-view-a-point", "views-between-points", "coarse-stage-shards"],
+)
+def test_same_results_in_one_process_and_in_processes(small_data, tmp_path, views, memory):
     small = tmp_path / "small.yaml"
-    small.write_text(yaml.safe_dump({**small_data, "render": {"views_per_leg": views}}))
+    data = {**small_data, "render": {"views_per_leg": views}}
+    data["memory"] = {**data.get("memory", {}), **memory}  # coarse: two shards, each ranks its 2 best of 4
+    small.write_text(yaml.safe_dump(data))
     a = run_mission(small)
     b = run_mission(small, processes=True)
     keys = ("frame", "viewframe", "view", "queries", "backtracks", "correct")
@@ -91,8 +97,10 @@ def test_associative_asks_fewer_questions_than_prior(small):
     assert a["summary"]["mean_queries"] < p["summary"]["mean_queries"]
 
 
-def test_killed_detector_gives_degraded_result_and_complete_trace(small, small_data, tmp_path):
+def test_killed_detector_gives_degraded_result_and_complete_trace(small_data, tmp_path):
     SMALL = small_data
+    small = tmp_path / "small.yaml"  # its questions to the dead detector time out after 3 s
+    small.write_text(yaml.safe_dump({**small_data, "scheduler": {"query_timeout_s": 3.0}}))
     trace = tmp_path / "killed.trace"
     results = run_mission(
         small, processes=True, trace_path=trace, kill_after=("detector-house", "sensor_frame", 1), timeout_s=120
@@ -106,8 +114,10 @@ def test_killed_detector_gives_degraded_result_and_complete_trace(small, small_d
     # questions addressed to the dead detector time out with its name, and the frames say so
     timed_out = [r for r in records if r["kind"] == "timeout"]
     degraded = [f for f in results["frames"] if f.get("degraded")]
-    assert timed_out and all("detector-house" in r.get("reason", "") for r in timed_out)
-    assert degraded and all("detector-house" in " ".join(f["degraded"]) for f in degraded)
+    assert [r for r in timed_out if "detector-house" in r.get("reason", "")], timed_out
+    assert [f for f in degraded if "detector-house" in " ".join(f["degraded"])], degraded
+    # on a loaded machine a live detector's answer can come after 3 s too: then its own name is given
+    assert all(r.get("reason") for r in timed_out) and all(f["degraded"] for f in degraded)
     assert all(f["viewframe"] is not None for f in results["frames"])  # decided by the ranking and the rest
 
 

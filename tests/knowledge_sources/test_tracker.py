@@ -325,3 +325,36 @@ def test_a_late_tracker_costs_the_frames_it_missed_and_then_tracks_again(tmp_pat
     after = [f for f in frames if f["frame"] > max(blind)]
     assert after and all(f["track_prior"] for f in after), [(f["frame"], f["track_prior"]) for f in after]
     assert not any(d.startswith("agent tracker dead") for d in results["degraded"])
+
+
+def test_the_tracker_observes_the_viewframes_where_they_stand():
+    """``views_per_leg_of``: a map with F viewframes a leg (models.route_views) gives F, so the
+    tracker's filter observes each viewframe at its own arc length; one a point, or route points
+    that are not the views' layout, give 1 (the route points' totals, as before)."""
+    import numpy as np
+
+    from knowledge_sources import levels
+    from knowledge_sources.tracker import views_per_leg_of
+    from models.route_views import view_points
+
+    route = [(0.0, 0.0), (40.0, 0.0), (80.0, 0.0), (120.0, 0.0)]
+
+    def map_of(route_points):
+        views = len(route) if route_points is None else len(route_points)
+        return levels.Map.of(
+            scenario="s",
+            path="/nonexistent/s.yaml",
+            priors={},
+            landmarks=[],
+            route=route,
+            poses=[[0.0, 0.0, 2.0, 0.0, 0.0]] * views,
+            visible={},
+            memory={},
+            route_points=route_points,
+        )
+
+    assert views_per_leg_of(map_of(None)) == 1
+    assert views_per_leg_of(map_of(view_points(4, 3).tolist())) == 3
+    assert views_per_leg_of(map_of([0, 0, 1, 1, 2, 2, 3])) == 2  # two a leg: the second at half, still k's
+    assert views_per_leg_of(map_of([0, 1, 1, 1, 2, 2, 3])) == 1  # 7 views, not a layout of view_route
+    np.testing.assert_array_equal(view_points(4, 3), [0, 0, 1, 1, 1, 2, 2, 2, 3, 3])

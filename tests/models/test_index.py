@@ -95,6 +95,10 @@ def test_the_roll_search_keeps_each_viewframes_best_of_the_turned_queries() -> N
     assert got.best == 3
     # among a window: the same rule over the window's viewframes only
     assert set(index.rank(query, among=[1, 2, 3]).viewframes.tolist()) == {1, 2, 3}
+    # the frame's own pattern given (the indexer's coarse stage made it): the same ranking
+    again = index.rank(query, pattern=index.pattern(query))
+    assert again.viewframes.tolist() == got.viewframes.tolist()
+    np.testing.assert_allclose(again.variances, got.variances, rtol=1e-6)
 
 
 def test_best_of_rankings_of_partly_ranked_viewframes() -> None:

@@ -124,6 +124,7 @@ MALFORMED = [
     ("scheduler", {"max_position_llr": 50}, "scheduler.max_position_llr: must be <= 20"),
     ("scheduler", {"position_evidence": "maybe"}, "scheduler.position_evidence"),
     ("skyline", {"coarse_candidates": 0}, "skyline.coarse_candidates: must be >= 1"),
+    ("memory", {"coarse_candidates": 0}, "memory.coarse_candidates: must be >= 1"),
     ("skyline", {"coarse_candidates": 2.5}, "skyline.coarse_candidates: must be an integer"),
     ("expect", {"top1_min": 2}, "expect.top1_min: must be <= 1"),
     ("expect", {"top1_frame_only_min": 1.5}, "expect.top1_frame_only_min: must be <= 1"),
