@@ -249,13 +249,13 @@ class AssociativeIndexer(RouteRanker):
     def _coarse_ranked(self, image: np.ndarray) -> Ranking:
         """The ranking of ``image`` among the coarse stage's candidates: the frame's pattern and key
         are made once, the coarse rows (in memory) give the ``coarse_candidates`` best, and only
-        their ranking rows are read (not waiting for :data:`MAPPED_RANKINGS`: a few rows, not the
+        their ranking rows are read (with the roll search, for each turned query) (not waiting for :data:`MAPPED_RANKINGS`: a few rows, not the
         shard's; a stored index's pages are given back after)."""
         assert self._index is not None and self._coarse is not None
         pattern = self._index.pattern(image)
         among = self._coarse.candidates(self._index.memory.banks[0].query_key(pattern), k=self._coarse_k)
-        try:
-            return self._index.rank_pattern(pattern, among=among)
+        try:  # the candidates ranked with the roll search (memory.roll_search_deg), the pattern not made again
+            return self._index.rank(image, among=among, pattern=pattern)
         finally:
             if self.loaded:
                 self._release_rows()

@@ -28,12 +28,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from pydantic import ValidationError
 
-from models.associative import BankedMemory, Ranking, merge_rankings
+from models.associative import BankedMemory, Ranking, merge_rankings, reliability
 from models.errors import AssociativeMemoryError
 from models.preprocess import preprocess
 from models.scenario import MemorySpec
 
-__all__ = ["WINDOW_TAIL", "track_window", "widen_window", "TrackWindows", "ViewframeIndex", "memory_settings"]
+__all__ = [
+    "WINDOW_TAIL",
+    "track_window",
+    "widen_window",
+    "TrackWindows",
+    "ViewframeIndex",
+    "best_of_rankings",
+    "memory_settings",
+]
 
 log = logging.getLogger(__name__)
 
@@ -149,6 +157,24 @@ class TrackWindows:
         return widen_window(track[1], margin=self.margin, points=self.points)
 
 
+def best_of_rankings(rankings: Sequence[Ranking]) -> Ranking:
+    """One ranking of the same viewframes ranked several times (the roll search's queries): each
+    viewframe's smallest variance of them, best first; the reliability recomputed over those
+    (:func:`models.associative.reliability`). A viewframe ranked in only some of them keeps the
+    smallest of those."""
+    if not rankings:
+        return merge_rankings([])
+    vf = np.concatenate([r.viewframes for r in rankings])
+    var = np.concatenate([r.variances for r in rankings])
+    order = np.lexsort((var, vf))  # by viewframe, then variance: the first of each viewframe is its best
+    vf, var = vf[order], var[order]
+    first = np.ones(vf.size, dtype=bool)
+    first[1:] = vf[1:] != vf[:-1]
+    vf, var = vf[first], var[first]
+    best = np.lexsort((vf, var))  # the merged ranking's order: variance, then viewframe
+    return Ranking(vf[best], var[best], reliability(var))
+
+
 class ViewframeIndex:
     """Viewframes stored in a banked holographic memory, ranked for camera images.
 
@@ -223,14 +249,31 @@ class ViewframeIndex:
         if next(source, None) is not None:
             raise AssociativeMemoryError(f"write: more patterns than the {len(vfs)} viewframes")
 
-    def rank(self, image: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
+    def rank(self, image: ArrayLike, *, among: ArrayLike | None = None, pattern: ArrayLike | None = None) -> Ranking:
         """Every stored viewframe (or those ``among`` the viewframe indices given:
         :meth:`models.associative.BankedMemory.rank`) ordered by the error variance of
         ``image``'s recall, best first. ``among`` naming none of the stored viewframes: the empty
-        ranking, without preprocessing the image (a shard outside a track window)."""
+        ranking, without preprocessing the image (a shard outside a track window). ``pattern``:
+        ``image``'s own :meth:`pattern`, when the caller made it already (not made again).
+
+        The roll search (``roll_search_deg`` of the settings): ``image`` (H, W[, C], indexed
+        (row, col)) is ranked turned by each of those rolls about its centre
+        (:func:`models.derotate.rolled`), and each viewframe keeps its smallest error variance
+        of them (:func:`best_of_rankings`); the variances stay those of one recall, comparable
+        across banks and shards."""
         if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
             return merge_rankings([])
-        return self.memory.rank(self.pattern(image), among=among)
+        from models.derotate import rolled
+
+        img = np.asarray(image)
+
+        def query(roll: float) -> ArrayLike:
+            return pattern if roll == 0.0 and pattern is not None else self.pattern(rolled(img, roll))
+
+        rolls = tuple(self.settings.roll_search_deg)
+        if rolls == (0.0,):
+            return self.memory.rank(query(0.0), among=among)
+        return best_of_rankings([self.memory.rank(query(a), among=among) for a in rolls])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""

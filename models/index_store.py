@@ -79,6 +79,7 @@ NOT_IN_KEY = (
     "window_route_points",
     "window_margin",
     "window_full_every",
+    "roll_search_deg",
     "coarse_candidates",
 )
 _ARRAYS = ("rows", "viewframes", "bank_rows", "bank_energy_sq")

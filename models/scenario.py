@@ -109,6 +109,8 @@ MAX_ROUTE_POINTS = 1_000_000
 #: the memory's shift search reaches at most this many memory pixels (its lags are circular: a
 #: window of half the memory size or more covers every lag)
 MAX_SHIFT = 64
+#: the most roll angles the memory's match searches (MemorySpec.roll_search_deg): each is one more ranking
+MAX_ROLL_SEARCH = 9
 MAX_FRAMES = 1_000_000
 MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
 MAX_SPEED_MPS = 1000.0
@@ -386,7 +388,18 @@ class MemorySpec(_Spec):
     ``bench/ranking_sweep.py``; BENCHMARKS.md, "Associative ranking defaults"): one viewframe
     per bank (superposing two lost 3-6 points of ranking top-1 there), rows +-8 (pitch errors of
     up to 2 degrees plus eye-height and terrain differences; +-2 lost 8 points), columns +-16
-    (about 8 degrees of heading). ``weight`` is the associative ranking's weight in the fusion
+    (about 8 degrees of heading). ``roll_search_deg``: the camera image is matched turned by
+    each of these rolls (degrees, counter-clockwise as seen in the image, about its centre:
+    :func:`models.derotate.rolled`), and each viewframe keeps its best (smallest) error variance
+    of them: no shift undoes a roll, which tilts every edge (3 degrees move a 128-pattern's side
+    columns by about 3 rows against its centre, beyond the 1-pixel blur). Each angle costs one
+    more preprocessing and ranking of the frame; ``[0]`` is the plain match. The default
+    (-3, -1.5, 0, 1.5, 3), the larger pose-error profile's roll bound in steps of about the blur's
+    tolerance, was chosen on the tuning split with bench/tracking.py's extra tuning drives (640
+    frames, ``bench/pose_ablation.py --extra --rolls``): fused ranking top-1 0.589 -> 0.636 (top-5
+    0.928 -> 0.958) under the larger pose errors, 0.702 -> 0.705 (0.959 -> 0.972) under the
+    standard ones (BENCHMARKS.md, "Larger pose errors, component by component"). ``weight`` is
+    the associative ranking's weight in the fusion
     of ranking sources, in nats per robust z-score of its error variances
     (:mod:`knowledge_sources.fusion`), calibrated with the skyline's on the tuning split
     (``bench/fusion_sweep.py --fit``). Example::
@@ -407,6 +420,16 @@ class MemorySpec(_Spec):
     window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
     coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
+    roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
+
+    @field_validator("roll_search_deg")
+    @classmethod
+    def _rolls(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if not 1 <= len(value) <= MAX_ROLL_SEARCH or not all(math.isfinite(v) and abs(v) <= 45 for v in value):
+            raise ValueError(f"must be 1 to {MAX_ROLL_SEARCH} angles in degrees within [-45, 45]")
+        if len(set(value)) != len(value):
+            raise ValueError("must not repeat an angle")
+        return value
 
     @field_validator("max_shift")
     @classmethod

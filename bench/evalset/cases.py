@@ -35,6 +35,7 @@ __all__ = [
     "seeds",
     "ERROR_BOUNDS",
     "ERROR_PROFILES",
+    "ABLATION_COMPONENTS",
     "GENERATOR_VERSION",
     "default_out_dir",
     "one_view_a_point",
@@ -76,6 +77,21 @@ ERROR_PROFILES: dict[str, dict[str, float]] = {
         "roll_deg": 3.0,
     },
 }
+#: the pose-error components of the ``large`` profile, each alone (``large-<component>``: the
+#: standard bounds with that one component at the large profile's; the same seeds, so the same
+#: uniform draws scaled, e.g. ``large-pitch`` has the standard frames' along, lateral, heading and
+#: roll errors and their pitch errors times 1.5): where a larger profile's loss comes from
+#: (``bench/pose_ablation.py``; BENCHMARKS.md, "Larger pose errors, component by component")
+ABLATION_COMPONENTS: dict[str, str] = {
+    "along": "along_frac",
+    "lateral": "lateral_m",
+    "heading": "heading_deg",
+    "pitch": "pitch_deg",
+    "roll": "roll_deg",
+}
+ERROR_PROFILES.update(
+    {f"large-{name}": {**ERROR_BOUNDS, key: ERROR_PROFILES["large"][key]} for name, key in ABLATION_COMPONENTS.items()}
+)
 
 #: the scenario camera of every case (the viewframes' renderer); camera frames come at other sizes
 CAMERA = {

@@ -257,3 +257,36 @@ def test_one_view_a_point_pins_the_benchmarks_scenario_and_keeps_its_files(tmp_p
     pinned = one_view_a_point(sc)
     assert pinned.views_per_leg == 1 and sc.views_per_leg == 3
     assert len(World(pinned, cache=None).poses) == 3 and World(pinned, cache=None).terrain.heights.shape == (40, 40)
+
+
+@pytest.mark.parametrize("kind", ["sweep", "drive"])
+@pytest.mark.parametrize("component", ["along", "lateral", "heading", "pitch", "roll"])
+def test_a_component_profile_enlarges_that_component_alone(kind, component):
+    """``large-<component>`` (bench/pose_ablation.py's ablation): the standard poses with that one
+    error component drawn within the large profile's bound, every other component the same."""
+    from bench.evalset.cases import ABLATION_COMPONENTS
+
+    route = [(100.0 + 30 * i, 200.0 + 5 * math.sin(i / 3)) for i in range(120)]
+    bound = ABLATION_COMPONENTS[component]
+    profile = ERROR_PROFILES[f"large-{component}"]
+    assert {k for k in ERROR_BOUNDS if profile[k] != ERROR_BOUNDS[k]} == {bound}
+    assert profile[bound] == ERROR_PROFILES["large"][bound] > ERROR_BOUNDS[bound]
+
+    def poses(bounds):
+        rng = np.random.default_rng(5)
+        if kind == "sweep":
+            return _sweep_poses(route, 30.0, rng, bounds=bounds)
+        return _drive_poses(route, 30.0, rng, frames=120, kidnap=False, bounds=bounds)
+
+    got, base = poses(profile), poses(ERROR_BOUNDS)
+    field = {"along_frac": "along_frac", "lateral_m": "lateral", "heading_deg": "heading_error"}.get(
+        bound, bound.removesuffix("_deg")
+    )
+    if kind == "drive" and field == "along_frac":
+        field = "arc"  # a drive's along error is its walk: the same arc lengths
+        assert [p[field] for p in got] == [p[field] for p in base]
+        return
+    others = [f for f in ("lateral", "heading_error", "pitch", "roll", "eye") if f != field]
+    for f in others:
+        assert [p[f] for p in got] == pytest.approx([p[f] for p in base]), f
+    assert max(abs(p[field]) for p in got) > ERROR_BOUNDS[bound]

@@ -333,7 +333,8 @@ def test_a_frame_ranked_in_full_ranks_the_coarse_candidates_only(small_rendered:
         r = got[(f, 0)]
         assert len(r.viewframes) == 3 and r.viewframes[0] == f == full[(f, 0)].viewframes[0]
         pattern = plain.pattern(images[f])
-        want = plain.rank_pattern(pattern, among=coarse.candidates(plain.memory.banks[0].query_key(pattern), k=3))
+        among = coarse.candidates(plain.memory.banks[0].query_key(pattern), k=3)  # of the frame as it is
+        want = plain.rank(images[f], among=among, pattern=pattern)  # with the memory's roll search
         assert r.viewframes == want.viewframes.tolist()
         np.testing.assert_allclose(r.variances, want.variances, rtol=1e-5, atol=1e-9)
         assert again[(f, 0)].viewframes == r.viewframes

@@ -213,13 +213,13 @@ def test_expectations_judge_the_track_and_the_single_frames_apart():
 def test_no_track_equals_the_reference_results_of_the_code_before_tracking(tmp_path):
     """table_a (camera frames on file) with --no-track decides as the code before the tracker did
     (bench/reference/results_before.json, produced from 11d7ded by bench/compare_results.py), given
-    the memory settings of that code (max_shift [2, 16]: the default changed since; table_a sets its
-    own bank size) and its scene-analysis rule (hard backtracking, questions by probability: the
+    the memory settings of that code (max_shift [2, 16]: the default changed since; no roll search,
+    roll_search_deg [0]; table_a sets its own bank size) and its scene-analysis rule (hard backtracking, questions by probability: the
     default became soft backtracking and information-gain questions since)."""
     root = Path(__file__).resolve().parents[2]
     reference = json.loads((root / "bench" / "reference" / "results_before.json").read_text())
     data = yaml.safe_load((root / "scenarios" / "table_a.yaml").read_text())
-    data["memory"] = {**data.get("memory", {}), "max_shift": [2, 16]}
+    data["memory"] = {**data.get("memory", {}), "max_shift": [2, 16], "roll_search_deg": [0.0]}
     data["scheduler"] = {**data.get("scheduler", {}), "backtracking": "hard", "questions": "probability"}
     data["skyline"] = {"enabled": False}  # that code had one ranking source (the skyline merge added a second)
     data["render"] = {**data.get("render", {}), "views_per_leg": 1}  # and a viewframe per route point

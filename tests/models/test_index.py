@@ -57,7 +57,7 @@ def test_patterns_are_preprocess_with_the_settings(settings) -> None:
 def test_ranking_equals_the_memory_built_by_hand() -> None:
     rng = np.random.default_rng(11)
     images = [scene(rng) for _ in range(7)]
-    spec = MemorySpec(size=64, bank_size=3, max_shift=(1, 3))
+    spec = MemorySpec(size=64, bank_size=3, max_shift=(1, 3), roll_search_deg=(0.0,))  # the plain match
     index = ViewframeIndex(spec, seed=2)
     index.add(images, [10, 11, 12, 13, 14, 15, 16])
     assert len(index) == 7 and index.viewframes.tolist() == [10, 11, 12, 13, 14, 15, 16]
@@ -71,10 +71,55 @@ def test_ranking_equals_the_memory_built_by_hand() -> None:
     assert index.rank_pattern(index.pattern(query)).viewframes.tolist() == got.viewframes.tolist()
 
 
+def test_the_roll_search_keeps_each_viewframes_best_of_the_turned_queries() -> None:
+    """With ``roll_search_deg`` the ranking is, per viewframe, the smallest variance of the
+    rankings of the query turned by each roll (models.derotate.rolled), the same memory otherwise."""
+    from models.derotate import rolled
+    from models.index import best_of_rankings
+
+    rng = np.random.default_rng(12)
+    images = [scene(rng) for _ in range(6)]
+    rolls = (-3.0, 0.0, 3.0)
+    index = ViewframeIndex(MemorySpec(size=64, bank_size=2, max_shift=(2, 4), roll_search_deg=rolls), seed=1)
+    plain = ViewframeIndex(MemorySpec(size=64, bank_size=2, max_shift=(2, 4), roll_search_deg=(0.0,)), seed=1)
+    for ix in (index, plain):
+        ix.add(images, range(6))
+    query = rolled(images[3], 2.5)
+    got = index.rank(query)
+    parts = [plain.rank(rolled(query, a)) for a in rolls]
+    want = best_of_rankings(parts)
+    assert got.viewframes.tolist() == want.viewframes.tolist()
+    np.testing.assert_allclose(got.variances, want.variances, rtol=1e-6)
+    for k, v in zip(got.viewframes.tolist(), got.variances.tolist()):
+        assert v == pytest.approx(min(float(p.variances[p.viewframes == k][0]) for p in parts), rel=1e-6)
+    assert got.best == 3
+    # among a window: the same rule over the window's viewframes only
+    assert set(index.rank(query, among=[1, 2, 3]).viewframes.tolist()) == {1, 2, 3}
+    # the frame's own pattern given (the indexer's coarse stage made it): the same ranking
+    again = index.rank(query, pattern=index.pattern(query))
+    assert again.viewframes.tolist() == got.viewframes.tolist()
+    np.testing.assert_allclose(again.variances, got.variances, rtol=1e-6)
+
+
+def test_best_of_rankings_of_partly_ranked_viewframes() -> None:
+    from models.associative import Ranking
+    from models.index import best_of_rankings
+
+    a = Ranking(np.array([1, 2, 3]), np.array([0.3, 0.1, 0.5]))
+    b = Ranking(np.array([3, 4]), np.array([0.05, 0.2]))
+    got = best_of_rankings([a, b])
+    assert got.viewframes.tolist() == [3, 2, 4, 1]
+    assert got.variances.tolist() == [0.05, 0.1, 0.2, 0.3]
+    assert len(best_of_rankings([])) == 0
+
+
 @pytest.mark.parametrize(
     ("settings", "field"),
     [
         ({"size": 100}, "size"),
+        ({"roll_search_deg": []}, "roll_search_deg"),
+        ({"roll_search_deg": [0, 50]}, "roll_search_deg"),
+        ({"roll_search_deg": [1, 1]}, "roll_search_deg"),
         ({"max_shift": [2, 65]}, "max_shift"),
         ({"key": "linear"}, "key"),
         ({"bank_size": 0}, "bank_size"),
