@@ -260,7 +260,9 @@ class ViewframeIndex:
         (row, col)) is ranked turned by each of those rolls about its centre
         (:func:`models.derotate.rolled`), and each viewframe keeps its smallest error variance
         of them (:func:`best_of_rankings`); the variances stay those of one recall, comparable
-        across banks and shards."""
+        across banks and shards. With ``roll_shortlist`` K the turned images are ranked only among
+        the first match's best K (the match at roll 0 when it is searched; the others keep its
+        variance)."""
         if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
             return merge_rankings([])
         from models.derotate import rolled
@@ -273,7 +275,13 @@ class ViewframeIndex:
         rolls = tuple(self.settings.roll_search_deg)
         if rolls == (0.0,):
             return self.memory.rank(query(0.0), among=among)
-        return best_of_rankings([self.memory.rank(query(a), among=among) for a in rolls])
+        k = self.settings.roll_shortlist
+        first = 0.0 if 0.0 in rolls else rolls[0]  # the plain match, when it is searched
+        plain = self.memory.rank(query(first), among=among)
+        if k is None:
+            return best_of_rankings([plain, *(self.memory.rank(query(a), among=among) for a in rolls if a != first)])
+        short = plain.viewframes[:k]
+        return best_of_rankings([plain, *(self.memory.rank(query(a), among=short) for a in rolls if a != first)])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""

@@ -80,6 +80,7 @@ NOT_IN_KEY = (
     "window_margin",
     "window_full_every",
     "roll_search_deg",
+    "roll_shortlist",
     "coarse_candidates",
 )
 _ARRAYS = ("rows", "viewframes", "bank_rows", "bank_energy_sq")

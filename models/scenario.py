@@ -398,7 +398,13 @@ class MemorySpec(_Spec):
     tolerance, was chosen on the tuning split with bench/tracking.py's extra tuning drives (640
     frames, ``bench/pose_ablation.py --extra --rolls``): fused ranking top-1 0.589 -> 0.636 (top-5
     0.928 -> 0.958) under the larger pose errors, 0.702 -> 0.705 (0.959 -> 0.972) under the
-    standard ones (BENCHMARKS.md, "Larger pose errors, component by component"). ``weight`` is
+    standard ones (BENCHMARKS.md, "Larger pose errors, component by component").
+    ``roll_shortlist`` (default null: every viewframe ranked) is how many viewframes, the plain
+    match's best, the turned images are ranked among (the others keep the plain match's
+    variance), for large maps where the search's cost matters: on the 640 tuning frames 32 halve
+    the memory's time a frame (84 -> 42 ms) and lose part of the gain (fused top-1 0.705 -> 0.691
+    standard, 0.636 -> 0.625 larger errors; BENCHMARKS.md, "The roll search's shortlist").
+    ``weight`` is
     the associative ranking's weight in the fusion
     of ranking sources, in nats per robust z-score of its error variances
     (:mod:`knowledge_sources.fusion`), calibrated with the skyline's on the tuning split
@@ -421,6 +427,7 @@ class MemorySpec(_Spec):
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
     coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
     roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
+    roll_shortlist: int | None = Field(default=None, ge=1, le=MAX_ROUTE_POINTS)
 
     @field_validator("roll_search_deg")
     @classmethod

@@ -101,6 +101,39 @@ def test_the_roll_search_keeps_each_viewframes_best_of_the_turned_queries() -> N
     np.testing.assert_allclose(again.variances, got.variances, rtol=1e-6)
 
 
+@pytest.mark.parametrize("shortlist", [1, 2, 4, 8])
+def test_the_roll_search_ranks_the_turned_queries_among_the_plain_matchs_shortlist(shortlist: int) -> None:
+    """``roll_shortlist`` K: the plain match's first K viewframes take their best over every roll,
+    the others keep the plain match's variance; the turned queries are not ranked beyond K."""
+    from models.derotate import rolled
+
+    rng = np.random.default_rng(13)
+    images = [scene(rng) for _ in range(8)]
+    rolls = (-3.0, 0.0, 3.0)
+    spec = {"size": 64, "bank_size": 2, "max_shift": (2, 4)}
+    index = ViewframeIndex(MemorySpec(**spec, roll_search_deg=rolls, roll_shortlist=shortlist), seed=1)
+    plain = ViewframeIndex(MemorySpec(**spec, roll_search_deg=(0.0,)), seed=1)
+    for ix in (index, plain):
+        ix.add(images, range(8))
+    query = rolled(images[5], 2.5)
+    base = plain.rank(query)
+    turned = [plain.rank(rolled(query, a)) for a in (-3.0, 3.0)]
+    got = index.rank(query)
+    assert sorted(got.viewframes.tolist()) == list(range(8))
+    head = set(base.viewframes[:shortlist].tolist())
+    for k, v in zip(got.viewframes.tolist(), got.variances.tolist()):
+        own = float(base.variances[base.viewframes == k][0])
+        if k in head:
+            best = min([own, *(float(t.variances[t.viewframes == k][0]) for t in turned)])
+            assert v == pytest.approx(best, rel=1e-6)
+        else:
+            assert v == pytest.approx(own, rel=1e-6)
+    if shortlist == 8:  # a shortlist as long as the shard: the whole roll search
+        whole = ViewframeIndex(MemorySpec(**spec, roll_search_deg=rolls, roll_shortlist=None), seed=1)
+        whole.add(images, range(8))
+        np.testing.assert_allclose(whole.rank(query).variances, got.variances, rtol=1e-6)
+
+
 def test_best_of_rankings_of_partly_ranked_viewframes() -> None:
     from models.associative import Ranking
     from models.index import best_of_rankings
@@ -120,6 +153,7 @@ def test_best_of_rankings_of_partly_ranked_viewframes() -> None:
         ({"roll_search_deg": []}, "roll_search_deg"),
         ({"roll_search_deg": [0, 50]}, "roll_search_deg"),
         ({"roll_search_deg": [1, 1]}, "roll_search_deg"),
+        ({"roll_shortlist": 0}, "roll_shortlist"),
         ({"max_shift": [2, 65]}, "max_shift"),
         ({"key": "linear"}, "key"),
         ({"bank_size": 0}, "bank_size"),
