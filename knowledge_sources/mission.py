@@ -43,6 +43,7 @@ from knowledge_sources import levels
 from knowledge_sources.errors import UsageError
 from knowledge_sources.results import add_map_coordinates, frame_record, summarize, with_track
 from knowledge_sources.scheduler import detector_name
+from models.blas import single_blas_thread
 from models.errors import ScenarioError
 from models.preflight import check_scenario, frame_count
 from models.route_views import route_points_of, view_count
@@ -237,9 +238,9 @@ def run_mission(
 ) -> dict[str, Any]:
     """Localize every camera frame of ``scenario`` through the blackboard; returns the results dict.
 
-    Meanwhile numpy's BLAS runs one thread per call in this process and in the agents' processes
-    (:func:`models.blas.single_blas_thread`; unless ``OPENBLAS_NUM_THREADS`` or ``OMP_NUM_THREADS``
-    is set): the agents share the cores.
+    While the agents run, numpy's BLAS runs one thread per call in this process and in the agents'
+    processes (:func:`models.blas.single_blas_thread`; unless ``OPENBLAS_NUM_THREADS`` or
+    ``OMP_NUM_THREADS`` is set): the agents share the cores.
 
     Parameters
     ----------
@@ -296,195 +297,192 @@ def run_mission(
     AgentError
         A ``remote`` name is not an agent of this mission, or did not join within ``wait_remote_s``.
     """
-    from models.blas import single_blas_thread
+    if not isinstance(scenario, Scenario):
+        scenario = load_scenario(scenario)
+    if scenario.path is None:
+        raise ScenarioError(None, None, "the scenario must come from a file to run on the blackboard")
+    check_scenario(scenario, mission=True)  # every check that can run before the run, runs now
+    strategy = strategy or scenario.scheduler.strategy
+    track = scenario.tracking.enabled if track is None else bool(track)
+    n_frames = frame_count(scenario)
+    if timeout_s is None:
+        timeout_s = 120.0 + 0.5 * view_count(len(scenario.route), scenario.views_per_leg) + 2.0 * n_frames
+        if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
+            renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
+            timeout_s += 0.2 * n_frames * renders
+    _check_numbers(n_frames, timeout_s=timeout_s, frame_rate=frame_rate, wait_remote_s=wait_remote_s)
+    if paced and frame_rate is not None:
+        raise UsageError("--rate", "a camera paced on answers has no fixed rate: give one of the two")
+    done = 0
+    posted: dict[str, int] = {}
 
-    with single_blas_thread():  # the agents share the process: one BLAS thread each (models/blas.py)
-        if not isinstance(scenario, Scenario):
-            scenario = load_scenario(scenario)
-        if scenario.path is None:
-            raise ScenarioError(None, None, "the scenario must come from a file to run on the blackboard")
-        check_scenario(scenario, mission=True)  # every check that can run before the run, runs now
-        strategy = strategy or scenario.scheduler.strategy
-        track = scenario.tracking.enabled if track is None else bool(track)
-        n_frames = frame_count(scenario)
-        if timeout_s is None:
-            timeout_s = 120.0 + 0.5 * view_count(len(scenario.route), scenario.views_per_leg) + 2.0 * n_frames
-            if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
-                renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
-                timeout_s += 0.2 * n_frames * renders
-        _check_numbers(n_frames, timeout_s=timeout_s, frame_rate=frame_rate, wait_remote_s=wait_remote_s)
-        if paced and frame_rate is not None:
-            raise UsageError("--rate", "a camera paced on answers has no fixed rate: give one of the two")
-        done = 0
-        posted: dict[str, int] = {}
+    def on_event(event: Event) -> None:
+        nonlocal done
+        h = event.hypothesis
+        if h.version != 1:
+            return
+        posted[h.level] = posted.get(h.level, 0) + 1
+        if on_hypothesis is not None:
+            on_hypothesis(h.level, h.body, h.timestamp)
+        if h.level == levels.POSITION:
+            done += 1
+            if progress is not None:
+                progress(done, n_frames)
+        if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
+            runtime.kill(kill_after[0])
 
-        def on_event(event: Event) -> None:
-            nonlocal done
-            h = event.hypothesis
-            if h.version != 1:
-                return
-            posted[h.level] = posted.get(h.level, 0) + 1
-            if on_hypothesis is not None:
-                on_hypothesis(h.level, h.body, h.timestamp)
-            if h.level == levels.POSITION:
-                done += 1
-                if progress is not None:
-                    progress(done, n_frames)
-            if kill_after is not None and h.level == kill_after[1] and posted[h.level] == kill_after[2]:
-                runtime.kill(kill_after[0])
-
-        plan = agent_plan(
-            scenario,
-            strategy=strategy,
-            frame_rate=frame_rate,
-            track=track,
-            paced=paced,
-            inline_viewframes=inline_viewframes,
+    plan = agent_plan(
+        scenario,
+        strategy=strategy,
+        frame_rate=frame_rate,
+        track=track,
+        paced=paced,
+        inline_viewframes=inline_viewframes,
+    )
+    remote = sorted(set(remote))
+    unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
+    if unknown:
+        raise AgentError(
+            ", ".join(unknown),
+            "--remote names no agent of this mission; its agents are: " + ", ".join(n for _, n, _ in plan),
         )
-        remote = sorted(set(remote))
-        unknown = [name for name in remote if name not in {n for _, n, _ in plan}]
-        if unknown:
-            raise AgentError(
-                ", ".join(unknown),
-                "--remote names no agent of this mission; its agents are: " + ", ".join(n for _, n, _ in plan),
-            )
-        started = time.perf_counter()
-        interrupted: str | None = None
-        with Runtime(
+    started = time.perf_counter()
+    interrupted: str | None = None
+    # the agents share the process: one BLAS thread each (models/blas.py), set before they start
+    with (
+        single_blas_thread(),
+        Runtime(
             mode="processes" if processes else "inprocess",
             zenoh=zenoh,
             trace_path=trace_path,
             run_id=run_id,
             secret=secret,
             auth=auth,
-        ) as runtime:
-            try:
-                if remote:
-                    waiting_since = time.monotonic()
-                    runtime.expect_remote(remote)
-                    _announce_remote(runtime, plan, remote, zenoh, on_wait_remote)
-                for factory, name, options in plan:
-                    if name not in remote:
-                        runtime.add(factory, name=name, options=options)
-                if remote:
-                    try:
-                        runtime.wait_joined(
-                            remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic())
-                        )
-                    except AgentError as err:
-                        raise AgentError(
-                            err.agent,
-                            f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
-                            "(was it started with the printed mapinterp agent command?)",
-                        ) from None
-                request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
-                runtime.post(request.level, request.to_body(), id=request.id())
-                outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
-            except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM (blackboard.signals): keep what is done
-                interrupted = signal_name(err)
-                log.warning("run %s interrupted by %s: stopping the agents", runtime.run_id, interrupted)
-                outcome = runtime.snapshot()
-                runtime.close(fast=True, reason=f"interrupted by {interrupted}")
-            except AgentError as err:
-                errors = runtime.snapshot().input_errors
-                if errors:  # the real cause: an agent met a user's input error, then the run stalled
-                    name, message = next(iter(errors.items()))
-                    raise AgentInputError(name, message) from err
-                raise
-        if outcome.input_errors and interrupted is None:
-            name, message = next(iter(outcome.input_errors.items()))
-            raise AgentInputError(name, message)
-        positions = {
-            p.frame: p
-            for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSITION)
-        }
-        poses = {
-            p.frame: p for p in (levels.Pose.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSE)
-        }
-        truths = {
-            t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRUTH)
-        }
-        tracks = {
-            t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRACK)
-        }
-        frames_seen = {
-            levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME
-        }
-        first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
-        last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
-        agents = dict(outcome.agents)
-        elapsed = time.perf_counter() - started
-        dead = {name: status for name, status in agents.items() if status.startswith("dead")}
-        # agents not ok: dead ones, and live ones whose activations raised (what they did not post is missing)
-        not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
-        route_xy = [[float(x), float(y)] for x, y in scenario.route]
-        route_points = route_points_of(scenario)
-        estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
-        records = []
-        for f in sorted(frames_seen | set(range(n_frames))):
-            if f not in frames_seen:
-                why = (
-                    "interrupted before the camera posted it"
-                    if interrupted
-                    else "the camera never posted it" + (f" (agents not ok: {not_ok})" if not_ok else "")
-                )
-            elif interrupted:
-                why = f"interrupted by {interrupted} before it was localized"
-            else:
-                why = "no position was posted" + (f" (agents not ok: {not_ok})" if not_ok else "")
-            rec = frame_record(
-                positions.get(f),
-                frame=f,
-                truth=truths.get(f),
-                route_xy=route_xy,
-                missing=why,
-                pose=poses.get(f),
-                route_points=route_points,
+        ) as runtime,
+    ):
+        try:
+            if remote:
+                waiting_since = time.monotonic()
+                runtime.expect_remote(remote)
+                _announce_remote(runtime, plan, remote, zenoh, on_wait_remote)
+            for factory, name, options in plan:
+                if name not in remote:
+                    runtime.add(factory, name=name, options=options)
+            if remote:
+                try:
+                    runtime.wait_joined(remote, timeout_s=max(0.0, waiting_since + wait_remote_s - time.monotonic()))
+                except AgentError as err:
+                    raise AgentError(
+                        err.agent,
+                        f"did not join run {runtime.run_id} within {wait_remote_s:g} s "
+                        "(was it started with the printed mapinterp agent command?)",
+                    ) from None
+            request = levels.Scenario(path=str(Path(scenario.path).resolve()), strategy=strategy)
+            runtime.post(request.level, request.to_body(), id=request.id())
+            outcome = runtime.run(timeout_s=timeout_s, progress=on_event)
+        except KeyboardInterrupt as err:  # Ctrl-C or SIGTERM (blackboard.signals): keep what is done
+            interrupted = signal_name(err)
+            log.warning("run %s interrupted by %s: stopping the agents", runtime.run_id, interrupted)
+            outcome = runtime.snapshot()
+            runtime.close(fast=True, reason=f"interrupted by {interrupted}")
+        except AgentError as err:
+            errors = runtime.snapshot().input_errors
+            if errors:  # the real cause: an agent met a user's input error, then the run stalled
+                name, message = next(iter(errors.items()))
+                raise AgentInputError(name, message) from err
+            raise
+    if outcome.input_errors and interrupted is None:
+        name, message = next(iter(outcome.input_errors.items()))
+        raise AgentInputError(name, message)
+    positions = {
+        p.frame: p
+        for p in (levels.Position.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSITION)
+    }
+    poses = {p.frame: p for p in (levels.Pose.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.POSE)}
+    truths = {
+        t.frame: t for t in (levels.Truth.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRUTH)
+    }
+    tracks = {
+        t.frame: t for t in (levels.Track.from_hypothesis(h) for h in outcome.hypotheses if h.level == levels.TRACK)
+    }
+    frames_seen = {
+        levels.SensorFrame.from_hypothesis(h).frame for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME
+    }
+    first_frame = min((h.timestamp for h in outcome.hypotheses if h.level == levels.SENSOR_FRAME), default=None)
+    last_position = max((h.timestamp for h in outcome.hypotheses if h.level == levels.POSITION), default=None)
+    agents = dict(outcome.agents)
+    elapsed = time.perf_counter() - started
+    dead = {name: status for name, status in agents.items() if status.startswith("dead")}
+    # agents not ok: dead ones, and live ones whose activations raised (what they did not post is missing)
+    not_ok = {**{name: why for name, why in outcome.failures.items() if name not in dead}, **dead}
+    route_xy = [[float(x), float(y)] for x, y in scenario.route]
+    route_points = route_points_of(scenario)
+    estimates = _track_estimates(tracks, sorted(frames_seen), scenario) if track else {}
+    records = []
+    for f in sorted(frames_seen | set(range(n_frames))):
+        if f not in frames_seen:
+            why = (
+                "interrupted before the camera posted it"
+                if interrupted
+                else "the camera never posted it" + (f" (agents not ok: {not_ok})" if not_ok else "")
             )
-            rec["missing"] = f not in frames_seen
-            rec["interrupted"] = interrupted is not None and f not in positions
-            p = positions.get(f)
-            rec["track_prior"] = bool(p is not None and p.track_prior)
-            untracked = track and f in positions and f not in estimates
-            if untracked:
-                rec["reason"] += "; no track was posted (the single-frame decision stands)"
-            rec = with_track(rec, estimates.get(f))
-            if untracked:
-                rec["state"] = "lost"  # not tracked: the blind single-frame decision is the answer
-            records.append(rec)
-        summary = summarize(records)
-        summary["frames_expected"] = n_frames
-        summary["posted"] = len(frames_seen)
-        summary["missing"] = sum(1 for r in records if r.get("missing"))
-        summary["wall_s"] = elapsed
-        # throughput of localization proper: first camera frame posted to last position posted
-        span = None if first_frame is None or last_position is None else last_position - first_frame
-        summary["localization_s"] = span
-        summary["frames_per_s"] = (len(frames_seen) / span) if span else None
-        degraded = [f"agent {name} {status}" for name, status in sorted(dead.items())]
-        degraded += [f"agent {name}: {why}" for name, why in sorted(outcome.failures.items()) if name not in dead]
-        if track:
-            degraded += _tracking_degraded(positions, estimates)
-        if summary["missing"]:
-            degraded.append(f"{summary['missing']} of {n_frames} frames never posted")
-        if interrupted:
-            degraded.append(f"interrupted by {interrupted}")
-        results = {
-            "scenario": scenario.name,
-            "scenario_path": str(Path(scenario.path).resolve()),
-            "strategy": strategy,
-            "tracking": track,
-            "smoothing": bool(track and scenario.tracking.smoothing),
-            "mode": "processes" if processes else "inprocess",
-            "agents": agents,
-            "frames": records,
-            "summary": summary,
-            "degraded": degraded,
-            "interrupted": interrupted,
-        }
-        if scenario.map_frame is not None:
-            add_map_coordinates(results, scenario.map_frame)
-        return results
+        elif interrupted:
+            why = f"interrupted by {interrupted} before it was localized"
+        else:
+            why = "no position was posted" + (f" (agents not ok: {not_ok})" if not_ok else "")
+        rec = frame_record(
+            positions.get(f),
+            frame=f,
+            truth=truths.get(f),
+            route_xy=route_xy,
+            missing=why,
+            pose=poses.get(f),
+            route_points=route_points,
+        )
+        rec["missing"] = f not in frames_seen
+        rec["interrupted"] = interrupted is not None and f not in positions
+        p = positions.get(f)
+        rec["track_prior"] = bool(p is not None and p.track_prior)
+        untracked = track and f in positions and f not in estimates
+        if untracked:
+            rec["reason"] += "; no track was posted (the single-frame decision stands)"
+        rec = with_track(rec, estimates.get(f))
+        if untracked:
+            rec["state"] = "lost"  # not tracked: the blind single-frame decision is the answer
+        records.append(rec)
+    summary = summarize(records)
+    summary["frames_expected"] = n_frames
+    summary["posted"] = len(frames_seen)
+    summary["missing"] = sum(1 for r in records if r.get("missing"))
+    summary["wall_s"] = elapsed
+    # throughput of localization proper: first camera frame posted to last position posted
+    span = None if first_frame is None or last_position is None else last_position - first_frame
+    summary["localization_s"] = span
+    summary["frames_per_s"] = (len(frames_seen) / span) if span else None
+    degraded = [f"agent {name} {status}" for name, status in sorted(dead.items())]
+    degraded += [f"agent {name}: {why}" for name, why in sorted(outcome.failures.items()) if name not in dead]
+    if track:
+        degraded += _tracking_degraded(positions, estimates)
+    if summary["missing"]:
+        degraded.append(f"{summary['missing']} of {n_frames} frames never posted")
+    if interrupted:
+        degraded.append(f"interrupted by {interrupted}")
+    results = {
+        "scenario": scenario.name,
+        "scenario_path": str(Path(scenario.path).resolve()),
+        "strategy": strategy,
+        "tracking": track,
+        "smoothing": bool(track and scenario.tracking.smoothing),
+        "mode": "processes" if processes else "inprocess",
+        "agents": agents,
+        "frames": records,
+        "summary": summary,
+        "degraded": degraded,
+        "interrupted": interrupted,
+    }
+    if scenario.map_frame is not None:
+        add_map_coordinates(results, scenario.map_frame)
+    return results
 
 
 def _tracking_degraded(positions: dict[int, levels.Position], estimates: dict[int, dict[str, Any]]) -> list[str]:
