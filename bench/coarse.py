@@ -284,6 +284,16 @@ def route_coarse(path: Path, cache_dir: Path, *, stride: int, ks: tuple[int, ...
     }
 
 
+def _print_recall(recall: dict[str, dict[str, float]]) -> None:
+    """The table of a coarse stage's recall per candidate count k (``--route``, ``--memory``)."""
+    print(f"{'k':>4} {'truth':>7} {'truth full':>10} {'kept':>7} {'best':>7} {'same top-1':>10} {'top-1':>7}")
+    for k, x in recall.items():
+        print(
+            f"{k:>4} {x['truth']:>7.1%} {x['truth_full']:>10.1%} {x['truth_kept']:>7.1%} {x['best']:>7.1%} "
+            f"{x['same_top1']:>10.1%} {x['top1']:>7.1%}"
+        )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=500, help="route length (viewframes)")
@@ -322,12 +332,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"top-1 {res['full_top1']:.1%}; its first at coarse rank <= {res['best_coarse_rank_max']} of its "
                 f"shard (p99 {res['best_coarse_rank_p99']:.0f}); CPU ms/frame {res['cpu_ms_per_frame']}"
             )
-            print(f"{'k':>4} {'truth':>7} {'truth full':>10} {'kept':>7} {'best':>7} {'same top-1':>10} {'top-1':>7}")
-            for k, x in res["recall"].items():
-                print(
-                    f"{k:>4} {x['truth']:>7.1%} {x['truth_full']:>10.1%} {x['truth_kept']:>7.1%} {x['best']:>7.1%} "
-                    f"{x['same_top1']:>10.1%} {x['top1']:>7.1%}"
-                )
+            _print_recall(res["recall"])
         return 0
     if args.memory:
         load0 = os.getloadavg()
@@ -342,14 +347,7 @@ def main(argv: list[str] | None = None) -> int:
                     f"pooled from {r['terrains']} terrains; full ranking top-1 {r['full_top1']:.1%}; its first at "
                     f"coarse rank <= {r['best_coarse_rank_max']} (p99 {r['best_coarse_rank_p99']:.0f})"
                 )
-                print(
-                    f"{'k':>4} {'truth':>7} {'truth full':>10} {'kept':>7} {'best':>7} {'same top-1':>10} {'top-1':>7}"
-                )
-                for k, x in r["recall"].items():
-                    print(
-                        f"{k:>4} {x['truth']:>7.1%} {x['truth_full']:>10.1%} {x['truth_kept']:>7.1%} {x['best']:>7.1%} "
-                        f"{x['same_top1']:>10.1%} {x['top1']:>7.1%}"
-                    )
+                _print_recall(r["recall"])
         return 0
     if args.evalset:
         load0 = os.getloadavg()
