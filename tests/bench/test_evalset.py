@@ -128,16 +128,22 @@ def test_drive_poses_bounds_gaps_stops_and_kidnap():
     assert "kidnap" not in [p["event"] for p in plain]
 
 
+def _profile_poses(kind: str, route: list, bounds: dict, *, seed: int) -> list[dict]:
+    """The poses of a sweep (a frame a route point) or a drive (a frame a route point, no
+    kidnapping) along ``route`` at 30 m spacing, drawn within ``bounds`` from ``seed``."""
+    rng = np.random.default_rng(seed)
+    if kind == "sweep":
+        return _sweep_poses(route, 30.0, rng, bounds=bounds)
+    return _drive_poses(route, 30.0, rng, frames=len(route), kidnap=False, bounds=bounds)
+
+
 @pytest.mark.parametrize("kind", ["sweep", "drive"])
 def test_the_large_pose_error_profile_reaches_past_the_standard_bounds(kind):
     route = [(100.0 + 30 * i, 200.0 + 5 * math.sin(i / 3)) for i in range(200)]
     large, std = ERROR_PROFILES["large"], ERROR_BOUNDS
 
     def poses(bounds):
-        rng = np.random.default_rng(11)
-        if kind == "sweep":
-            return _sweep_poses(route, 30.0, rng, bounds=bounds)
-        return _drive_poses(route, 30.0, rng, frames=200, kidnap=False, bounds=bounds)
+        return _profile_poses(kind, route, bounds, seed=11)
 
     got, base = poses(large), poses(std)
     for key, bound in (("heading_error", "heading_deg"), ("lateral", "lateral_m"), ("pitch", "pitch_deg")):
@@ -273,10 +279,7 @@ def test_a_component_profile_enlarges_that_component_alone(kind, component):
     assert profile[bound] == ERROR_PROFILES["large"][bound] > ERROR_BOUNDS[bound]
 
     def poses(bounds):
-        rng = np.random.default_rng(5)
-        if kind == "sweep":
-            return _sweep_poses(route, 30.0, rng, bounds=bounds)
-        return _drive_poses(route, 30.0, rng, frames=120, kidnap=False, bounds=bounds)
+        return _profile_poses(kind, route, bounds, seed=5)
 
     got, base = poses(profile), poses(ERROR_BOUNDS)
     field = {"along_frac": "along_frac", "lateral_m": "lateral", "heading_deg": "heading_error"}.get(
