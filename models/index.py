@@ -278,9 +278,7 @@ class ViewframeIndex:
         k = self.settings.roll_shortlist
         first = 0.0 if 0.0 in rolls else rolls[0]  # the plain match, when it is searched
         plain = self.memory.rank(query(first), among=among)
-        if k is None:
-            return best_of_rankings([plain, *(self.memory.rank(query(a), among=among) for a in rolls if a != first)])
-        short = plain.viewframes[:k]
+        short = among if k is None else plain.viewframes[:k]
         return best_of_rankings([plain, *(self.memory.rank(query(a), among=short) for a in rolls if a != first)])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:

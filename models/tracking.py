@@ -1007,12 +1007,7 @@ def smooth(
     dts = list(dts) if dts is not None else [None] * n
     if len(dts) != n:
         raise ValueError("dts must have one entry per frame")
-    likes = [
-        np.ones(grid.cells)
-        if ll is None
-        else np.exp(np.maximum((c := grid.cell_loglik(ll)) - c.max(), -_LOG_RATIO_CAP))
-        for ll in logliks
-    ]
+    likes = [np.ones(grid.cells) if ll is None else _cell_likelihood(grid, ll) for ll in logliks]
     joint = spec.smoother == "speed" and motion.persistence > 0 and n > 1
     if joint and n * grid.cells * len(motion.speed_classes(dts[1])[2]) > SMOOTH_JOINT_MAX:
         _log.warning(
