@@ -694,6 +694,13 @@ class BankedMemory:
             self._packed = packed
         return self._packed
 
+    @property
+    def row_viewframes(self) -> NDArray[np.int64]:
+        """The viewframe of each row of :attr:`ranking_matrix` ``(H,)``, in storage order (read it
+        after the matrix: a compact memory's last, partial bank is finalized there)."""
+        banks = self.banks[: len(self._row0)] if self.compact else self.banks
+        return np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+
     def rank(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """Merged ranking of all banks, best first; with ``among`` (viewframe indices), of those
         stored viewframes only (others named are ignored).
@@ -710,8 +717,7 @@ class BankedMemory:
         key = self.banks[0].query_key(pattern)
         matrix = self.ranking_matrix
         assert self._row_bank is not None  # set with the matrix
-        banks_ranked = self.banks[: len(self._row0)] if self.compact else self.banks
-        viewframes = np.concatenate([b.viewframes for b in banks_ranked])
+        viewframes = self.row_viewframes
         row_bank = self._row_bank
         if among is not None:
             rows = np.flatnonzero(np.isin(viewframes, np.asarray(among, dtype=np.int64).ravel()))
@@ -746,7 +752,7 @@ class BankedMemory:
         done = self.banks[: len(self._row0)]
         return {
             "rows": rows,
-            "viewframes": np.concatenate([b.viewframes for b in done]) if done else np.zeros(0, np.int64),
+            "viewframes": self.row_viewframes,
             "bank_rows": np.array([len(b) for b in done], dtype=np.int64),
             "bank_energy_sq": np.array([b._energy_sq for b in done], dtype=np.float64),
         }

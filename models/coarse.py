@@ -172,9 +172,8 @@ class MemoryCoarse:
         gain = np.exp(-2.0 * np.pi**2 * sigma * sigma * f2)
         self._bins = (kr[None, :] * half + kc[:, None]).ravel()  # (nc * nr,) column-major: kc, then kr
         matrix = memory.ranking_matrix
-        banks = memory.banks[: len(memory._row0)] if memory.compact else memory.banks
         #: (H,) viewframes in storage order, as the ranking matrix's rows
-        self.viewframes = np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+        self.viewframes = memory.row_viewframes
         if memory.compact:
             energy = np.asarray(memory._bank_energy, dtype=np.float64)
         else:  # |FK| is flat but at DC: the recall energy is proportional to sqrt(sum w |FM_b|^2)
