@@ -492,8 +492,8 @@ def main() -> None:
         "--frames",
         type=Path,
         metavar="FILE",
-        help="write a table of every frame (JSON: per drive and observation, frame_table's rows: truth, "
-        "single-frame answer, tracked answer, prior and posterior mass on the truth)",
+        help="write a table of every frame (JSON: a list of drives, each with frame_table's rows per observation: "
+        "truth, single-frame answer, tracked answer, prior and posterior mass on the truth)",
     )
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args()
@@ -510,7 +510,7 @@ def main() -> None:
             if args.cache is not None:
                 args.cache.write_bytes(pickle.dumps((ranked, what)))
         results = []
-        tables: dict = {}
+        tables: list[dict] = []
         for d, _, path in ranked:
             if Path(path).is_file():
                 sc = load_scenario(path)  # not the cached one: the defaults may have changed since
@@ -532,7 +532,9 @@ def main() -> None:
                 else:
                     runs[o] = (obs, track_drive(d, sp, obs, priors=want))
                 if want:
-                    tables.setdefault(d["name"], {})[o] = frame_table(d, obs, runs[o][1])
+                    if not tables or tables[-1]["drive"] is not d:
+                        tables.append({"drive": d, "name": d["name"], "kind": d["kind"], "frames": {}})
+                    tables[-1]["frames"][o] = frame_table(d, obs, runs[o][1])
             r = score(d, runs, tracking)
             r["kind"] = d["kind"]
             results.append(r)
@@ -566,7 +568,8 @@ def main() -> None:
         k: pooled([r for r in results if r["kind"] == k]) for k in sorted({r["kind"] for r in results})
     }
     if args.frames is not None:
-        args.frames.write_text(json.dumps({"data": what, "overrides": overrides, "drives": tables}, indent=1))
+        drives = [{k: v for k, v in t.items() if k != "drive"} for t in tables]  # in run order (names may repeat)
+        args.frames.write_text(json.dumps({"data": what, "overrides": overrides, "drives": drives}, indent=1))
     print(json.dumps(out, indent=1))
     if args.json_only:
         return
