@@ -27,8 +27,8 @@ Reported per drive and pooled: top-1 after a warm-up of 3 frames and within thos
 right when its route point is the one nearest the true position), how often the position is within
 half a mean route spacing of the truth (``half>3``, after the warm-up: for the single frame, whose
 answer is a route point, about its top-1; a track between two route points can be a few metres
-from the truth and still name the other point: session 11 found the track's top-1 9-13 points
-below this on the tuning drives, the single frame's within a point of it), position error median and
+from the truth and still name the other point: session 11 found the track's top-1 8-12 points
+below this on the tuning drives (tuning-drives, tuning-drives-more, sim), the single frame's within a point of it), position error median and
 mean of the continuous estimate, frames to recover after a kidnapping (first frame from the jump
 on which the tracked route point is right again), the tracker's cost per frame on a route of
 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
