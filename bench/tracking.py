@@ -29,9 +29,9 @@ half a mean route spacing of the truth (``half>3``, after the warm-up: for the s
 answer is a route point, about its top-1; a track between two route points can be a few metres
 from the truth and still name the other point: session 11 found the track's top-1 8-12 points
 below this on the tuning drives (tuning-drives, tuning-drives-more, sim), the single frame's
-within a point of it), position error median and mean of the continuous estimate, frames to recover after a kidnapping (first frame from the jump
-on which the tracked route point is right again), the tracker's cost per frame on a route of
-10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
+within a point of it), position error median and mean of the continuous estimate, frames to
+recover after a kidnapping (first frame from the jump on which the tracked route point is right
+again), the tracker's cost per frame on a route of 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
 tracker on one drive (``mapinterp run`` and ``--no-track``).
 
     python bench/tracking.py [--split heldout|tuning|tuning-drives|tuning-drives-more|sim]
