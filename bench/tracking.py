@@ -31,8 +31,9 @@ from the truth and still name the other point: session 11 found the track's top-
 below this on the tuning drives (tuning-drives, tuning-drives-more, sim), the single frame's
 within a point of it), position error median and mean of the continuous estimate, frames to
 recover after a kidnapping (first frame from the jump on which the tracked route point is right
-again), the tracker's cost per frame on a route of 10,000 cells, and (``--runs``) whole-run frames/s through the blackboard with and without the
-tracker on one drive (``mapinterp run`` and ``--no-track``).
+again), the tracker's cost per frame on a route of 10,000 cells, and (``--runs``) whole-run
+frames/s through the blackboard with and without the tracker on one drive (``mapinterp run`` and
+``--no-track``).
 
     python bench/tracking.py [--split heldout|tuning|tuning-drives|tuning-drives-more|sim]
                              [--observe associative fused-robust fused]
