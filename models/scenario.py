@@ -79,6 +79,7 @@ __all__ = [
     "SkylineSpec",
     "RenderSpec",
     "RefineSpec",
+    "VerifySpec",
     "TrackingSpec",
     "ExpectSpec",
     "Scenario",
@@ -698,6 +699,30 @@ class RefineSpec(_Spec):
     max_roll_deg: float = Field(default=0.0, ge=0, lt=45)
 
 
+class VerifySpec(_Spec):
+    """Render-and-compare verification of the fused ranking's first candidates before the scene
+    analysis (:mod:`models.verify`, :mod:`knowledge_sources.verifier`): ``{enabled: true,
+    candidates: 3, margin: 0.5, weight: 2.8, timeout_s: 10}``. When the fused ranking's second
+    route point is within ``margin`` (its fused score, nats) of the first, the scheduler asks the
+    verifier about the first ``candidates``: each is rendered at its place with the heading and
+    pitch its skyline match with the camera image finds, and the camera image's correlation ``c``
+    with that view is the memory's (the whitened, blurred edge patterns of
+    :meth:`models.index.ViewframeIndex.pattern`, best over +-2 rows and columns). Each
+    candidate's fused score gains ``weight * (max_j c_j - c_k)`` nats, and the ranking is sorted
+    again before the scene analysis starts. ``weight`` is calibrated, not tuned for top-1: the
+    conditional logit of the truth among the first 3 candidates of the evaluation set's tuning
+    frames (standard and larger pose errors, 400 frames; ``bench/rerank.py``) gives the key
+    ``1.64 F - 4.59 c``, i.e. ``4.59 / 1.64 = 2.8`` nats of F per unit of correlation.
+    A verification that does not come within ``timeout_s`` leaves the ranking as it is (the
+    frame's record says so)."""
+
+    enabled: bool = False
+    candidates: int = Field(default=3, ge=2, le=20)
+    margin: float = Field(default=0.5, ge=0, le=1e3)
+    weight: float = Field(default=2.8, ge=0, le=1e3)
+    timeout_s: float = Field(default=10.0, gt=0, le=3600)
+
+
 class TrackingSpec(_Spec):
     """Tracking along the route (:mod:`models.tracking`): a grid filter over arc length.
 
@@ -823,6 +848,7 @@ class Scenario(_Spec):
     skyline: SkylineSpec = SkylineSpec()
     render: RenderSpec = RenderSpec()
     refine: RefineSpec = RefineSpec()
+    verify: VerifySpec = VerifySpec()
     tracking: TrackingSpec = TrackingSpec()
     expect: ExpectSpec | None = None
 
