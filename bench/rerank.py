@@ -30,6 +30,12 @@ first's) is below a threshold.
         [--names ...] [--kinds ...] [--features-out F.json] [--features-in F.json] [--json-only]
 
 ``--features-in``: analyse features saved by ``--features-out`` (no rendering). Prints JSON, then a table.
+
+    python bench/rerank.py --compare BEFORE.out AFTER.out
+
+``--compare``: two outputs of ``bench/single_frame.py`` (its JSON, then its table) of the same
+split and errors, frame by frame: per terrain the frames the second run fixed (wrong in the first,
+right in the second) and broke (right in the first, wrong in the second).
 """
 
 from __future__ import annotations
@@ -535,6 +541,46 @@ def table(res: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _single_frame_json(path: Path) -> dict[str, Any]:
+    """The JSON document at the start of a ``bench/single_frame.py`` output (the table after it ignored)."""
+    text = path.read_text()
+    doc, _ = json.JSONDecoder().raw_decode(text.lstrip())
+    return doc
+
+
+def compare(before: dict[str, Any], after: dict[str, Any]) -> dict[str, Any]:
+    """Per terrain and overall: frames, top-1 before and after, fixed and broken (see the docstring)."""
+    out: dict[str, Any] = {}
+    for name, case in before["cases"].items():
+        other = after["cases"].get(name)
+        if other is None or "correct" not in case or "correct" not in other:
+            raise ValueError(f"case {name}: not in both runs, or a run without per-frame results")
+        terrain = name.split("/")[0]
+        row = out.setdefault(terrain, {"frames": 0, "before": 0, "after": 0, "fixed": 0, "broken": 0})
+        for a, b in zip(case["correct"], other["correct"]):
+            if a is None or b is None:
+                continue
+            row["frames"] += 1
+            row["before"] += int(a)
+            row["after"] += int(b)
+            row["fixed"] += int(b and not a)
+            row["broken"] += int(a and not b)
+    total = {k: sum(r[k] for r in out.values()) for k in ("frames", "before", "after", "fixed", "broken")}
+    out["all"] = total
+    return out
+
+
+def compare_table(res: dict[str, Any]) -> str:
+    lines = [f"{'terrain':16s} {'frames':>6s} {'before':>6s} {'after':>6s} {'fixed':>9s} {'broken':>9s}"]
+    for t, r in res.items():
+        n = max(r["frames"], 1)
+        lines.append(
+            f"{t:16s} {r['frames']:6d} {r['before'] / n:6.3f} {r['after'] / n:6.3f} "
+            f"{r['fixed']:4d}/{r['frames'] - r['before']:<4d} {r['broken']:4d}/{r['before']:<4d}"
+        )
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", default="tuning", choices=("tuning", "heldout"))
@@ -549,8 +595,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--kinds", nargs="*", default=None)
     ap.add_argument("--features-out", type=Path, default=None)
     ap.add_argument("--features-in", type=Path, default=None)
+    ap.add_argument("--compare", nargs=2, type=Path, default=None, metavar=("BEFORE", "AFTER"))
     ap.add_argument("--json-only", action="store_true")
     args = ap.parse_args(argv)
+    if args.compare is not None:
+        try:
+            res = compare(*(_single_frame_json(p) for p in args.compare))
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"error: --compare {args.compare[0]} {args.compare[1]}: {exc}", file=sys.stderr)
+            return 2
+        print(json.dumps(res, indent=1))
+        if not args.json_only:
+            print(f"\n{args.compare[0]} -> {args.compare[1]}")
+            print(compare_table(res))
+        return 0
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
     utc = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())
     t0 = time.time()

@@ -121,6 +121,8 @@ def run(
             "fps": res["summary"]["frames_per_s"],
             "wall_s": wall,
             "description": case.description,
+            # each frame's final answer right (null: no truth), to compare two runs frame by frame
+            "correct": [bool(f["correct"]) if f.get("truth_viewframe") is not None else None for f in frames],
         }
         by_terrain.setdefault(case.terrain, []).extend(frames)
         everything.extend(frames)

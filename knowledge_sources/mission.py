@@ -181,7 +181,11 @@ def agent_plan(
             (
                 "knowledge_sources.verifier:Verifier",
                 VERIFIER,
-                {k: match[k] for k in ("step_deg", "max_heading_deg", "max_pitch_deg", "truncate_deg")},
+                {
+                    **{k: match[k] for k in ("step_deg", "max_heading_deg", "max_pitch_deg", "truncate_deg")},
+                    "rolls_deg": list(ver.roll_search_deg),
+                    "max_roll_deg": ver.max_roll_deg,
+                },
             )
         )
     ref = scenario.refine

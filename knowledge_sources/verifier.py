@@ -32,7 +32,8 @@ class Verifier(KnowledgeSource):
     cache entry when that entry holds what this verifier's emulator renders (as the refiner
     does), otherwise rendered. The camera frame's skyline profile is the skyline ranker's when
     it posted one. Options: the skyline matching settings ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``. Queries that arrive before the map wait.
+    ``max_pitch_deg``, ``truncate_deg``; ``rolls_deg``, the rolls the camera image is also compared
+    at, and ``max_roll_deg``, the skyline match's roll bound (:func:`models.verify.verify_candidates`). Queries that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.VERIFY_QUERY)
@@ -47,9 +48,13 @@ class Verifier(KnowledgeSource):
         max_heading_deg: float,
         max_pitch_deg: float,
         truncate_deg: float,
+        rolls_deg: list[float] | tuple[float, ...] = (0.0,),
+        max_roll_deg: float = 0.0,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
+        self.rolls_deg = tuple(float(a) for a in rolls_deg)
+        self.max_roll_deg = float(max_roll_deg)
         self.match: dict[str, float] = {
             "step_deg": float(step_deg),
             "max_heading_deg": float(max_heading_deg),
@@ -146,6 +151,8 @@ class Verifier(KnowledgeSource):
             max_heading_deg=self.match["max_heading_deg"],
             max_pitch_deg=self.match["max_pitch_deg"],
             truncate_deg=self.match["truncate_deg"],
+            rolls_deg=self.rolls_deg,
+            max_roll_deg=self.max_roll_deg,
         )
         levels.post(
             board,

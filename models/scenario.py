@@ -713,6 +713,10 @@ class VerifySpec(_Spec):
     conditional logit of the truth among the first 3 candidates of the evaluation set's tuning
     frames (standard and larger pose errors, 400 frames; ``bench/rerank.py``) gives the key
     ``1.64 F - 4.59 c``, i.e. ``4.59 / 1.64 = 2.8`` nats of F per unit of correlation.
+    ``roll_search_deg``: the camera image is also compared turned by each of these rolls (degrees,
+    as the memory's ``roll_search_deg``), each candidate keeping its best correlation;
+    ``max_roll_deg`` the skyline match's roll bound when the heading and pitch are found (0: no
+    roll fitted; a rolled camera then gets a heading off by degrees, and its aligned view misses).
     A verification that does not come within ``timeout_s`` leaves the ranking as it is (the
     frame's record says so)."""
 
@@ -721,6 +725,15 @@ class VerifySpec(_Spec):
     margin: float = Field(default=0.5, ge=0, le=1e3)
     weight: float = Field(default=2.8, ge=0, le=1e3)
     timeout_s: float = Field(default=10.0, gt=0, le=3600)
+    roll_search_deg: tuple[float, ...] = Field(default=(0.0,), min_length=1, max_length=16)
+    max_roll_deg: float = Field(default=0.0, ge=0, lt=45)
+
+    @field_validator("roll_search_deg")
+    @classmethod
+    def _rolls(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if any(abs(a) >= 45 for a in value):
+            raise ValueError(f"rolls must be within (-45, 45) degrees, got {list(value)}")
+        return value
 
 
 class TrackingSpec(_Spec):

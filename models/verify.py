@@ -83,17 +83,24 @@ def verify_candidates(
     max_pitch_deg: float,
     truncate_deg: float,
     max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT,
+    rolls_deg: Sequence[float] = (0.0,),
+    max_roll_deg: float = 0.0,
 ) -> Verified:
     """Verify each candidate pose of ``starts`` against the camera ``image`` (H, W, 3) (module
     docstring). ``pattern``: the memory's pattern of an image (the index's
     :meth:`~models.index.ViewframeIndex.pattern`); ``start_views``: each candidate's own view
     (its viewframe's image and depth) when at hand, else None (rendered); ``query_skyline``: the
     image's skyline profile when already extracted; the skyline matching options are the
-    refiner's (:func:`models.refine.refine_pose`)."""
+    refiner's (:func:`models.refine.refine_pose`). ``rolls_deg``: the camera image is also
+    compared turned by each of these rolls about its centre (:func:`models.derotate.rolled`, as
+    the memory's roll search does), each candidate keeping its best correlation; ``max_roll_deg``
+    the skyline match's roll bound when it finds the heading and pitch (0: no roll fitted)."""
+    from models.derotate import rolled
+
     views = list(start_views) if start_views is not None else [None] * len(starts)
     if len(views) != len(starts):
         raise ValueError(f"{len(views)} start views for {len(starts)} candidates")
-    camera = pattern(image)
+    cameras = [pattern(rolled(np.asarray(image), float(a))) for a in (rolls_deg or (0.0,))]
     out_c, out_h, out_p, renders = [], [], [], 0
     for start, view in zip(starts, views):
         r = refine_pose(
@@ -108,10 +115,12 @@ def verify_candidates(
             max_heading_deg=max_heading_deg,
             max_pitch_deg=max_pitch_deg,
             truncate_deg=truncate_deg,
+            max_roll_deg=max_roll_deg,
         )
         aligned = emulator.render(emulator.pose_at(start.x, start.y, r.heading_deg, pitch_deg=r.pitch_deg))
         renders += r.renders + 1
-        out_c.append(pattern_correlation(camera, pattern(aligned.image), max_shift=max_shift))
+        view_pattern = pattern(aligned.image)
+        out_c.append(max(pattern_correlation(c, view_pattern, max_shift=max_shift) for c in cameras))
         out_h.append(float(r.heading_deg))
         out_p.append(float(r.pitch_deg))
     return Verified(out_c, out_h, out_p, renders)

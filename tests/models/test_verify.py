@@ -82,3 +82,17 @@ def test_the_true_place_matches_its_aligned_view_better_than_a_wrong_first_candi
     ranking = [(1, 0.0), (0, 0.2)]  # the wrong one (viewframe 1) first, within the margin
     out = verified_ranking(ranking, [1, 0], r.correlations, weight=2.8)
     assert out[0][0] == 0
+
+
+def test_the_roll_search_recovers_the_correlation_of_a_rolled_camera(emulator):
+    from models.derotate import rolled
+
+    place = emulator.pose_at(420.0, 380.0, 60.0)
+    image = rolled(emulator.render(place).image, -3.0)  # the camera rolled by 3 degrees
+    index = ViewframeIndex(MemorySpec(), seed=0)
+    plain = verify_candidates(image, emulator, [place], pattern=index.pattern, **_match())
+    searched = verify_candidates(
+        image, emulator, [place], pattern=index.pattern, rolls_deg=(-3.0, 0.0, 3.0), max_roll_deg=3.0, **_match()
+    )
+    assert searched.correlations[0] > plain.correlations[0] + 0.1, (plain.correlations, searched.correlations)
+    assert searched.correlations[0] > 0.8
