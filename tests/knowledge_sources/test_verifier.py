@@ -44,6 +44,7 @@ def test_every_uncertain_frame_is_verified_through_the_blackboard(small_data, tm
 
 
 def test_verification_off_is_todays_pipeline(small_data, tmp_path):
+    small_data["verify"] = {"enabled": False}
     off = _write(small_data, tmp_path / "off.yaml")
     plan = {name: opts for _, name, opts in agent_plan(load_scenario(off))}
     assert "verifier" not in plan and not any(k.startswith("verify") for k in plan["scheduler"])
