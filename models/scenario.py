@@ -346,6 +346,15 @@ class SensorSpec(_Spec):
         return self
 
 
+def _roll_angles(value: tuple[float, ...]) -> tuple[float, ...]:
+    """A roll search's angles (MemorySpec's and VerifySpec's ``roll_search_deg``), checked."""
+    if not 1 <= len(value) <= MAX_ROLL_SEARCH or not all(math.isfinite(v) and abs(v) <= 45 for v in value):
+        raise ValueError(f"must be 1 to {MAX_ROLL_SEARCH} angles in degrees within [-45, 45]")
+    if len(set(value)) != len(value):
+        raise ValueError("must not repeat an angle")
+    return value
+
+
 class MemorySpec(_Spec):
     """Associative memory and preprocessing settings.
 
@@ -433,11 +442,7 @@ class MemorySpec(_Spec):
     @field_validator("roll_search_deg")
     @classmethod
     def _rolls(cls, value: tuple[float, ...]) -> tuple[float, ...]:
-        if not 1 <= len(value) <= MAX_ROLL_SEARCH or not all(math.isfinite(v) and abs(v) <= 45 for v in value):
-            raise ValueError(f"must be 1 to {MAX_ROLL_SEARCH} angles in degrees within [-45, 45]")
-        if len(set(value)) != len(value):
-            raise ValueError("must not repeat an angle")
-        return value
+        return _roll_angles(value)
 
     @field_validator("max_shift")
     @classmethod
@@ -727,15 +732,13 @@ class VerifySpec(_Spec):
     margin: float = Field(default=0.5, ge=0, le=1e3)
     weight: float = Field(default=2.8, ge=0, le=1e3)
     timeout_s: float = Field(default=10.0, gt=0, le=3600)
-    roll_search_deg: tuple[float, ...] = Field(default=(-3.0, -1.5, 0.0, 1.5, 3.0), min_length=1, max_length=16)
+    roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
 
     @field_validator("roll_search_deg")
     @classmethod
     def _rolls(cls, value: tuple[float, ...]) -> tuple[float, ...]:
-        if any(abs(a) >= 45 for a in value):
-            raise ValueError(f"rolls must be within (-45, 45) degrees, got {list(value)}")
-        return value
+        return _roll_angles(value)
 
 
 class TrackingSpec(_Spec):
