@@ -724,10 +724,14 @@ class VerifySpec(_Spec):
     0.735 -> 0.765 (standard pose errors; 8 of the 53 wrong frames fixed, 2 of the 147 right ones
     broken) and 0.640 -> 0.660 (larger ones; 6 of 72 fixed, 2 of 128 broken); twice the weight
     fixed more and broke more (0.790, 4 broken; 0.650, 5 broken); without the roll 0.775 and 0.640
-    (5 of 128 broken). A verification that does not come within ``timeout_s`` leaves the ranking
-    as it is (the frame's record says so)."""
+    (5 of 128 broken). Off by default: the bar set before measuring (+3 points of top-1 on the
+    tuning split, under both pose-error profiles, breaking at most 2 % of the right frames) was
+    met under the standard errors only (+2.0 under the larger ones); held out, measured once
+    afterwards: 0.806 -> 0.802 and 0.684 -> 0.701, 8 of 232 and 6 of 197 right frames broken,
+    at about two thirds of the frames/s (BENCHMARKS.md). A verification that does not come
+    within ``timeout_s`` leaves the ranking as it is (the frame's record says so)."""
 
-    enabled: bool = True
+    enabled: bool = False
     candidates: int = Field(default=3, ge=2, le=20)
     margin: float = Field(default=0.5, ge=0, le=1e3)
     weight: float = Field(default=2.8, ge=0, le=1e3)
