@@ -1,4 +1,4 @@
-"""The verifier through the real blackboard in one process; the option off leaves today's pipeline."""
+"""The verifier through the real blackboard, in one process and in processes; the option off leaves today's pipeline."""
 
 from __future__ import annotations
 
@@ -17,11 +17,12 @@ def _write(data: dict, path) -> object:
     return path
 
 
-def test_every_uncertain_frame_is_verified_through_the_blackboard(small_data, tmp_path):
+@pytest.mark.parametrize("processes", [False, True], ids=["inprocess", "processes"])
+def test_every_uncertain_frame_is_verified_through_the_blackboard(small_data, tmp_path, processes):
     small_data["verify"] = {"enabled": True, "candidates": 3, "margin": 1000.0}  # every frame is uncertain
     path = _write(small_data, tmp_path / "verify.yaml")
     trace = tmp_path / "run.trace"
-    results = run_mission(path, trace_path=trace, track=False)
+    results = run_mission(path, trace_path=trace, track=False, processes=processes)
     posts = [r for r in read_trace(trace) if r["kind"] == "post"]
     queries = {r["id"]: r for r in posts if r.get("level") == "verify_query"}
     verifications = [r for r in posts if r.get("level") == "verification"]
