@@ -587,7 +587,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--errors", nargs="*", default=["standard", "large"], choices=sorted(ERROR_PROFILES))
     ap.add_argument("--k", type=int, default=5, help="candidates compared (features of the first K)")
     ap.add_argument("--ks", type=json.loads, default=[2, 3, 5], help="K values analysed (<= --k)")
-    ap.add_argument("--margins", type=json.loads, default=[1e9, 2.0, 1.0], help="posterior margins (nats)")
+    ap.add_argument("--margins", type=json.loads, default=[1e9, 1.0, 0.5], help="posterior margins (nats)")
     ap.add_argument("--grid", type=int, default=3, help="position pattern grid x grid (sp)")
     ap.add_argument("--along", type=float, default=0.4, help="position pattern: +- this share of the spacing")
     ap.add_argument("--across-m", type=float, default=4.0, help="position pattern: +- metres across")
