@@ -102,7 +102,10 @@ class Scheduler(KnowledgeSource):
     each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
     ``tracked``: a tracker runs (the agent ``tracker``), frames are conditioned on its tracks, and
     a frame whose previous track does not come within ``track_timeout_s`` is analysed blind (see
-    the module docstring).
+    the module docstring). ``verify_candidates`` (0: off, the default; else >= 2),
+    ``verify_margin``, ``verify_weight``, ``verify_timeout_s``, ``verifier`` (the agent asked):
+    the render-and-compare verification of the module docstring (the scenario's ``verify``
+    block, :class:`models.scenario.VerifySpec`).
     """
 
     consumes: ClassVar[tuple[str, ...]] = (
