@@ -2,7 +2,7 @@
 
 Each case of :mod:`bench.evalset` (held-out by default) runs through the real pipeline,
 :func:`knowledge_sources.mission.run_mission` (all agents on the blackboard, in one process), with
-the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline``/``--render``/``--refine`` override blocks of it,
+the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline``/``--render``/``--refine``/``--verify`` override blocks of it,
 and without the tracker (every frame decided alone; ``--track``: with it, as a mission runs by
 default, so that ``top1`` is the track's). Per terrain and
 over all frames it reports:
@@ -18,7 +18,7 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
 
     python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
-        [--refine '{"recheck": false}'] [--track] [--errors standard|large] [--json-only]
+        [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large] [--json-only]
 
 ``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
@@ -121,6 +121,8 @@ def run(
             "fps": res["summary"]["frames_per_s"],
             "wall_s": wall,
             "description": case.description,
+            # each frame's final answer right (null: no truth), to compare two runs frame by frame
+            "correct": [bool(f["correct"]) if f.get("truth_viewframe") is not None else None for f in frames],
         }
         by_terrain.setdefault(case.terrain, []).extend(frames)
         everything.extend(frames)
@@ -169,6 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--render", type=json.loads, default=None, help='JSON render block, e.g. {"views_per_leg": 3}')
     parser.add_argument("--errors", choices=sorted(ERROR_PROFILES), default="standard", help="pose-error profile")
     parser.add_argument("--refine", type=json.loads, default=None, help='JSON refine block, e.g. {"recheck": false}')
+    parser.add_argument("--verify", type=json.loads, default=None, help='JSON verify block, e.g. {"enabled": true}')
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -179,6 +182,7 @@ def main(argv: list[str] | None = None) -> int:
             ("skyline", args.skyline),
             ("render", args.render),
             ("refine", args.refine),
+            ("verify", args.verify),
         )
         if v is not None
     }

@@ -87,6 +87,10 @@ __all__ = [
     "Track",
     "TrackQuery",
     "Truth",
+    "VERIFICATION",
+    "VERIFY_QUERY",
+    "Verification",
+    "VerifyQuery",
     "VIEWFRAME",
     "Viewframe",
     "answer_id",
@@ -104,6 +108,8 @@ __all__ = [
     "track_id",
     "track_query_id",
     "truth_id",
+    "verification_id",
+    "verify_query_id",
     "viewframe_id",
 ]
 
@@ -1098,6 +1104,52 @@ def track_query_id(frame: int) -> str:
     return f"tq-{frame:06d}"
 
 
+@dataclass(frozen=True, slots=True)
+class VerifyQuery(Message):
+    """The scheduler's request to the verifier: render and compare frame F's first candidates (answered by a verification)."""
+
+    level: ClassVar[str] = "verify_query"
+    posted_by: ClassVar[str] = "scheduler"
+    id_pattern: ClassVar[str] = "vq-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    viewframes: list = field(
+        metadata=_doc("the candidates' viewframes, the fused ranking's first route points in order")
+    )
+
+    def id(self) -> str:
+        return verify_query_id(self.frame)
+
+
+def verify_query_id(frame: int) -> str:
+    """Hypothesis id of the scheduler's verification request for frame ``frame``."""
+    return f"vq-{frame:06d}"
+
+
+@dataclass(frozen=True, slots=True)
+class Verification(Message):
+    """The verifier's render-and-compare scores of one frame's candidates (models.verify)."""
+
+    level: ClassVar[str] = "verification"
+    posted_by: ClassVar[str] = "verifier"
+    id_pattern: ClassVar[str] = "ver-<frame:06d>"
+    frame: int = field(metadata=_doc("frame number"))
+    query: str = field(metadata=_doc("id of the verify query answered"))
+    viewframes: list = field(metadata=_doc("the candidates' viewframes, as asked"))
+    correlations: list = field(
+        metadata=_doc("memory-pattern correlation of the camera image with each candidate's aligned view, [-1, 1]")
+    )
+    headings_deg: list = field(metadata=_doc("each aligned view's heading, degrees ccw from +x"))
+    renders: int = field(metadata=_doc("views rendered"))
+
+    def id(self) -> str:
+        return verification_id(self.frame)
+
+
+def verification_id(frame: int) -> str:
+    """Hypothesis id of the verification of frame ``frame``'s candidates."""
+    return f"ver-{frame:06d}"
+
+
 SCENARIO = Scenario.level
 VIEWFRAME = Viewframe.level
 MAP = Map.level
@@ -1111,6 +1163,8 @@ POSITION = Position.level
 POSE = Pose.level
 TRACK = Track.level
 TRACK_QUERY = TrackQuery.level
+VERIFY_QUERY = VerifyQuery.level
+VERIFICATION = Verification.level
 
 
 # -- the table ---------------------------------------------------------------------------------------

@@ -12,6 +12,8 @@ benchmark call. It starts the knowledge sources
 * ``skyline`` (:class:`~knowledge_sources.skyline.SkylineRanker`) when ``skyline.enabled``,
 * ``scheduler`` (:class:`~knowledge_sources.scheduler.Scheduler`), fusing the rankings of the
   indexers and the skyline,
+* ``verifier`` (:class:`~knowledge_sources.verifier.Verifier`) when ``verify.enabled``: the
+  scheduler's render-and-compare scores of a frame's first candidates,
 * ``refiner`` (:class:`~knowledge_sources.refiner.PoseRefiner`) when ``refine.enabled``,
 * ``tracker`` (:class:`~knowledge_sources.tracker.Tracker`), unless tracking is off (the
   scenario's ``tracking.enabled``, ``mapinterp run --no-track``),
@@ -58,6 +60,8 @@ MAX_RATE_HZ = 10_000.0
 MAX_WAIT_S = 7 * 24 * 3600.0
 #: the tracker's agent name (the scheduler addresses its track queries to it)
 TRACKER = "tracker"
+#: the verifier's agent name (the scheduler addresses its verify queries to it)
+VERIFIER = "verifier"
 
 
 def agent_plan(
@@ -75,7 +79,7 @@ def agent_plan(
     the camera posts each frame once the frame before is answered (its track when tracking,
     else its position); ``inline_viewframes``: the map renderer's option ``inline`` (the pixels
     in every viewframe message, as the scenario's ``render: {inline: true}``)."""
-    sched = scenario.scheduler
+    sched, ver = scenario.scheduler, scenario.verify
     tracked = scenario.tracking.enabled if track is None else bool(track)
     views = view_count(len(scenario.route), scenario.views_per_leg)
     shards = max(1, math.ceil(views / scenario.memory.shard_size))
@@ -158,9 +162,32 @@ def agent_plan(
                 "position_spread": list(sched.position_spread),
                 "position_dof": sched.position_dof,
                 "max_position_llr": sched.max_position_llr,
+                **(
+                    {
+                        "verify_candidates": ver.candidates,
+                        "verify_margin": ver.margin,
+                        "verify_weight": ver.weight,
+                        "verify_timeout_s": ver.timeout_s,
+                        "verifier": VERIFIER,
+                    }
+                    if ver.enabled
+                    else {}
+                ),
             },
         )
     )
+    if ver.enabled:
+        plan.append(
+            (
+                "knowledge_sources.verifier:Verifier",
+                VERIFIER,
+                {
+                    **{k: match[k] for k in ("step_deg", "max_heading_deg", "max_pitch_deg", "truncate_deg")},
+                    "rolls_deg": list(ver.roll_search_deg),
+                    "max_roll_deg": ver.max_roll_deg,
+                },
+            )
+        )
     ref = scenario.refine
     if ref.enabled:
         plan.append(
@@ -310,6 +337,8 @@ def run_mission(
         if scenario.refine.enabled:  # the refiner renders up to 2 + levels * grid**2 views a frame
             renders = 2 + (scenario.refine.levels * scenario.refine.grid**2 if scenario.refine.position else 0)
             timeout_s += 0.2 * n_frames * renders
+        if scenario.verify.enabled:  # the verifier renders one view a candidate
+            timeout_s += 0.2 * n_frames * scenario.verify.candidates
     _check_numbers(n_frames, timeout_s=timeout_s, frame_rate=frame_rate, wait_remote_s=wait_remote_s)
     if paced and frame_rate is not None:
         raise UsageError("--rate", "a camera paced on answers has no fixed rate: give one of the two")

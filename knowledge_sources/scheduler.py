@@ -22,6 +22,16 @@ frame links it (the answer). When the query times out (the tracker is dead or go
 blackboard's membership reports at once, or its track is late), the next frame is analysed
 blind, from the ranking alone, and its position says why in ``degraded`` (naming the tracker);
 a track arriving after that is not used for that frame.
+
+Render-and-compare verification (option ``verify_candidates`` >= 2, the scenario's ``verify``
+block, :class:`models.scenario.VerifySpec`): when the fused ranking's second route point is
+within ``verify_margin`` nats of the first, the scheduler posts a ``verify_query`` of the first
+``verify_candidates`` route points (their best viewframes) addressed to the verifier with a
+deadline (``verify_timeout_s``); the ``verification`` raises each candidate's fused score by
+``verify_weight`` times its correlation's shortfall from the best
+(:func:`models.verify.verified_ranking`) and the scene analysis starts from that ranking. A
+verification that does not come leaves the ranking as it is, and the position says so in
+``degraded``.
 """
 
 from __future__ import annotations
@@ -38,7 +48,7 @@ from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
 from knowledge_sources.scene_analysis import Backtracking, Question, QuestionOrder, SceneAnalysis, Strategy
-from models.scenario import SchedulerSpec
+from models.scenario import SchedulerSpec, VerifySpec
 
 __all__ = ["Scheduler", "detector_name"]
 
@@ -46,6 +56,8 @@ log = logging.getLogger(__name__)
 
 #: the defaults of every option: the scenario schema's ``scheduler`` settings
 _DEFAULTS = SchedulerSpec()
+#: the verification's: the scenario schema's ``verify`` settings (off unless ``verify_candidates`` is given)
+_VERIFY = VerifySpec()
 
 
 def detector_name(kind: str) -> str:
@@ -69,6 +81,8 @@ class _Frame:
     ranking: list[tuple[int, float]] = field(default_factory=list)
     track_prior: bool = False
     done: bool = False
+    verify_id: str | None = None  # the verify query under way
+    verified: str = ""  # what the verification did, for the position's reason
 
 
 class Scheduler(KnowledgeSource):
@@ -88,12 +102,21 @@ class Scheduler(KnowledgeSource):
     each defaults to the scenario schema's (:class:`models.scenario.SchedulerSpec`).
     ``tracked``: a tracker runs (the agent ``tracker``), frames are conditioned on its tracks, and
     a frame whose previous track does not come within ``track_timeout_s`` is analysed blind (see
-    the module docstring).
+    the module docstring). ``verify_candidates`` (0: off, the default; else >= 2),
+    ``verify_margin``, ``verify_weight``, ``verify_timeout_s``, ``verifier`` (the agent asked):
+    the render-and-compare verification of the module docstring (the scenario's ``verify``
+    block, :class:`models.scenario.VerifySpec`).
     """
 
-    consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.ANSWER, levels.TRACK)
-    produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY)
-    exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY)
+    consumes: ClassVar[tuple[str, ...]] = (
+        levels.MAP,
+        levels.RANKING,
+        levels.ANSWER,
+        levels.TRACK,
+        levels.VERIFICATION,
+    )
+    produces: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY, levels.VERIFY_QUERY)
+    exclusive: ClassVar[tuple[str, ...]] = (levels.QUERY, levels.POSITION, levels.TRACK_QUERY, levels.VERIFY_QUERY)
 
     def __init__(
         self,
@@ -118,6 +141,11 @@ class Scheduler(KnowledgeSource):
         position_spread: tuple[float, float, float] | list[float] = _DEFAULTS.position_spread,
         position_dof: float = _DEFAULTS.position_dof,
         max_position_llr: float = _DEFAULTS.max_position_llr,
+        verify_candidates: int = 0,
+        verify_margin: float = _VERIFY.margin,
+        verify_weight: float = _VERIFY.weight,
+        verify_timeout_s: float = _VERIFY.timeout_s,
+        verifier: str = "verifier",
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -147,6 +175,18 @@ class Scheduler(KnowledgeSource):
         self.position_spread = (float(position_spread[0]), float(position_spread[1]), float(position_spread[2]))
         self.position_dof = float(position_dof)
         self.max_position_llr = float(max_position_llr)
+        self.verify_candidates = int(verify_candidates)
+        if self.verify_candidates == 1 or self.verify_candidates < 0:
+            raise ValueError(f"verify_candidates must be 0 (off) or >= 2, got {verify_candidates!r}")
+        self.verify_margin = float(verify_margin)
+        self.verify_weight = float(verify_weight)
+        self.verify_timeout_s = float(verify_timeout_s)
+        if not (self.verify_weight >= 0 and self.verify_margin >= 0 and self.verify_timeout_s > 0):
+            raise ValueError(
+                f"verify_weight and verify_margin must be >= 0 and verify_timeout_s > 0, got "
+                f"{verify_weight!r}, {verify_margin!r}, {verify_timeout_s!r}"
+            )
+        self.verifier = str(verifier)
         self._placements: dict[int, dict[str, tuple[float, float, float]]] = {}  # viewframe -> landmark -> place
         self._map: levels.Map | None = None
         self._landmarks: dict[str, dict[str, Any]] = {}  # id -> {kind, index, ...}, from the map
@@ -166,7 +206,9 @@ class Scheduler(KnowledgeSource):
             return None
         # answers first: they finish frames already under way (focus of attention); then tracks,
         # which release the frame waiting for them
-        return {levels.ANSWER: 3.0, levels.TRACK: 2.5, levels.MAP: 2.0}.get(event.hypothesis.level, 1.0)
+        return {levels.ANSWER: 3.0, levels.VERIFICATION: 3.0, levels.TRACK: 2.5, levels.MAP: 2.0}.get(
+            event.hypothesis.level, 1.0
+        )
 
     # -- events ----------------------------------------------------------------------------
     def act(self, event: Event, board: Board) -> None:
@@ -177,6 +219,8 @@ class Scheduler(KnowledgeSource):
             self._on_ranking(h, board)
         elif h.level == levels.ANSWER:
             self._on_answer(h, board)
+        elif h.level == levels.VERIFICATION:
+            self._on_verification(h, board)
         elif h.level == levels.TRACK:
             track = levels.Track.from_hypothesis(h)
             if track.frame in self._no_track:
@@ -189,6 +233,15 @@ class Scheduler(KnowledgeSource):
     def on_timeout(self, hypothesis: Hypothesis, reason: str, board: Board) -> None:
         if hypothesis.level == levels.TRACK_QUERY:
             self._on_track_timeout(levels.TrackQuery.from_hypothesis(hypothesis), reason, board)
+            return
+        if hypothesis.level == levels.VERIFY_QUERY:
+            vq = levels.VerifyQuery.from_hypothesis(hypothesis)
+            st = self._frames.get(vq.frame)
+            if st is not None and st.verify_id == hypothesis.id and st.analysis is None:
+                log.warning("%s: frame %d: no verification from %s: %s", self.name, st.frame, self.verifier, reason)
+                st.degraded.append(f"{self.verifier}: no verification ({reason}), the ranking as fused")
+                st.verify_id = None
+                self._analyse(st, board)
             return
         if hypothesis.level != levels.QUERY:
             return
@@ -262,6 +315,39 @@ class Scheduler(KnowledgeSource):
         mp = self._ensure_map(board)
         shards = {src: [st.rankings[(src, b)].ranking() for b in range(st.shards[src])] for src in self.sources}
         st.ranking = _best_view_per_point(fuse_shards(shards, weights=self.sources), mp)
+        r = st.ranking
+        if self.verify_candidates >= 2 and len(r) >= 2 and r[1][1] - r[0][1] < self.verify_margin:
+            q = levels.post(
+                board,
+                levels.VerifyQuery(frame=st.frame, viewframes=[int(k) for k, _ in r[: self.verify_candidates]]),
+                links=(levels.frame_id(st.frame),),
+                addressed_to=self.verifier,
+                deadline_s=self.verify_timeout_s,
+            )
+            st.verify_id = q.id
+            return
+        self._analyse(st, board)
+
+    def _on_verification(self, h: Hypothesis, board: Board) -> None:
+        """The verifier's scores: the ranking re-scored by them, then the scene analysis."""
+        from models.verify import verified_ranking
+
+        v = levels.Verification.from_hypothesis(h)
+        st = self._frames.get(v.frame)
+        if st is None or st.verify_id is None or st.verify_id != v.query or st.analysis is not None:
+            return  # late: the frame went on without it
+        st.verify_id = None
+        first = st.ranking[0][0]
+        st.ranking = verified_ranking(st.ranking, v.viewframes, v.correlations, weight=self.verify_weight)
+        st.links.append(h.id)
+        st.verified = f"verified {len(v.viewframes)} candidates by render and compare" + (
+            "" if st.ranking[0][0] == first else f" (first viewframe {first} -> {st.ranking[0][0]})"
+        )
+        self._analyse(st, board)
+
+    def _analyse(self, st: _Frame, board: Board) -> None:
+        """Start the frame's scene analysis from its ranking (conditioned on the track)."""
+        mp = self._ensure_map(board)
         prior = self._tracks.pop(st.frame - 1, None)
         st.track_prior = prior is not None
         missing = self._no_track.get(st.frame - 1)
@@ -354,7 +440,9 @@ class Scheduler(KnowledgeSource):
                 backtracks=d.backtracks,
                 latency_ms=(time.time() - st.frame_time) * 1000.0,
                 ranking=[[k, v] for k, v in st.ranking[:5]],
-                reason=d.reason + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
+                reason=d.reason
+                + (f"; {st.verified}" if st.verified else "")
+                + ("; degraded: " + "; ".join(st.degraded) if st.degraded else ""),
                 degraded=list(st.degraded),
                 steps=[dict(s) for s in d.steps],
                 strategy=self.strategy,

@@ -136,6 +136,15 @@ SAMPLES: list[levels.Message] = [
         dt=None,
     ),
     levels.TrackQuery(frame=4, position="pos-000004"),
+    levels.VerifyQuery(frame=4, viewframes=[7, 3, 9]),
+    levels.Verification(
+        frame=4,
+        query="vq-000004",
+        viewframes=[7, 3, 9],
+        correlations=[0.41, 0.55, 0.2],
+        headings_deg=[61.0, 58.5, 70.0],
+        renders=3,
+    ),
 ]
 
 

@@ -364,3 +364,47 @@ def test_the_place_of_a_found_landmark_decides_between_candidates_that_show_it(p
     assert ("position" in h1) is position
     if position:
         assert h1["position"]["0"] == 0.0 and h1["position"]["2"] < -1.0
+
+
+def test_an_uncertain_ranking_is_verified_and_re_ranked_before_the_analysis() -> None:
+    bb = _board(verify_candidates=2, verify_margin=1.0, verify_weight=2.8)
+    _rank(bb, 0, SHARDS)
+    bb.run(timeouts=False)
+    assert not bb.hypotheses(levels.POSITION) and not _queries(bb)  # waiting for the verifier
+    (vh,) = bb.hypotheses(levels.VERIFY_QUERY)
+    vq = levels.VerifyQuery.from_hypothesis(vh)
+    assert vh.addressed_to == "verifier" and vq.viewframes == [2, 3]  # the fused ranking's first two
+    levels.post(
+        bb.user,
+        levels.Verification(
+            frame=0, query=vh.id, viewframes=[2, 3], correlations=[0.3, 0.6], headings_deg=[0.0, 0.0], renders=2
+        ),
+        links=(vh.id,),
+    )
+    bb.run()  # the detectors' questions go unanswered and time out
+    (ph,) = bb.hypotheses(levels.POSITION)
+    p = levels.Position.from_hypothesis(ph)
+    # the better match first; the other 2.8 * 0.3 behind, after the viewframes not verified
+    assert [k for k, _ in p.ranking] == [3, 0, 1, 2]
+    assert p.ranking[3][1] == pytest.approx(1e-5 + 2.8 * 0.3)
+    assert "verified 2 candidates" in p.reason and "(first viewframe 2 -> 3)" in p.reason
+    assert levels.verification_id(0) in ph.links
+
+
+def test_a_missing_verification_leaves_the_ranking_and_says_degraded() -> None:
+    bb = _board(verify_candidates=2, verify_margin=1.0, verify_timeout_s=2.0)  # no verifier on the board
+    _rank(bb, 0, SHARDS)
+    bb.run()
+    (ph,) = bb.hypotheses(levels.POSITION)
+    p = levels.Position.from_hypothesis(ph)
+    assert [k for k, _ in p.ranking[:2]] == [2, 3]
+    assert any("verifier: no verification" in d for d in p.degraded)
+
+
+def test_a_certain_ranking_is_not_verified() -> None:
+    bb = _board(verify_candidates=2, verify_margin=1e-6)  # the second is 5e-5 behind: beyond the margin
+    _rank(bb, 0, SHARDS)
+    bb.run()
+    assert not bb.hypotheses(levels.VERIFY_QUERY) and len(bb.hypotheses(levels.POSITION)) == 1
+    with pytest.raises(ValueError, match="verify_candidates"):
+        Scheduler("scheduler", verify_candidates=1)

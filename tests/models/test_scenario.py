@@ -309,6 +309,7 @@ _VALIDATED_NUMBERS = {
     ("MemorySpec", "size"): 2**40,
     ("MemorySpec", "max_shift"): (1, 10**9),
     ("MemorySpec", "roll_search_deg"): (0.0, 1e300),
+    ("VerifySpec", "roll_search_deg"): (0.0, 1e300),
     ("SchedulerSpec", "align_deg"): (1.0, 1e300),
     ("SchedulerSpec", "detector_scales"): (1.0, 1e300),
     ("SchedulerSpec", "position_spread"): (1.0, 1.0, 1e300),
