@@ -208,20 +208,38 @@ class ViewframeIndex:
         #: camera inside a landmark, or facing the sky): they have nothing to match, so they are
         #: left out of every ranking rather than failing the index
         self.featureless: list[int] = []
+        self._viewframes: NDArray[np.int64] | None = None  # storage order, made on demand (reset by a write)
 
     def __len__(self) -> int:
         return len(self.memory)
 
     @property
     def viewframes(self) -> NDArray[np.int64]:
-        """Viewframe indices in storage order, shape (H,)."""
-        return np.concatenate([b.viewframes for b in self.memory.banks]) if self.memory.banks else np.zeros(0, np.int64)
+        """Viewframe indices in storage order, shape (H,) (read only; made once after each :meth:`add`)."""
+        if self._viewframes is None:
+            banks = self.memory.banks
+            self._viewframes = np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+            self._viewframes.setflags(write=False)
+        return self._viewframes
 
     def pattern(self, image: ArrayLike) -> NDArray[np.float32]:
         """The memory pattern of an image (viewframe or camera frame): (N, N) float32, zero mean,
         unit energy (:func:`models.preprocess.preprocess` with this index's settings)."""
         s = self.settings
         return preprocess(image, size=s.size, edge=s.edge, blur_sigma=s.blur_sigma, whiten=s.whiten)
+
+    def query_pattern(self, image: ArrayLike, *, roll: float = 0.0) -> NDArray[np.float32]:
+        """The :meth:`pattern` of a camera image (H, W[, C], indexed (row, col)) turned by ``roll``
+        degrees (:func:`models.derotate.rolled`; 0: as it is), read only: made once per process
+        for all the indices with this preprocessing (:data:`models.query_patterns.SHARED`, keyed
+        by the image's bytes), so the shards of a process ranking one frame share it."""
+        from models.derotate import rolled
+        from models.query_patterns import SHARED
+
+        img = np.asarray(image)
+        s = self.settings
+        key = ("query", s.size, s.edge, float(s.blur_sigma), bool(s.whiten), float(roll))
+        return SHARED.get(img, key=key, make=lambda: self.pattern(rolled(img, roll)))
 
     def add(self, images: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Preprocess and store viewframe images under their viewframe indices."""
@@ -233,6 +251,7 @@ class ViewframeIndex:
         (with a warning) and never ranked."""
 
         vfs = [int(v) for v in viewframes]
+        self._viewframes = None
         self.memory.reserve(len(self.memory) + len(vfs))
         source = iter(patterns)
         step = self.memory.bank_size  # a bank's worth at a time: the patterns are never all in memory
@@ -265,21 +284,21 @@ class ViewframeIndex:
         variance)."""
         if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
             return merge_rankings([])
-        from models.derotate import rolled
-
         img = np.asarray(image)
 
         def query(roll: float) -> ArrayLike:
-            return pattern if roll == 0.0 and pattern is not None else self.pattern(rolled(img, roll))
+            return pattern if roll == 0.0 and pattern is not None else self.query_pattern(img, roll=roll)
 
         rolls = tuple(self.settings.roll_search_deg)
         if rolls == (0.0,):
             return self.memory.rank(query(0.0), among=among)
         k = self.settings.roll_shortlist
         first = 0.0 if 0.0 in rolls else rolls[0]  # the plain match, when it is searched
+        turned = [a for a in rolls if a != first]
+        if k is None:  # every query among the same rows: picked once
+            return best_of_rankings(self.memory.rank_many([query(a) for a in (first, *turned)], among=among))
         plain = self.memory.rank(query(first), among=among)
-        short = among if k is None else plain.viewframes[:k]
-        return best_of_rankings([plain, *(self.memory.rank(query(a), among=short) for a in rolls if a != first)])
+        return best_of_rankings([plain, *self.memory.rank_many([query(a) for a in turned], among=plain.viewframes[:k])])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""
