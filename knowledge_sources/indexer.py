@@ -252,10 +252,10 @@ class AssociativeIndexer(RouteRanker):
         their ranking rows are read (with the roll search, for each turned query) (not waiting for :data:`MAPPED_RANKINGS`: a few rows, not the
         shard's; a stored index's pages are given back after)."""
         assert self._index is not None and self._coarse is not None
-        pattern = self._index.query_pattern(image)  # made once for the shards of this process
-        among = self._coarse.candidates(self._index.memory.banks[0].query_key(pattern), k=self._coarse_k)
-        try:  # the candidates ranked with the roll search (memory.roll_search_deg), the pattern not made again
-            return self._index.rank(image, among=among, pattern=pattern)
+        # the frame's pattern and key made once for the shards of this process (models.query_patterns)
+        among = self._coarse.candidates(self._index.query_key(image), k=self._coarse_k)
+        try:  # the candidates ranked with the roll search (memory.roll_search_deg), the patterns not made again
+            return self._index.rank(image, among=among)
         finally:
             if self.loaded:
                 self._release_rows()

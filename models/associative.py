@@ -83,7 +83,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from models.errors import AssociativeMemoryError
-from models.memory_keys import KEY_METHODS, key_spectrum
+from models.memory_keys import KEY_METHODS, key_phase, key_spectrum, seeded_key
 from models.scenario import MAX_SHIFT, MemorySpec
 
 __all__ = [
@@ -279,6 +279,22 @@ def _search(
     return c
 
 
+def _normalised(pattern: ArrayLike, n: int, what: str) -> NDArray[np.float32]:
+    """``pattern`` (N, N) checked (``what`` names the operation in the error) and normalised: zero
+    mean, unit energy, float32 (zeros when it has no energy)."""
+    p = np.asarray(pattern)
+    if p.shape != (n, n):
+        raise AssociativeMemoryError(f"{what}: pattern must have shape ({n}, {n}), got {p.shape}")
+    if not np.issubdtype(p.dtype, np.number) or not np.all(np.isfinite(p)):
+        raise AssociativeMemoryError(f"{what}: pattern must hold finite numbers")
+    p = p.astype(np.float64)
+    p -= p.mean()
+    energy = float(np.sqrt(np.sum(p * p)))
+    if energy <= 1e-12:
+        return np.zeros((n, n), dtype=np.float32)
+    return (p / energy).astype(np.float32)
+
+
 @lru_cache(maxsize=8)
 def _lowpass(n: int, sigma: float) -> NDArray[np.float64]:
     """Half-spectrum (N, N // 2 + 1) transfer function of a gaussian blur of ``sigma`` pixels."""
@@ -407,18 +423,7 @@ class HolographicMemory:
         return self._match
 
     def _pattern(self, pattern: ArrayLike, what: str) -> NDArray[np.float32]:
-        p = np.asarray(pattern)
-        n = self.size
-        if p.shape != (n, n):
-            raise AssociativeMemoryError(f"{what}: pattern must have shape ({n}, {n}), got {p.shape}")
-        if not np.issubdtype(p.dtype, np.number) or not np.all(np.isfinite(p)):
-            raise AssociativeMemoryError(f"{what}: pattern must hold finite numbers")
-        p = p.astype(np.float64)
-        p -= p.mean()
-        energy = float(np.sqrt(np.sum(p * p)))
-        if energy <= 1e-12:
-            return np.zeros((n, n), dtype=np.float32)
-        return (p / energy).astype(np.float32)
+        return _normalised(pattern, self.size, what)
 
     def _grow(self, extra: int) -> None:
         need = self._count + extra
@@ -468,6 +473,17 @@ class HolographicMemory:
     def query_key(self, pattern: ArrayLike) -> NDArray[np.complex128]:
         """Key spectrum of a query pattern (shape (N, N // 2 + 1)), reusable across banks."""
         return key_spectrum(self._pattern(pattern, "query"), seed=self.seed, method=self.key_method)
+
+    def query_phase(self, pattern: ArrayLike) -> NDArray[np.complex128] | None:
+        """The seed-independent part of :meth:`query_key` (:func:`models.memory_keys.key_phase`
+        of the normalised pattern): one query's, shared by memories of any seed with this size and
+        key method; None for a featureless pattern."""
+        return key_phase(self._pattern(pattern, "query"), method=self.key_method)
+
+    def key_of_phase(self, phase: NDArray[np.complexfloating] | None) -> NDArray[np.complex128]:
+        """:meth:`query_key` from the pattern's :meth:`query_phase` (the same numbers)."""
+        n = self.size
+        return np.zeros((n, n // 2 + 1), dtype=np.complex128) if phase is None else seeded_key(phase, seed=self.seed)
 
     def recall(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
         """``R = K(pattern) (x) M``, shape (N, N), float64 (not normalised).
@@ -728,9 +744,19 @@ class BankedMemory:
         """
         return self.rank_many([pattern], among=among)[0]
 
-    def rank_many(self, patterns: Sequence[ArrayLike], *, among: ArrayLike | None = None) -> list[Ranking]:
+    def rank_many(
+        self,
+        patterns: Sequence[ArrayLike],
+        *,
+        among: ArrayLike | None = None,
+        keys: Sequence[NDArray[np.complexfloating]] | None = None,
+    ) -> list[Ranking]:
         """:meth:`rank` of each pattern (the same numbers, in order), the rows ``among`` the
-        viewframes given picked once for all (the roll search's turned queries of one frame)."""
+        viewframes given picked once for all (the roll search's turned queries of one frame).
+        ``keys``: each pattern's :meth:`HolographicMemory.query_key` when the caller has them
+        (e.g. from a shared :meth:`HolographicMemory.query_phase`), not made again."""
+        if keys is not None and len(keys) != len(patterns):
+            raise AssociativeMemoryError(f"rank: {len(keys)} keys for {len(patterns)} patterns")
         if not self.banks:
             return [merge_rankings([]) for _ in patterns]
         matrix = self.ranking_matrix
@@ -744,8 +770,8 @@ class BankedMemory:
             matrix, viewframes, row_bank = matrix[rows], viewframes[rows], row_bank[rows]
         banks = None if self.compact or among is None else np.unique(row_bank)  # the banks holding a row searched
         out = []
-        for pattern in patterns:
-            key = self.banks[0].query_key(pattern)
+        for i, pattern in enumerate(patterns):
+            key = self.banks[0].query_key(pattern) if keys is None else keys[i]
             if self.compact:  # |FK| is the same on every bin but DC: ||R_b|| = sqrt(sum w |FM_b|^2) |FK|
                 assert self._bank_energy is not None
                 energy = self._bank_energy * float(np.max(np.abs(key), initial=0.0))

@@ -3,7 +3,9 @@
 Every associative indexer shard of a mission ranks the same camera frame with the same
 preprocessing, and with the memory's roll search (``memory.roll_search_deg``) the frame turned by
 each roll: 20 shards at 10,000 viewframes, 5 rolls, 100 turned and preprocessed images a frame
-where 5 differ. :class:`QueryPatterns` keeps the patterns of the latest frames, keyed by the
+where 5 differ; and each turned image's key (its seed-independent part,
+:meth:`models.associative.HolographicMemory.query_phase`: the shards' keys differ only by their
+seed's random phase). :class:`QueryPatterns` keeps the patterns of the latest frames, keyed by the
 image's bytes (a digest with its shape and dtype: each agent decodes its own copy of a frame's
 message), the roll and the preprocessing parameters, so the shards of one process make each
 once; shards in other processes make their own (the same numbers: the same function of the same
@@ -27,8 +29,9 @@ from numpy.typing import NDArray
 
 __all__ = ["KEEP", "QueryPatterns", "SHARED", "image_digest"]
 
-#: patterns kept (the latest asked for): 8 frames of 5 rolls, 64 KB each at N = 128
-KEEP = 40
+#: patterns kept (the latest asked for): 8 frames of 5 rolls, each a pattern (64 KB at N = 128)
+#: and its key's phase (133 KB)
+KEEP = 80
 
 
 def image_digest(image: NDArray[Any]) -> tuple[bytes, tuple[int, ...], str]:
@@ -44,7 +47,7 @@ class _Slot:
 
     def __init__(self) -> None:
         self.done = threading.Event()
-        self.value: NDArray[np.float32] | None = None
+        self.value: NDArray[Any] | None = None
 
 
 class QueryPatterns:
@@ -77,13 +80,19 @@ class QueryPatterns:
             self._slots.clear()
 
     def get(
-        self, image: NDArray[Any], *, key: Hashable, make: Callable[[], NDArray[np.float32]]
-    ) -> NDArray[np.float32]:
+        self,
+        image: NDArray[Any],
+        *,
+        key: Hashable,
+        make: Callable[[], NDArray[Any]],
+        digest: Hashable | None = None,
+    ) -> NDArray[Any]:
         """The pattern of ``image`` (H, W[, C], indexed (row, col)) under ``key`` (what else decides
         it: the preprocessing parameters, the roll), made by ``make()`` when it is not held. The
         same array to every caller (read only). An error of ``make`` reaches its caller; callers
-        waiting for it make the pattern themselves."""
-        full = (image_digest(image), key)
+        waiting for it make the pattern themselves. ``digest``: :func:`image_digest` of ``image``,
+        when the caller has it (not made again)."""
+        full = (image_digest(image) if digest is None else digest, key)
         with self._lock:
             slot = self._slots.get(full)
             mine = slot is None
@@ -111,7 +120,7 @@ class QueryPatterns:
                         del self._slots[full]
             slot.done.set()
 
-    def _made(self, make: Callable[[], NDArray[np.float32]]) -> NDArray[np.float32]:
+    def _made(self, make: Callable[[], NDArray[Any]]) -> NDArray[Any]:
         value = np.asarray(make())
         value.setflags(write=False)
         with self._lock:
