@@ -26,8 +26,9 @@ __all__ = ["AssociativeIndexer", "MAPPED_RANKINGS"]
 
 log = logging.getLogger(__name__)
 
-#: shards of one process ranking their stored (memory-mapped) rows at once: one per core, as
-#: many as can compute at once (AssociativeIndexer._ranked)
+#: shards of one process ranking at once (their stored, memory-mapped rows, or the coarse stage's
+#: candidates): one per core, as many as can compute at once (AssociativeIndexer._ranked and
+#: _coarse_ranked)
 MAPPED_RANKINGS = max(2, os.cpu_count() or 1)
 _MAPPED = threading.BoundedSemaphore(MAPPED_RANKINGS)
 
@@ -248,17 +249,22 @@ class AssociativeIndexer(RouteRanker):
 
     def _coarse_ranked(self, image: np.ndarray) -> Ranking:
         """The ranking of ``image`` among the coarse stage's candidates: the frame's pattern and key
-        are made once, the coarse rows (in memory) give the ``coarse_candidates`` best, and only
-        their ranking rows are read (with the roll search, for each turned query) (not waiting for :data:`MAPPED_RANKINGS`: a few rows, not the
-        shard's; a stored index's pages are given back after)."""
+        (made once for the shards of this process, :mod:`models.query_patterns`), the coarse rows
+        (in memory) give the ``coarse_candidates`` best, and only their ranking rows are read
+        (with the roll search, for each turned query); a stored index's pages are given back
+        after. While at most :data:`MAPPED_RANKINGS` shards of this process do: with the roll
+        search a shard's ranking holds about 10 MB at once (its candidates' rows, and for each
+        turned query their products and inverse FFTs), and 20 shards ranking a frame at once
+        held 440 MB over the idle level against 166 MB two at a time, in the same time on 2 cores
+        (BENCHMARKS.md, "Session 11: the roll search's cost at 10,000 viewframes")."""
         assert self._index is not None and self._coarse is not None
-        pattern = self._index.pattern(image)
-        among = self._coarse.candidates(self._index.memory.banks[0].query_key(pattern), k=self._coarse_k)
-        try:  # the candidates ranked with the roll search (memory.roll_search_deg), the pattern not made again
-            return self._index.rank(image, among=among, pattern=pattern)
-        finally:
-            if self.loaded:
-                self._release_rows()
+        with _MAPPED:
+            among = self._coarse.candidates(self._index.query_key(image), k=self._coarse_k)
+            try:  # the candidates ranked with the roll search (memory.roll_search_deg), the patterns not made again
+                return self._index.rank(image, among=among)
+            finally:
+                if self.loaded:
+                    self._release_rows()
 
     def holds_any(self, window: tuple[int, int]) -> bool:
         """The index holds a viewframe of ``window`` (``(first, last)`` viewframes, inclusive)."""

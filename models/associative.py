@@ -83,7 +83,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from models.errors import AssociativeMemoryError
-from models.memory_keys import KEY_METHODS, key_spectrum
+from models.memory_keys import KEY_METHODS, key_phase, key_spectrum, seeded_key
 from models.scenario import MAX_SHIFT, MemorySpec
 
 __all__ = [
@@ -249,12 +249,13 @@ def _search(
     interleaved dot product with a query vector q is ``Re sum row conj(q)``, with q = conj(FK)
     e^(-2 pi i k.d/N) for lag d, so ``<shift_d(R), P_h> = Re sum_half w FP_h conj(FM) FK
     e^(2 pi i k.d/N)``, which is ``irfft2(FP_h conj(FM) FK)`` at d: the weights w are irfft2's
-    own), and the maximum is taken over the ``max_shift`` window. The cost hardly depends on the
-    window.
+    own), and the maximum is taken over the ``max_shift`` window. The second inverse FFT (over
+    the columns) is taken only on the window's rows (the same numbers as irfft2's: numpy
+    computes it in that order), so the cost grows a little with the window's rows.
     """
     if max_shift == (0, 0) or matrix.shape[0] <= SHIFT_SEARCH_TOP:
         c = (matrix @ _zero_lag_query(key)).astype(np.float64) * scale
-        top = np.arange(c.size)
+        top: NDArray[np.intp] | None = None  # every row
     else:
         n = key.shape[0]
         both = matrix @ np.stack([_zero_lag_query(key), _zero_lag_query(key * _lowpass(n, PRESELECT_SIGMA))], 1)
@@ -264,14 +265,34 @@ def _search(
         top = np.union1d(np.argpartition(-c, k - 1)[:k], np.argpartition(-low, k - 1)[:k])
     if max_shift != (0, 0) and c.size:
         n = key.shape[0]
-        rows = np.ascontiguousarray(matrix[top]).view(np.complex64).reshape(len(top), n, n // 2 + 1)
+        picked = matrix if top is None else matrix[top]  # every row: the matrix itself, not a copy
+        rows = np.ascontiguousarray(picked).view(np.complex64).reshape(picked.shape[0], n, n // 2 + 1)
         prod = rows * (key / _parseval_weights(n)).astype(np.complex64)[None]
-        lag = np.fft.irfft2(prod, s=(n, n), axes=(-2, -1))  # lag[r % n, c % n] is lag (r, c)
         rr = np.arange(-max_shift[0], max_shift[0] + 1) % n
         cc = np.arange(-max_shift[1], max_shift[1] + 1) % n
-        best = lag[:, rr][:, :, cc].reshape(len(top), -1).max(axis=1)
-        c[top] = np.maximum(best.astype(np.float64) * scale[top], c[top])
+        # irfft2 as numpy computes it (the inverse FFT over the rows, then the real one over the
+        # columns), the second only on the window's rows: the same numbers at a third of the cost
+        lag = np.fft.irfft(np.fft.ifft(prod, n, axis=-2)[:, rr], n, axis=-1)  # lag[i, c % n]: lag (rr[i], c)
+        best = lag[:, :, cc].reshape(rows.shape[0], -1).max(axis=1)
+        at = slice(None) if top is None else top
+        c[at] = np.maximum(best.astype(np.float64) * scale[at], c[at])
     return c
+
+
+def _normalised(pattern: ArrayLike, n: int, what: str) -> NDArray[np.float32]:
+    """``pattern`` (N, N) checked (``what`` names the operation in the error) and normalised: zero
+    mean, unit energy, float32 (zeros when it has no energy)."""
+    p = np.asarray(pattern)
+    if p.shape != (n, n):
+        raise AssociativeMemoryError(f"{what}: pattern must have shape ({n}, {n}), got {p.shape}")
+    if not np.issubdtype(p.dtype, np.number) or not np.all(np.isfinite(p)):
+        raise AssociativeMemoryError(f"{what}: pattern must hold finite numbers")
+    p = p.astype(np.float64)
+    p -= p.mean()
+    energy = float(np.sqrt(np.sum(p * p)))
+    if energy <= 1e-12:
+        return np.zeros((n, n), dtype=np.float32)
+    return (p / energy).astype(np.float32)
 
 
 @lru_cache(maxsize=8)
@@ -402,18 +423,7 @@ class HolographicMemory:
         return self._match
 
     def _pattern(self, pattern: ArrayLike, what: str) -> NDArray[np.float32]:
-        p = np.asarray(pattern)
-        n = self.size
-        if p.shape != (n, n):
-            raise AssociativeMemoryError(f"{what}: pattern must have shape ({n}, {n}), got {p.shape}")
-        if not np.issubdtype(p.dtype, np.number) or not np.all(np.isfinite(p)):
-            raise AssociativeMemoryError(f"{what}: pattern must hold finite numbers")
-        p = p.astype(np.float64)
-        p -= p.mean()
-        energy = float(np.sqrt(np.sum(p * p)))
-        if energy <= 1e-12:
-            return np.zeros((n, n), dtype=np.float32)
-        return (p / energy).astype(np.float32)
+        return _normalised(pattern, self.size, what)
 
     def _grow(self, extra: int) -> None:
         need = self._count + extra
@@ -463,6 +473,17 @@ class HolographicMemory:
     def query_key(self, pattern: ArrayLike) -> NDArray[np.complex128]:
         """Key spectrum of a query pattern (shape (N, N // 2 + 1)), reusable across banks."""
         return key_spectrum(self._pattern(pattern, "query"), seed=self.seed, method=self.key_method)
+
+    def query_phase(self, pattern: ArrayLike) -> NDArray[np.complex128] | None:
+        """The seed-independent part of :meth:`query_key` (:func:`models.memory_keys.key_phase`
+        of the normalised pattern): one query's, shared by memories of any seed with this size and
+        key method; None for a featureless pattern."""
+        return key_phase(self._pattern(pattern, "query"), method=self.key_method)
+
+    def key_of_phase(self, phase: NDArray[np.complexfloating] | None) -> NDArray[np.complex128]:
+        """:meth:`query_key` from the pattern's :meth:`query_phase` (the same numbers)."""
+        n = self.size
+        return np.zeros((n, n // 2 + 1), dtype=np.complex128) if phase is None else seeded_key(phase, seed=self.seed)
 
     def recall(self, pattern: ArrayLike, *, key: NDArray[np.complex128] | None = None) -> NDArray[np.float64]:
         """``R = K(pattern) (x) M``, shape (N, N), float64 (not normalised).
@@ -597,6 +618,7 @@ class BankedMemory:
         self._nrows = 0
         self._row0: list[int] = []  # compact: first packed row of each finalized bank
         self._bank_energy: NDArray[np.float64] | None = None  # compact: (B,) sqrt(sum w |FM_b|^2)
+        self._row_vf: tuple[NDArray[np.float32], NDArray[np.int64]] | None = None  # (matrix, its row_viewframes)
 
     def reserve(self, count: int) -> None:
         """Compact: room for ``count`` viewframes in all (the packed rows are then never copied)."""
@@ -697,9 +719,17 @@ class BankedMemory:
     @property
     def row_viewframes(self) -> NDArray[np.int64]:
         """The viewframe of each row of :attr:`ranking_matrix` ``(H,)``, in storage order (read it
-        after the matrix: a compact memory's last, partial bank is finalized there)."""
+        after the matrix: a compact memory's last, partial bank is finalized there). Made once per
+        matrix (one bank per viewframe at the default bank size: 512 arrays a shard); read only."""
+        packed = self._packed
+        if packed is not None and self._row_vf is not None and self._row_vf[0] is packed:
+            return self._row_vf[1]
         banks = self.banks[: len(self._row0)] if self.compact else self.banks
-        return np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+        vf = np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+        vf.setflags(write=False)
+        if packed is not None:
+            self._row_vf = (packed, vf)
+        return vf
 
     def rank(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """Merged ranking of all banks, best first; with ``among`` (viewframe indices), of those
@@ -712,9 +742,23 @@ class BankedMemory:
         shift-searches every row (at most :data:`SHIFT_SEARCH_TOP` rows, or ``max_shift`` 0)
         its order is the full ranking's order restricted to the set.
         """
+        return self.rank_many([pattern], among=among)[0]
+
+    def rank_many(
+        self,
+        patterns: Sequence[ArrayLike],
+        *,
+        among: ArrayLike | None = None,
+        keys: Sequence[NDArray[np.complexfloating]] | None = None,
+    ) -> list[Ranking]:
+        """:meth:`rank` of each pattern (the same numbers, in order), the rows ``among`` the
+        viewframes given picked once for all (the roll search's turned queries of one frame).
+        ``keys``: each pattern's :meth:`HolographicMemory.query_key` when the caller has them
+        (e.g. from a shared :meth:`HolographicMemory.query_phase`), not made again."""
+        if keys is not None and len(keys) != len(patterns):
+            raise AssociativeMemoryError(f"rank: {len(keys)} keys for {len(patterns)} patterns")
         if not self.banks:
-            return merge_rankings([])
-        key = self.banks[0].query_key(pattern)
+            return [merge_rankings([]) for _ in patterns]
         matrix = self.ranking_matrix
         assert self._row_bank is not None  # set with the matrix
         viewframes = self.row_viewframes
@@ -722,23 +766,27 @@ class BankedMemory:
         if among is not None:
             rows = np.flatnonzero(np.isin(viewframes, np.asarray(among, dtype=np.int64).ravel()))
             if rows.size == 0:
-                return _ranking(np.zeros(0, np.int64), np.zeros(0, np.float64))
+                return [_ranking(np.zeros(0, np.int64), np.zeros(0, np.float64)) for _ in patterns]
             matrix, viewframes, row_bank = matrix[rows], viewframes[rows], row_bank[rows]
-        power = (np.abs(key) ** 2).ravel().astype(np.float32)
-        if self.compact:  # |FK| is the same on every bin but DC: ||R_b|| = sqrt(sum w |FM_b|^2) |FK|
-            assert self._bank_energy is not None
-            energy = self._bank_energy * float(np.max(np.abs(key), initial=0.0))
-        elif among is None:
-            assert self._bank_power is not None
-            energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
-        else:  # only the banks holding a row searched
-            assert self._bank_power is not None
-            banks = np.unique(row_bank)
-            energy = np.zeros(len(self.banks))
-            energy[banks] = np.sqrt(np.maximum(self._bank_power[banks] @ power, 0.0).astype(np.float64))
-        scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
-        c = _search(matrix, key, self.max_shift, scale[row_bank])
-        return _ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size))
+        banks = None if self.compact or among is None else np.unique(row_bank)  # the banks holding a row searched
+        out = []
+        for i, pattern in enumerate(patterns):
+            key = self.banks[0].query_key(pattern) if keys is None else keys[i]
+            if self.compact:  # |FK| is the same on every bin but DC: ||R_b|| = sqrt(sum w |FM_b|^2) |FK|
+                assert self._bank_energy is not None
+                energy = self._bank_energy * float(np.max(np.abs(key), initial=0.0))
+            else:
+                assert self._bank_power is not None
+                power = (np.abs(key) ** 2).ravel().astype(np.float32)
+                if banks is None:
+                    energy = np.sqrt(np.maximum(self._bank_power @ power, 0.0).astype(np.float64))  # ||R_b|| per bank
+                else:
+                    energy = np.zeros(len(self.banks))
+                    energy[banks] = np.sqrt(np.maximum(self._bank_power[banks] @ power, 0.0).astype(np.float64))
+            scale = np.where(energy > 1e-12, 1.0 / np.maximum(energy, 1e-300), 0.0)
+            c = _search(matrix, key, self.max_shift, scale[row_bank])
+            out.append(_ranking(viewframes, np.maximum(2.0 - 2.0 * c, 0.0) / float(self.size * self.size)))
+        return out
 
     def compact_arrays(self) -> dict[str, NDArray[Any]]:
         """Compact: everything a ranking reads, as four arrays (what :mod:`models.index_store`

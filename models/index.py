@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import itertools
 import logging
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Hashable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -208,20 +208,70 @@ class ViewframeIndex:
         #: camera inside a landmark, or facing the sky): they have nothing to match, so they are
         #: left out of every ranking rather than failing the index
         self.featureless: list[int] = []
+        self._viewframes: NDArray[np.int64] | None = None  # storage order, made on demand (reset by a write)
 
     def __len__(self) -> int:
         return len(self.memory)
 
     @property
     def viewframes(self) -> NDArray[np.int64]:
-        """Viewframe indices in storage order, shape (H,)."""
-        return np.concatenate([b.viewframes for b in self.memory.banks]) if self.memory.banks else np.zeros(0, np.int64)
+        """Viewframe indices in storage order, shape (H,) (read only; made once after each :meth:`add`)."""
+        if self._viewframes is None:
+            banks = self.memory.banks
+            self._viewframes = np.concatenate([b.viewframes for b in banks]) if banks else np.zeros(0, np.int64)
+            self._viewframes.setflags(write=False)
+        return self._viewframes
 
     def pattern(self, image: ArrayLike) -> NDArray[np.float32]:
         """The memory pattern of an image (viewframe or camera frame): (N, N) float32, zero mean,
         unit energy (:func:`models.preprocess.preprocess` with this index's settings)."""
         s = self.settings
         return preprocess(image, size=s.size, edge=s.edge, blur_sigma=s.blur_sigma, whiten=s.whiten)
+
+    def query_pattern(
+        self, image: ArrayLike, *, roll: float = 0.0, digest: Hashable | None = None
+    ) -> NDArray[np.float32]:
+        """The :meth:`pattern` of a camera image (H, W[, C], indexed (row, col)) turned by ``roll``
+        degrees (:func:`models.derotate.rolled`; 0: as it is), read only: made once per process
+        for all the indices with this preprocessing (:data:`models.query_patterns.SHARED`, keyed
+        by the image's bytes), so the shards of a process ranking one frame share it.
+        ``digest``: :func:`models.query_patterns.image_digest` of ``image``, when the caller has it."""
+        from models.derotate import rolled
+        from models.query_patterns import SHARED
+
+        img = np.asarray(image)
+        key = ("pattern", *self._preprocessing, float(roll))
+        return SHARED.get(img, key=key, make=lambda: self.pattern(rolled(img, roll)), digest=digest)
+
+    def query_key(
+        self, image: ArrayLike, *, roll: float = 0.0, digest: Hashable | None = None
+    ) -> NDArray[np.complex128]:
+        """The memory's key spectrum (N, N // 2 + 1) of :meth:`query_pattern`, its seed's: the
+        same numbers as ``memory.banks[0].query_key(query_pattern(image, roll=roll))``, from the
+        key's seed-independent part (:meth:`models.associative.HolographicMemory.query_phase`)
+        made once per process for all the indices with this preprocessing and key method. The
+        index must hold a viewframe."""
+        from models.query_patterns import SHARED, image_digest
+
+        if not self.memory.banks:
+            raise AssociativeMemoryError("query_key: the index holds no viewframe")
+        img = np.asarray(image)
+        ident = image_digest(img) if digest is None else digest
+        bank = self.memory.banks[0]
+
+        def make() -> NDArray[np.complex128]:
+            phase = bank.query_phase(self.query_pattern(img, roll=roll, digest=ident))
+            return np.zeros(0, np.complex128) if phase is None else phase  # empty: a featureless pattern
+
+        phase = SHARED.get(
+            img, key=("phase", *self._preprocessing, self.settings.key, float(roll)), make=make, digest=ident
+        )
+        return bank.key_of_phase(phase if phase.size else None)
+
+    @property
+    def _preprocessing(self) -> tuple[int, str, float, bool]:
+        s = self.settings
+        return (s.size, s.edge, float(s.blur_sigma), bool(s.whiten))
 
     def add(self, images: Iterable[ArrayLike], viewframes: Iterable[int]) -> None:
         """Preprocess and store viewframe images under their viewframe indices."""
@@ -233,6 +283,7 @@ class ViewframeIndex:
         (with a warning) and never ranked."""
 
         vfs = [int(v) for v in viewframes]
+        self._viewframes = None
         self.memory.reserve(len(self.memory) + len(vfs))
         source = iter(patterns)
         step = self.memory.bank_size  # a bank's worth at a time: the patterns are never all in memory
@@ -254,7 +305,9 @@ class ViewframeIndex:
         :meth:`models.associative.BankedMemory.rank`) ordered by the error variance of
         ``image``'s recall, best first. ``among`` naming none of the stored viewframes: the empty
         ranking, without preprocessing the image (a shard outside a track window). ``pattern``:
-        ``image``'s own :meth:`pattern`, when the caller made it already (not made again).
+        ``image``'s own :meth:`pattern`, when the caller made it already (not made again). The
+        patterns and keys of the (turned) image come from :meth:`query_pattern` and
+        :meth:`query_key`: made once per process for every index with the same preprocessing.
 
         The roll search (``roll_search_deg`` of the settings): ``image`` (H, W[, C], indexed
         (row, col)) is ranked turned by each of those rolls about its centre
@@ -263,23 +316,34 @@ class ViewframeIndex:
         across banks and shards. With ``roll_shortlist`` K the turned images are ranked only among
         the first match's best K (the match at roll 0 when it is searched; the others keep its
         variance)."""
+        from models.query_patterns import image_digest
+
         if among is not None and not np.isin(np.asarray(among, dtype=np.int64).ravel(), self.viewframes).any():
             return merge_rankings([])
-        from models.derotate import rolled
-
+        if not self.memory.banks:
+            return merge_rankings([])
         img = np.asarray(image)
+        ident = image_digest(img)  # once: each turned query is looked up by it
 
-        def query(roll: float) -> ArrayLike:
-            return pattern if roll == 0.0 and pattern is not None else self.pattern(rolled(img, roll))
+        def one(roll: float) -> tuple[ArrayLike, NDArray[np.complex128]]:
+            if roll == 0.0 and pattern is not None:  # the caller's pattern of the image as it is: its own key
+                return pattern, self.memory.banks[0].query_key(pattern)
+            return self.query_pattern(img, roll=roll, digest=ident), self.query_key(img, roll=roll, digest=ident)
+
+        def query(rolls: Sequence[float]) -> dict[str, Any]:
+            made = [one(a) for a in rolls]
+            return {"patterns": [p for p, _ in made], "keys": [k for _, k in made]}
 
         rolls = tuple(self.settings.roll_search_deg)
         if rolls == (0.0,):
-            return self.memory.rank(query(0.0), among=among)
+            return self.memory.rank_many(**query(rolls), among=among)[0]
         k = self.settings.roll_shortlist
         first = 0.0 if 0.0 in rolls else rolls[0]  # the plain match, when it is searched
-        plain = self.memory.rank(query(first), among=among)
-        short = among if k is None else plain.viewframes[:k]
-        return best_of_rankings([plain, *(self.memory.rank(query(a), among=short) for a in rolls if a != first)])
+        turned = tuple(a for a in rolls if a != first)
+        if k is None:  # every query among the same rows: picked once
+            return best_of_rankings(self.memory.rank_many(**query((first, *turned)), among=among))
+        plain = self.memory.rank_many(**query((first,)), among=among)[0]
+        return best_of_rankings([plain, *self.memory.rank_many(**query(turned), among=plain.viewframes[:k])])
 
     def rank_pattern(self, pattern: ArrayLike, *, among: ArrayLike | None = None) -> Ranking:
         """:meth:`rank` of a pattern already made by :meth:`pattern`."""

@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from models.scenario import MemorySpec
 
-__all__ = ["KEY_METHODS", "make_key", "key_spectrum"]
+__all__ = ["KEY_METHODS", "make_key", "key_spectrum", "key_phase", "seeded_key"]
 
 #: accepted values of ``method``
 KEY_METHODS: tuple[str, ...] = ("phase", "quantized")
@@ -78,24 +78,29 @@ def _check(pattern: ArrayLike, seed: int, method: str) -> NDArray[np.float64]:
     return p
 
 
-def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) -> NDArray[np.complex128]:
-    """The key's spectrum ``rfft2(make_key(pattern))``, of shape (N, N // 2 + 1).
-
-    Magnitude ``N / sqrt(N*N - 1)`` on every bin but DC (0), so that the key has unit energy and
-    ``conj(FK) * FK`` recalls a zero-mean pattern with gain ``N*N / (N*N - 1)``. Bins where the
-    pattern's spectrum vanishes get the random phase alone; an all-zero pattern gives a zero key.
-    """
-    p = _check(pattern, seed, method)
-    n = p.shape[0]
+def key_phase(pattern: ArrayLike, *, method: str = _METHOD) -> NDArray[np.complex128] | None:
+    """The part of :func:`key_spectrum` that does not depend on the seed: the unit phase spectrum
+    of the pattern (quantised with ``method="quantized"``), shape (N, N // 2 + 1); None for an
+    all-zero pattern. ``seeded_key(key_phase(p, method=m), seed=s)`` is ``key_spectrum(p, seed=s,
+    method=m)``, the same numbers: one pattern's phase serves memories of every seed."""
+    p = _check(pattern, 0, method)
     f = np.fft.rfft2(p)
     mag = np.abs(f)
     if not np.any(mag > 0):
-        return np.zeros_like(f)
+        return None
     tiny = mag <= 1e-12 * mag.max()
     phase = np.where(tiny, 1.0, f / np.where(tiny, 1.0, mag))
     if method == "quantized":
         step = 2 * np.pi / _QUANT_LEVELS
         phase = np.exp(1j * step * np.round(np.angle(phase) / step))
+    return phase
+
+
+def seeded_key(phase: NDArray[np.complexfloating], *, seed: int = 0) -> NDArray[np.complex128]:
+    """:func:`key_spectrum` from the pattern's :func:`key_phase` (N, N // 2 + 1) and the seed."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
+    n = phase.shape[0]
     fk = phase * _random_phase(n, int(seed))
     # keep the spectrum of a real image: bins that are their own mirror must be real
     self_mirror_rows = [0] + ([n // 2] if n % 2 == 0 else [])
@@ -105,6 +110,21 @@ def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) ->
             fk[r, c] = np.sign(fk[r, c].real) or 1.0
     fk[0, 0] = 0.0
     return fk * (n / np.sqrt(n * n - 1.0))
+
+
+def key_spectrum(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) -> NDArray[np.complex128]:
+    """The key's spectrum ``rfft2(make_key(pattern))``, of shape (N, N // 2 + 1).
+
+    Magnitude ``N / sqrt(N*N - 1)`` on every bin but DC (0), so that the key has unit energy and
+    ``conj(FK) * FK`` recalls a zero-mean pattern with gain ``N*N / (N*N - 1)``. Bins where the
+    pattern's spectrum vanishes get the random phase alone; an all-zero pattern gives a zero key.
+    (:func:`key_phase` then :func:`seeded_key`.)
+    """
+    p = _check(pattern, seed, method)
+    phase = key_phase(p, method=method)
+    if phase is None:
+        return np.zeros((p.shape[0], p.shape[1] // 2 + 1), dtype=np.complex128)
+    return seeded_key(phase, seed=seed)
 
 
 def make_key(pattern: ArrayLike, *, seed: int = 0, method: str = _METHOD) -> NDArray[np.float32]:

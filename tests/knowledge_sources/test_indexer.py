@@ -310,6 +310,61 @@ def test_stored_shards_of_one_process_rank_a_few_at_a_time(small_rendered: dict,
         assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
 
 
+def test_shards_of_one_process_rank_through_the_coarse_stage_a_few_at_a_time(
+    small_rendered: dict, tmp_path: Path, monkeypatch
+) -> None:
+    """A frame ranked in full through the coarse stage: at most MAPPED_RANKINGS shards of a process
+    rank it at once, built or loaded (with the roll search each holds its candidates' rows and the
+    turned queries' products and inverse FFTs: 20 shards at once held 440 MB at 10,000
+    viewframes). The rankings are unchanged."""
+    import threading
+    import time
+
+    from knowledge_sources import indexer as indexer_module
+
+    entry = _entry_copy(small_rendered, tmp_path)
+    _run_shards(small_rendered, entry, 3, viewframes=True, coarse_candidates=1)  # built and stored
+    loaded, want = _run_shards(small_rendered, entry, 3, viewframes=False, coarse_candidates=1)
+    other = _entry_copy(small_rendered, tmp_path / "other")
+    built, _ = _run_shards(small_rendered, other, 3, viewframes=True, coarse_candidates=1)
+    assert all(ix.loaded and ix._coarse is not None for ix in loaded) and not any(ix.loaded for ix in built)
+    monkeypatch.setattr(indexer_module, "_MAPPED", threading.BoundedSemaphore(2))
+    lock, inside, most = threading.Lock(), [0], [0]
+
+    def counted(ix):
+        plain = ix._index.rank
+
+        def rank(image, *, among=None):
+            with lock:
+                inside[0] += 1
+                most[0] = max(most[0], inside[0])
+            time.sleep(0.2)  # long enough for every thread to try at once
+            try:
+                return plain(image, among=among)
+            finally:
+                with lock:
+                    inside[0] -= 1
+
+        monkeypatch.setattr(ix._index, "rank", rank)
+
+    image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][0]).pixels(agent="test").image
+    for group in (loaded, built):
+        for ix in group:
+            counted(ix)
+        got: dict[int, object] = {}
+        threads = [
+            threading.Thread(target=lambda ix=ix, got=got: got.update({ix.shard: ix._coarse_ranked(image)}))
+            for ix in group
+        ]
+        inside[0] = most[0] = 0
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert most[0] == 2 and len(got) == 3
+        assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
+
+
 def test_a_frame_ranked_in_full_ranks_the_coarse_candidates_only(small_rendered: dict, tmp_path: Path) -> None:
     """``memory.coarse_candidates`` k: a frame without a track window is ranked among the shard's
     k best by the coarse stage (the ranking holds those k, its first the full ranking's: each

@@ -384,3 +384,75 @@ def test_a_compact_memory_refuses_what_needs_the_dropped_spectra(call) -> None:
     mem.write_many(_random_patterns(64, 4, seed=3), range(4))
     with pytest.raises(AssociativeMemoryError, match="compact"):
         call(mem)
+
+
+def _search_by_irfft2(matrix: np.ndarray, key: np.ndarray, max_shift: tuple[int, int]) -> np.ndarray:
+    """The shift search over every row with the whole inverse FFT (irfft2) of each: the
+    similarities at every circular lag, their maximum over the window, at least the zero lag's."""
+    from models.associative import _parseval_weights, _zero_lag_query
+
+    n = key.shape[0]
+    c = (matrix @ _zero_lag_query(key)).astype(np.float64)
+    rows = np.ascontiguousarray(matrix).view(np.complex64).reshape(matrix.shape[0], n, n // 2 + 1)
+    lag = np.fft.irfft2(rows * (key / _parseval_weights(n)).astype(np.complex64)[None], s=(n, n), axes=(-2, -1))
+    rr = np.arange(-max_shift[0], max_shift[0] + 1) % n
+    cc = np.arange(-max_shift[1], max_shift[1] + 1) % n
+    best = lag[:, rr][:, :, cc].reshape(matrix.shape[0], -1).max(axis=1).astype(np.float64)
+    return np.maximum(best, c)
+
+
+@pytest.mark.parametrize(
+    ("n", "count", "max_shift"), [(32, 12, (1, 3)), (32, 20, (0, 5)), (16, 9, (8, 8)), (33, 7, (2, 2))]
+)
+def test_the_shift_search_gives_the_whole_inverse_ffts_numbers(n: int, count: int, max_shift: tuple[int, int]) -> None:
+    """Every row searched (at most SHIFT_SEARCH_TOP): the search's inverse FFT taken only on the
+    window's rows gives exactly (bitwise) the maxima of the whole irfft2, wrapped windows included."""
+    from models.associative import _search, _zero_lag_query
+
+    mem = BankedMemory(n, bank_size=2, max_shift=max_shift, compact=True)
+    pats = _random_patterns(n, count, seed=31)
+    mem.write_many(pats, range(count))
+    matrix = mem.ranking_matrix
+    key = mem.banks[0].query_key(np.roll(pats[3], (1, 2), axis=(0, 1)) + 0.1 * pats[5])
+    got = _search(matrix, key, mem.max_shift, np.ones(count))
+    np.testing.assert_array_equal(got, _search_by_irfft2(matrix, key, mem.max_shift))
+    assert not np.array_equal(got, (matrix @ _zero_lag_query(key)).astype(np.float64))  # the search did raise some
+
+
+def test_rank_many_ranks_each_query_as_rank_does() -> None:
+    """Several queries among the same rows (the roll search's): each ranking the same numbers as
+    its own rank, among every row, a subset, and none; compact and whole memories."""
+    rng = np.random.default_rng(32)
+    pats = [preprocess(scene(rng), size=32) for _ in range(40)]
+    queries = [np.roll(pats[i], (1, -2), axis=(0, 1)) for i in (4, 9, 33)]
+    for compact in (True, False):
+        mem = BankedMemory(32, bank_size=3, max_shift=(1, 3), compact=compact)
+        mem.write_many(pats, range(40))
+        for among in (None, [2, 4, 9, 11, 33, 35], [100]):
+            many = mem.rank_many(queries, among=among)
+            assert len(many) == len(queries)
+            for q, r in zip(queries, many):
+                one = mem.rank(q, among=among)
+                assert r.viewframes.tolist() == one.viewframes.tolist()
+                np.testing.assert_array_equal(r.variances, one.variances)
+            if among == [100]:
+                assert all(len(r) == 0 for r in many)
+    assert [len(r) for r in BankedMemory(32).rank_many(queries)] == [0, 0, 0]  # nothing stored
+
+
+def test_row_viewframes_follow_the_writes() -> None:
+    """The viewframe of each ranking row is made once per matrix and follows a later write."""
+    pats = _random_patterns(16, 7, seed=33)
+    for compact in (True, False):
+        mem = BankedMemory(16, bank_size=2, compact=compact)
+        mem.write_many(pats[:5], [10, 11, 12, 13, 14])
+        _ = mem.ranking_matrix
+        first = mem.row_viewframes
+        assert first.tolist() == [10, 11, 12, 13, 14]
+        assert mem.row_viewframes is first  # not made again
+        with pytest.raises(ValueError):
+            first[0] = 3  # read only
+        mem.write_many(pats[5:], [20, 21])
+        _ = mem.ranking_matrix
+        assert mem.row_viewframes.tolist() == [10, 11, 12, 13, 14, 20, 21]
+        assert mem.rank(pats[6]).best == 21

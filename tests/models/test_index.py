@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
@@ -284,3 +286,135 @@ def test_featureless_viewframes_are_listed_and_never_ranked(bank_size, featurele
     assert got.viewframes.tolist() == want.viewframes.tolist()
     with pytest.raises(AssociativeMemoryError, match="12 patterns but 13 viewframes"):
         ViewframeIndex(spec).add(iter(images[:12]), range(13))
+
+
+def _same_pattern(a: np.ndarray, b: np.ndarray) -> None:
+    """The same pattern up to float32 rounding: preprocessing one image twice is not bitwise
+    reproducible in numpy (its SIMD sums depend on where the arrays lie in memory), main's too."""
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-6 * float(np.abs(b).max()))
+
+
+def _same_ranking(a, b) -> None:
+    """The same order, the same variances up to that rounding."""
+    assert a.viewframes.tolist() == b.viewframes.tolist()
+    np.testing.assert_allclose(a.variances, b.variances, rtol=1e-6)
+
+
+def test_query_patterns_are_the_turned_images_patterns_made_once_for_every_shard() -> None:
+    """``query_pattern``: the pattern of the image turned by the roll; shards of one process with
+    the same preprocessing (any seed) share it, one array; other preprocessing makes its own."""
+    from models.derotate import rolled
+    from models.query_patterns import SHARED
+
+    rng = np.random.default_rng(21)
+    img = scene(rng)
+    spec = MemorySpec(size=64, bank_size=2, max_shift=(2, 4))
+    shards = [ViewframeIndex(spec, seed=s) for s in range(3)]
+    SHARED.clear()
+    made = SHARED.made
+    for roll in (-3.0, 0.0, 1.5):
+        patterns = [ix.query_pattern(img.copy(), roll=roll) for ix in shards]
+        _same_pattern(patterns[0], shards[0].pattern(rolled(img, roll)))
+        assert all(p is patterns[0] for p in patterns)
+    assert SHARED.made - made == 3
+    other = ViewframeIndex(MemorySpec(size=64, blur_sigma=2.0, bank_size=2, max_shift=(2, 4)))
+    _same_pattern(other.query_pattern(img), other.pattern(img))
+    assert SHARED.made - made == 4
+
+
+def _shards(rng: np.random.Generator, count: int, shards: int) -> tuple[list[ViewframeIndex], list[np.ndarray]]:
+    images = [scene(rng) for _ in range(count)]
+    spec = MemorySpec(size=64, bank_size=1, max_shift=(2, 4), roll_search_deg=(-3.0, -1.5, 0.0, 1.5, 3.0))
+    out = []
+    for s in range(shards):
+        ix = ViewframeIndex(spec, seed=s)
+        ix.add(images[s::shards], range(s, count, shards))
+        out.append(ix)
+    return out, images
+
+
+def test_shards_sharing_the_query_patterns_rank_as_each_alone_and_as_by_hand() -> None:
+    """The roll search of several shards of one process (the patterns made once, by whichever
+    shard ranks first, the rows among a set picked once) ranks exactly as each shard with the
+    patterns made for it alone, and as the roll search written out: each turned image's pattern,
+    its memory ranking, each viewframe's best (the same order, the same variances up to float32
+    rounding, :func:`_same_pattern`)."""
+    from models.derotate import rolled
+    from models.index import best_of_rankings
+    from models.query_patterns import SHARED
+
+    rng = np.random.default_rng(22)
+    shards, images = _shards(rng, 24, 3)
+    query = rolled(np.roll(images[7], 2, axis=1), 2.0)
+    among = [1, 4, 7, 8, 10, 13, 19]
+    SHARED.clear()
+    shared = [[ix.rank(query), ix.rank(query, among=among)] for ix in shards]
+    alone = []
+    for ix in shards:
+        SHARED.clear()
+        alone.append([ix.rank(query), ix.rank(query, among=among)])
+    for ix, got, own in zip(shards, shared, alone):
+        rolls = ix.settings.roll_search_deg
+        by_hand = [
+            best_of_rankings([ix.memory.rank(ix.pattern(rolled(query, a)), among=w) for a in rolls])
+            for w in (None, among)
+        ]
+        for g, o, h in zip(got, own, by_hand):
+            _same_ranking(g, o)
+            _same_ranking(g, h)
+    from models.associative import merge_rankings
+
+    assert merge_rankings([r[0] for r in shared]).best == 7
+
+
+def test_shards_ranking_one_frame_in_threads_rank_as_one_after_another() -> None:
+    """Shards of one process ranking the same frame at once (each its own copy of the frame, as
+    each agent decodes its message): the same rankings as one after another, each pattern made once."""
+    from models.derotate import rolled
+    from models.query_patterns import SHARED
+
+    rng = np.random.default_rng(23)
+    shards, images = _shards(rng, 32, 4)
+    query = rolled(images[12], -2.0)
+    SHARED.clear()
+    serial = [ix.rank(query) for ix in shards]
+    SHARED.clear()
+    made = SHARED.made
+    barrier = threading.Barrier(len(shards))
+    got: dict[int, object] = {}
+
+    def run(i: int) -> None:
+        barrier.wait(10)
+        got[i] = shards[i].rank(query.copy())
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(len(shards))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(30)
+    assert SHARED.made - made == 2 * len(shards[0].settings.roll_search_deg)  # a pattern and a phase per roll
+    for i, want in enumerate(serial):
+        _same_ranking(got[i], want)
+
+
+def test_query_keys_are_the_memorys_keys_of_the_query_patterns() -> None:
+    """``query_key``: each shard's own key (its seed) of the shared pattern, from the phase made
+    once per process; an index holding nothing has no key."""
+    from models.query_patterns import SHARED
+
+    rng = np.random.default_rng(24)
+    images = [scene(rng) for _ in range(6)]
+    shards = [ViewframeIndex(MemorySpec(size=64, bank_size=2, max_shift=(2, 4)), seed=s) for s in range(3)]
+    for ix in shards:
+        ix.add(images, range(6))
+    SHARED.clear()
+    made = SHARED.made
+    for roll in (0.0, 1.5):
+        keys = [ix.query_key(images[2], roll=roll) for ix in shards]
+        for ix, key in zip(shards, keys):
+            want = ix.memory.banks[0].query_key(ix.query_pattern(images[2], roll=roll))
+            np.testing.assert_allclose(key, want, rtol=0, atol=1e-9)
+        assert not np.allclose(keys[0], keys[1])  # the seeds differ
+    assert SHARED.made - made == 4  # a pattern and a phase per roll
+    with pytest.raises(AssociativeMemoryError, match="holds no viewframe"):
+        ViewframeIndex(MemorySpec(size=64)).query_key(images[0])

@@ -112,3 +112,21 @@ def test_zero_pattern_gives_zero_key() -> None:
 def test_bad_arguments(args: tuple, kwargs: dict, name: str) -> None:
     with pytest.raises(ValueError, match=name):
         make_key(*args, **kwargs)
+
+
+@pytest.mark.parametrize("method", KEY_METHODS)
+def test_a_patterns_phase_keys_every_seed_as_key_spectrum_does(method: str) -> None:
+    """``seeded_key(key_phase(p))`` is ``key_spectrum(p)`` for every seed (the phase shared by the
+    shards of a process, each adding its seed); an all-zero pattern has no phase, a zero key."""
+    from models.memory_keys import key_phase, seeded_key
+
+    rng = np.random.default_rng(41)
+    for n in (8, 9, 32):
+        p = rng.standard_normal((n, n))
+        phase = key_phase(p, method=method)
+        assert phase is not None and phase.shape == (n, n // 2 + 1)
+        for seed in (0, 1, 7):
+            np.testing.assert_array_equal(seeded_key(phase, seed=seed), key_spectrum(p, seed=seed, method=method))
+    assert key_phase(np.zeros((8, 8)), method=method) is None
+    with pytest.raises(ValueError, match="seed"):
+        seeded_key(phase, seed=-1)
