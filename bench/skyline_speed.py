@@ -2,10 +2,11 @@
 and the whole ranking of a frame (extraction + :func:`models.skyline_coarse.ranked_references`,
 the scenario's ``skyline`` settings), this checkout's code against a baseline's, in one run.
 
-The baseline is ``models/skyline.py`` of the git revision ``--baseline`` (default: main before the
-extraction was made faster), loaded from ``git show`` as a module of its own; the matching
-(``models/skyline_coarse.py``) is this checkout's for both. Frames, alternating which code goes
-first from one frame to the next so that load changes hit both:
+The baseline is ``models/skyline.py`` and ``models/skyline_coarse.py`` of the git revision
+``--baseline`` (default: main before they were made faster), loaded from ``git show`` as modules
+of their own (the baseline's coarse stage imports this checkout's ``models.skyline`` for the full
+match, ``match_skylines``, unchanged). Frames, alternating which code goes first from one frame to
+the next so that load changes hit both:
 
 * ``route``: ``--frames`` viewframe images of a long route's viewframe cache entry (``--entry``,
   read-only; 160 x 120, the ``bench/end_to_end.py`` camera, 45 degrees), evenly spaced, degraded
@@ -48,9 +49,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from models import skyline as ours  # noqa: E402
+from models import skyline_coarse as ours_coarse  # noqa: E402
 from models.scenario import SimulateSpec, SkylineSpec  # noqa: E402
 from models.sensor import degrade  # noqa: E402
-from models.skyline_coarse import CoarseSkylines, ranked_references  # noqa: E402
 
 #: main at session 11, before the faster extraction
 DEFAULT_BASELINE = "868cdb3"
@@ -58,22 +59,20 @@ DEFAULT_ENTRY = "/work/cache/full10k-10k"
 FOV_Y_DEG = 45.0  # bench/end_to_end.py's camera
 
 
-def _baseline(rev: str) -> types.ModuleType:
-    """``models/skyline.py`` of git revision ``rev`` as the module ``skyline_baseline``."""
+def _baseline(rev: str, path: str) -> types.ModuleType:
+    """``path`` (e.g. ``models/skyline.py``) of git revision ``rev`` as a module of its own."""
     try:
         src = subprocess.run(
-            ["git", "-C", str(HERE.parent), "show", f"{rev}:models/skyline.py"],
-            capture_output=True,
-            text=True,
-            check=True,
+            ["git", "-C", str(HERE.parent), "show", f"{rev}:{path}"], capture_output=True, text=True, check=True
         ).stdout
     except subprocess.CalledProcessError as err:
-        raise SystemExit(f"--baseline {rev}: git show failed: {err.stderr.strip()}") from None
-    spec = importlib.util.spec_from_loader("skyline_baseline", loader=None)
+        raise SystemExit(f"--baseline {rev}: git show {path} failed: {err.stderr.strip()}") from None
+    name = "baseline_" + Path(path).stem
+    spec = importlib.util.spec_from_loader(name, loader=None)
     assert spec is not None
     mod = importlib.util.module_from_spec(spec)
-    sys.modules["skyline_baseline"] = mod  # dataclasses look their module up
-    exec(compile(src, f"{rev}:models/skyline.py", "exec"), mod.__dict__)
+    sys.modules[name] = mod  # dataclasses look their module up
+    exec(compile(src, f"{rev}:{path}", "exec"), mod.__dict__)
     return mod
 
 
@@ -124,8 +123,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.frames < 1:
         raise SystemExit("--frames must be >= 1")
-    base = _baseline(args.baseline)
-    codes = {"baseline": base, "ours": ours}
+    codes = {"baseline": _baseline(args.baseline, "models/skyline.py"), "ours": ours}
+    rankers = {"baseline": _baseline(args.baseline, "models/skyline_coarse.py"), "ours": ours_coarse}
     sky = SkylineSpec()
     match = {k: v for k, v in sky.match_options().items() if k != "roll_candidates"}
     out: dict[str, object] = {
@@ -142,9 +141,9 @@ def main() -> None:
     for name in args.sets:
         if name == "route":
             frames, refs = _route_frames(_entry_folder(args.entry), args.frames)
-            coarse = CoarseSkylines.prepare(refs) if sky.coarse_candidates is not None else None
+            coarse = {c: m.CoarseSkylines.prepare(refs) for c, m in rankers.items()}
         else:
-            frames, refs, coarse = _evalset_frames(args.evalset, args.frames), None, None
+            frames, refs, coarse = _evalset_frames(args.evalset, args.frames), None, {}
         ms: dict[str, dict[str, list[float]]] = {c: {"extract": [], "rank": []} for c in codes}
         identical = True
         for i, img in enumerate(frames):
@@ -158,8 +157,13 @@ def main() -> None:
                 if refs is not None:
                     if q.size != refs.shape[1]:
                         raise SystemExit(f"--entry: skylines of {refs.shape[1]} bins, the frames' {q.size}")
-                    ranked = ranked_references(
-                        q, refs, coarse, candidates=sky.coarse_candidates, roll_candidates=sky.roll_candidates, **match
+                    ranked = rankers[c].ranked_references(
+                        q,
+                        refs,
+                        coarse[c],
+                        candidates=sky.coarse_candidates,
+                        roll_candidates=sky.roll_candidates,
+                        **match,
                     )
                     ms[c]["rank"].append((time.process_time() - t0) * 1e3)
                 ms[c]["extract"].append((t1 - t0) * 1e3)

@@ -1,7 +1,8 @@
 """The horizon extraction of :mod:`models.skyline` as it was before it was made faster (main at
 session 11): the straightforward per-image code, kept as the reference the faster one must equal
-bit for bit (tests/models/test_skyline_reference.py, bench/skyline_speed.py). Same constants,
-same features (imported); only the arithmetic's arrangement differs."""
+bit for bit (tests/models/test_skyline_reference.py), and the coarse stage's comparison
+(:func:`models.skyline_coarse.coarse_errors`) as it was. Same constants, same features and block
+helpers (imported); only the arithmetic's arrangement differs."""
 
 from __future__ import annotations
 
@@ -24,8 +25,10 @@ from models.skyline import (
     WORK_ROWS,
     _features,
 )
+from models.skyline_coarse import _BLOCK as _COARSE_BLOCK
+from models.skyline_coarse import _DEFAULTS, _MIN_OVERLAP, COARSE_STRIDE, CoarseSkylines, _median, _query_blocks
 
-__all__ = ["image_boundary"]
+__all__ = ["image_boundary", "coarse_errors"]
 
 
 def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -174,3 +177,48 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
         if sky_sel.sum() < 8 or ter_sel.sum() < 8:
             break
     return b.astype(np.float64), h
+
+
+def coarse_errors(
+    query: NDArray,
+    coarse: CoarseSkylines,
+    *,
+    step_deg: float = _DEFAULTS.step_deg,
+    max_heading_deg: float = _DEFAULTS.max_heading_deg,
+    max_pitch_deg: float = _DEFAULTS.max_pitch_deg,
+    truncate_deg: float = _DEFAULTS.truncate_deg,
+    min_overlap: float = _MIN_OVERLAP,
+    stride: int = COARSE_STRIDE,
+) -> NDArray[np.float64]:
+    """The coarse error (degrees, lower is better; module docstring) of the camera profile
+    ``query`` (n,) against each prepared reference, shape (V,)."""
+    q = np.asarray(query, dtype=np.float64).ravel()
+    if q.size != coarse.bins:
+        raise ValueError(f"query has {q.size} bins, the references {coarse.bins}")
+    if not truncate_deg > 0 or max_heading_deg < 0 or max_pitch_deg < 0:
+        raise ValueError("truncate_deg must be > 0, max_heading_deg and max_pitch_deg >= 0")
+    if int(stride) < 1:
+        raise ValueError(f"stride must be >= 1, got {stride}")
+    v = len(coarse)
+    trunc = np.float32(truncate_deg)
+    qn = float(np.isfinite(q).sum()) / coarse.factor  # the camera profile's valid bins, in blocks
+    out = np.full(v, float(truncate_deg))
+    if v == 0 or qn <= 0:
+        return out
+    smax = min(int(round(max_heading_deg / step_deg)), coarse.bins - 1)
+    shifts = np.arange(-smax, smax + 1)
+    shifts = shifts[shifts % int(stride) == 0]
+    qb, qok = _query_blocks(q, coarse, shifts)
+    need = max(2.0, min_overlap * qn)
+    for i in range(0, v, _COARSE_BLOCK):
+        d = coarse.values[i : i + _COARSE_BLOCK, None, :] - qb[None]  # (R, S, B)
+        both = coarse.valid[i : i + _COARSE_BLOCK, None, :] & qok[None]
+        m = both.sum(axis=2)
+        d -= np.clip(_median(d, both), -max_pitch_deg, max_pitch_deg)[..., None]
+        np.abs(d, out=d)
+        np.minimum(d, trunc, out=d)
+        d[~both] = 0.0
+        err = (d.sum(axis=2) + trunc * np.maximum(np.float32(qn) - m, 0.0)) / np.float32(qn)
+        err[m < need] = trunc
+        out[i : i + _COARSE_BLOCK] = np.minimum(err.min(axis=1), trunc)
+    return out

@@ -111,3 +111,27 @@ def test_the_class_costs_and_the_contrast_are_the_references_bit_for_bit():
         np.testing.assert_array_equal(_sky_cost(px, sel), reference._sky_cost(feat, sel))
         got = _terrain_cost(px, sel, np.random.default_rng(1))
         np.testing.assert_array_equal(got, reference._terrain_cost(feat, sel, np.random.default_rng(1)))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_coarse_errors_are_the_references_bit_for_bit(seed):
+    """Routes of references with invalid bins and runs, against camera profiles with invalid runs
+    at the border and inside, over more references than a block."""
+    from models.skyline_coarse import _BLOCK, CoarseSkylines, coarse_errors
+
+    rng = np.random.default_rng(300 + seed)
+    n = 115
+    refs = np.cumsum(rng.normal(0, 0.4, (_BLOCK + 300, n)), axis=1) + rng.normal(0, 2, (_BLOCK + 300, 1))
+    refs[rng.random(refs.shape) < 0.02] = np.nan
+    for k in rng.integers(0, len(refs), 40):
+        start = int(rng.integers(0, n))
+        refs[k, start : start + int(rng.integers(1, 60))] = np.nan
+    coarse = CoarseSkylines.prepare(refs.astype(np.float32))
+    for _ in range(4):
+        q = refs[rng.integers(len(refs))] + rng.normal(0, 0.3, n)
+        q = np.roll(q, int(rng.integers(-10, 11)))
+        q[: int(rng.integers(0, 30))] = np.nan
+        start = int(rng.integers(0, n))
+        q[start : start + int(rng.integers(0, 20))] = np.nan
+        for kw in ({}, {"max_pitch_deg": 1.0, "truncate_deg": 1.0, "stride": 1}):
+            np.testing.assert_array_equal(coarse_errors(q, coarse, **kw), reference.coarse_errors(q, coarse, **kw))
