@@ -410,14 +410,18 @@ def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np
     """Median of the finite entries of each row (``cnt`` of them, >= 1): NaNs sort last.
 
     Rows without a NaN (most, where both profiles are valid throughout the overlap) take their
-    two middle values from a partition, O(m) instead of a sort's O(m log m); the same values."""
+    two middle values from a partition (and, for an even ``m``, the maximum below the upper one),
+    O(m) instead of a sort's O(m log m); the same values."""
     m = d.shape[1]
     full = cnt == m
     out = np.empty(len(d))
     if full.any():
         lo, hi = (m - 1) // 2, m // 2
-        part = np.partition(d[full], (lo, hi) if lo != hi else lo, axis=1)
-        out[full] = 0.5 * (part[:, lo] + part[:, hi])
+        part = np.partition(d[full], hi, axis=1)
+        # an even count's lower middle value is the largest of those before the upper one: a maximum
+        # costs less than a second partition index (the same value)
+        low = part[:, lo] if lo == hi else part[:, :hi].max(axis=1)
+        out[full] = 0.5 * (low + part[:, hi])
     rest = ~full
     if rest.any():
         srt = np.sort(d[rest], axis=1)
