@@ -4,8 +4,8 @@ the scenario's ``skyline`` settings), this checkout's code against a baseline's,
 
 The baseline is ``models/skyline.py`` and ``models/skyline_coarse.py`` of the git revision
 ``--baseline`` (default: main before they were made faster), loaded from ``git show`` as modules
-of their own (the baseline's coarse stage imports this checkout's ``models.skyline`` for the full
-match, ``match_skylines``, unchanged). Frames, alternating which code goes first from one frame to
+of their own (the baseline's coarse stage is given the baseline's full match,
+``match_skylines``). Frames, alternating which code goes first from one frame to
 the next so that load changes hit both:
 
 * ``route``: ``--frames`` viewframe images of a long route's viewframe cache entry (``--entry``,
@@ -125,6 +125,9 @@ def main() -> None:
         raise SystemExit("--frames must be >= 1")
     codes = {"baseline": _baseline(args.baseline, "models/skyline.py"), "ours": ours}
     rankers = {"baseline": _baseline(args.baseline, "models/skyline_coarse.py"), "ours": ours_coarse}
+    # the baseline's coarse stage imported this checkout's full match: give it the baseline's
+    rankers["baseline"].match_skylines = codes["baseline"].match_skylines  # type: ignore[attr-defined]
+    rankers["baseline"].SkylineMatch = codes["baseline"].SkylineMatch  # type: ignore[attr-defined]
     sky = SkylineSpec()
     match = {k: v for k, v in sky.match_options().items() if k != "roll_candidates"}
     out: dict[str, object] = {
@@ -171,7 +174,9 @@ def main() -> None:
             (qa, ra), (qb, rb) = got["baseline"], got["ours"]
             same = np.array_equal(qa, qb, equal_nan=True)
             if ra is not None and rb is not None:
-                same = same and np.array_equal(ra[0], rb[0]) and np.array_equal(ra[1].error, rb[1].error)
+                same = same and np.array_equal(ra[0], rb[0])
+                for f in ("error", "heading_deg", "pitch_deg", "overlap", "roll_deg"):
+                    same = same and np.array_equal(getattr(ra[1], f), getattr(rb[1], f))
             identical = identical and bool(same)
         res: dict[str, object] = {"frames": len(frames), "shape": list(frames[0].shape), "identical": identical}
         for part in ("extract", "rank"):
