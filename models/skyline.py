@@ -186,22 +186,42 @@ _OUTLIER = 0.05  # prior weight of "none of the terrain clusters": terrain is ev
 _CLUSTERS = 3
 
 
-def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Negative log density of each row of ``x`` (n, d) under N(mu, cov), shape (n,)."""
-    d = x - mu
+def _row_sums(p: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``p.sum(1)`` of an (n, d) array, bit for bit (numpy adds a C array's short rows left to
+    right, ((p0 + p1) + p2) + ...), by whole columns: a reduction over rows of 4 costs more than
+    the arithmetic."""
+    s = p[:, 0] + p[:, 1]
+    for j in range(2, p.shape[1]):
+        s += p[:, j]
+    return s
+
+
+def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64] | None, cov: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Negative log density of each row of ``x`` (n, d) under N(mu, cov) (None: zero mean), shape (n,)."""
+    d = x if mu is None else x - mu
     inv = np.linalg.inv(cov)
     _, logdet = np.linalg.slogdet(cov)
-    return 0.5 * (((d @ inv) * d).sum(1) + logdet + x.shape[1] * math.log(2 * math.pi))
+    return 0.5 * (_row_sums((d @ inv) * d) + logdet + x.shape[1] * math.log(2 * math.pi))
 
 
-def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
+class _Pixels:
+    """One working image's per-pixel quantities that every EM round uses: the features as (H*W, 4)
+    float64 and the sky field's design matrix (1, row, row**2, col), computed once per image."""
+
+    def __init__(self, feat: NDArray[np.float32]) -> None:
+        h, w = feat.shape[:2]
+        self.shape = (h, w)
+        self.x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
+        r, c = np.mgrid[0:h, 0:w]
+        rr, cc = (r / h).ravel(), (c / w).ravel() - 0.5
+        self.design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
+
+
+def _sky_cost(px: _Pixels, sel: NDArray[np.bool_]) -> NDArray[np.float64]:
     """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
-    residuals, fitted to the pixels in ``sel``; negative log density per pixel, (H, W)."""
-    h, w = feat.shape[:2]
-    r, c = np.mgrid[0:h, 0:w]
-    rr, cc = (r / h).ravel(), (c / w).ravel() - 0.5
-    design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
-    x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
+    residuals, fitted to the pixels in ``sel`` (H, W); negative log density per pixel, (H, W)."""
+    h, w = px.shape
+    x, design = px.x, px.design
     m = sel.ravel()
     if m.sum() < 16:
         m = np.zeros_like(m)
@@ -209,13 +229,13 @@ def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.f
     coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
     res = x - design @ coef
     cov = np.cov(res[m], rowvar=False) + _FLOOR
-    return _gauss_nll(res, np.zeros(x.shape[1]), cov).reshape(h, w)
+    return _gauss_nll(res, None, cov).reshape(h, w)
 
 
-def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.random.Generator) -> NDArray[np.float64]:
-    """Terrain: a mixture of Gaussian clusters fitted to the pixels in ``sel`` plus a uniform
+def _terrain_cost(px: _Pixels, sel: NDArray[np.bool_], rng: np.random.Generator) -> NDArray[np.float64]:
+    """Terrain: a mixture of Gaussian clusters fitted to the pixels in ``sel`` (H, W) plus a uniform
     outlier component over the feature box; negative log density per pixel, (H, W)."""
-    x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
+    x = px.x
     s = x[sel.ravel()]
     if len(s) < 8 * _CLUSTERS:
         s = x
@@ -234,15 +254,16 @@ def _terrain_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], rng: np.ran
         cv2.KMEANS_PP_CENTERS,
     )
     lab = lab.ravel()
-    terms = [np.full(len(x), math.log(_OUTLIER) - _LOG_VOLUME)]
+    # log of the mixture density, accumulated term by term as np.logaddexp.reduce over the stacked terms does
+    total = np.full(len(x), math.log(_OUTLIER) - _LOG_VOLUME)
     for j in range(k):
         part = s[lab == j]
         if len(part) < 8:
             continue
         cov = np.cov(part, rowvar=False) + _FLOOR
         prior = (1 - _OUTLIER) * len(part) / len(s)
-        terms.append(math.log(prior) - _gauss_nll(x, part.mean(0), cov))
-    return -np.logaddexp.reduce(np.stack(terms), axis=0).reshape(feat.shape[:2])
+        np.logaddexp(total, math.log(prior) - _gauss_nll(x, part.mean(0), cov), out=total)
+    return -total.reshape(px.shape)
 
 
 def _contrast(feat: NDArray[np.float32]) -> NDArray[np.float64]:
@@ -254,7 +275,9 @@ def _contrast(feat: NDArray[np.float32]) -> NDArray[np.float64]:
     # two rows above vs two rows below the boundary between rows b-1 and b
     up = (above[:-1] + np.vstack([above[:1], above[:-2]])) / 2
     down = (above[1:] + np.vstack([above[2:], above[-1:]])) / 2
-    g[1:h] = np.linalg.norm(down - up, axis=2)
+    diff = down - up
+    sq = diff * diff  # the Euclidean norm over the channels, as np.linalg.norm adds them: left to right
+    g[1:h] = np.sqrt(sq[..., 0] + sq[..., 1] + sq[..., 2])
     scale = float(np.median(g[1:h])) + 1e-6
     return np.minimum(g / (4 * scale), 3.0)
 
@@ -263,27 +286,43 @@ def _viterbi(unary: NDArray[np.float64], *, lam: float, jump: int) -> NDArray[np
     """Minimise sum_c unary[b_c, c] + lam * min(|b_c - b_{c-1}|, jump); unary (S, W) -> b (W,).
 
     Per column the pairwise minimum is taken over the 2 * jump + 1 nearby states and the global
-    minimum (plus the truncated cost ``lam * jump``): O(S * jump) instead of O(S**2)."""
+    minimum (plus the truncated cost ``lam * jump``): O(S * jump) instead of O(S**2). The forward
+    pass keeps each column's costs (padded by ``jump`` infinite states on both sides, so that the
+    nearby states of every state are one strided window); the predecessor of a state is found
+    again on the way back, for the states of the path only (ties: the lowest state, the global
+    minimum only when strictly cheaper)."""
     s, w = unary.shape
-    idx = np.arange(s)
     offsets = np.arange(-jump, jump + 1)
-    src = np.clip(idx[None, :] + offsets[:, None], 0, s - 1)  # (2J+1, S) predecessor states
-    pen = lam * np.abs(offsets)[:, None] + np.where(src - idx[None, :] == offsets[:, None], 0.0, np.inf)
-    cost = unary[:, 0].copy()
-    back = np.zeros((w, s), dtype=np.int64)
+    pen = lam * np.abs(offsets)
+    far_pen = lam * jump
+    costs = np.full((w, s + 2 * jump), np.inf)  # column c's costs in [jump, jump + s)
+    inner = costs[:, jump : jump + s]
+    step = costs.strides[1]
+    # windows[c, i, k]: cost of state i + offsets[k] of column c (inf outside the states)
+    windows = np.lib.stride_tricks.as_strided(
+        costs, (w, s, 2 * jump + 1), (costs.strides[0], step, step), writeable=False
+    )
+    # the same, offsets first: the minimum over the offsets is then one of whole rows (a reduction over short rows is slow)
+    by_offset = windows.transpose(0, 2, 1)
+    cols = np.ascontiguousarray(unary.T)
+    inner[0] = cols[0]
+    near = np.empty((2 * jump + 1, s))
+    best = np.empty(s)
+    pen_col = pen[:, None]
     for c in range(1, w):
-        near = cost[src] + pen  # (2J+1, S)
-        k = np.argmin(near, axis=0)
-        best_near = near[k, idx]
-        g = int(np.argmin(cost))
-        far = cost[g] + lam * jump
-        use_far = far < best_near
-        back[c] = np.where(use_far, g, src[k, idx])
-        cost = np.where(use_far, far, best_near) + unary[:, c]
+        np.add(by_offset[c - 1], pen_col, out=near)
+        np.minimum.reduce(near, axis=0, out=best)
+        np.minimum(best, inner[c - 1].min() + far_pen, out=best)
+        np.add(best, cols[c], out=inner[c])
+    glob = inner.argmin(axis=1)
+    far = inner[np.arange(w), glob] + far_pen
     b = np.zeros(w, dtype=np.int64)
-    b[-1] = int(np.argmin(cost))
+    b[-1] = int(inner[-1].argmin())
     for c in range(w - 1, 0, -1):
-        b[c - 1] = back[c, b[c]]
+        state = int(b[c])
+        vals = windows[c - 1, state] + pen
+        k = int(vals.argmin())
+        b[c - 1] = glob[c - 1] if far[c - 1] < vals[k] else state + offsets[k]
     return b
 
 
@@ -313,7 +352,8 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
         rgb = np.asarray(cv2.resize(rgb, (w2, WORK_ROWS), interpolation=cv2.INTER_AREA), dtype=np.float32)
         h, w = rgb.shape[:2]
     feat = _features(np.ascontiguousarray(rgb))
-    g = _contrast(feat)
+    px = _Pixels(feat)
+    edge = _LAM_EDGE * _contrast(feat)
     rows = np.arange(h)[:, None]
     sky_sel = np.zeros((h, w), bool)
     sky_sel[: max(1, h // 12)] = True
@@ -321,11 +361,13 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     ter_sel = np.broadcast_to(ter_sel, (h, w))
     b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
+    sums = np.zeros((h + 1, w))  # row 0: no sky pixel
     for _ in range(_ITERATIONS + 1):
-        cs, ct = _sky_cost(feat, sky_sel), _terrain_cost(feat, ter_sel, rng)
+        cs, ct = _sky_cost(px, sky_sel), _terrain_cost(px, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
-        unary = np.vstack([np.zeros((1, w)), np.cumsum(llr, axis=0)]) - _LAM_EDGE * g
+        np.cumsum(llr, axis=0, out=sums[1:])
+        unary = sums - edge
         b = _viterbi(unary, lam=_LAM_SMOOTH, jump=_JUMP)
         sky_sel = rows < b[None, :]
         ter_sel = ~sky_sel
@@ -368,14 +410,18 @@ def _row_nanmedian(d: NDArray[np.float64], cnt: NDArray[np.int64]) -> NDArray[np
     """Median of the finite entries of each row (``cnt`` of them, >= 1): NaNs sort last.
 
     Rows without a NaN (most, where both profiles are valid throughout the overlap) take their
-    two middle values from a partition, O(m) instead of a sort's O(m log m); the same values."""
+    two middle values from a partition (and, for an even ``m``, the maximum below the upper one),
+    O(m) instead of a sort's O(m log m); the same values."""
     m = d.shape[1]
     full = cnt == m
     out = np.empty(len(d))
     if full.any():
         lo, hi = (m - 1) // 2, m // 2
-        part = np.partition(d[full], (lo, hi) if lo != hi else lo, axis=1)
-        out[full] = 0.5 * (part[:, lo] + part[:, hi])
+        part = np.partition(d[full], hi, axis=1)
+        # an even count's lower middle value is the largest of those before the upper one: a maximum
+        # costs less than a second partition index (the same value)
+        low = part[:, lo] if lo == hi else part[:, :hi].max(axis=1)
+        out[full] = 0.5 * (low + part[:, hi])
     rest = ~full
     if rest.any():
         srt = np.sort(d[rest], axis=1)

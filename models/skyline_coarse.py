@@ -180,14 +180,16 @@ def coarse_errors(
     shifts = shifts[shifts % int(stride) == 0]
     qb, qok = _query_blocks(q, coarse, shifts)
     need = max(2.0, min_overlap * qn)
+    qok_t = qok.T.astype(np.float32)
     for i in range(0, v, _BLOCK):
         d = coarse.values[i : i + _BLOCK, None, :] - qb[None]  # (R, S, B)
         both = coarse.valid[i : i + _BLOCK, None, :] & qok[None]
-        m = both.sum(axis=2)
+        # blocks valid in both, (R, S): a product of 0/1 matrices (exact) costs less than a sum over the short last axis
+        m = (coarse.valid[i : i + _BLOCK].astype(np.float32) @ qok_t).astype(np.int64)
         d -= np.clip(_median(d, both), -max_pitch_deg, max_pitch_deg)[..., None]
         np.abs(d, out=d)
         np.minimum(d, trunc, out=d)
-        d[~both] = 0.0
+        np.multiply(d, both, out=d)  # 0 where not both (d >= 0 here: the same +0.0 as an assignment)
         err = (d.sum(axis=2) + trunc * np.maximum(np.float32(qn) - m, 0.0)) / np.float32(qn)
         err[m < need] = trunc
         out[i : i + _BLOCK] = np.minimum(err.min(axis=1), trunc)
