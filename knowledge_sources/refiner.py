@@ -3,19 +3,13 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Any, ClassVar
-
-import numpy as np
+from typing import Any, ClassVar
 
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
+from knowledge_sources.map_views import MapViews, skyline_profile
 from models.scenario import RefineSpec
-
-if TYPE_CHECKING:
-    from knowledge_sources.levels import Map
-    from models.camera_emulator import CameraEmulator, Pose, View
-    from models.world import World
 
 __all__ = ["PoseRefiner"]
 
@@ -83,11 +77,8 @@ class PoseRefiner(KnowledgeSource):
             "position": bool(position),
             "recheck": bool(recheck),
         }
-        self._world: World | None = None
-        self._emulator: CameraEmulator | None = None
-        self._map: Map | None = None  # (the option ``levels`` shadows the module here)
-        #: the map's cache entry's depths (memory-mapped), when the entry is this emulator's
-        self._depths: np.ndarray | None = None
+        #: the map's world, emulator and cache entry, once the map is posted
+        self.views: MapViews | None = None
         self._waiting: list[Hypothesis] = []
 
     def precondition(self, event: Event) -> float | None:
@@ -99,8 +90,8 @@ class PoseRefiner(KnowledgeSource):
         try:
             self._act(event, board)
         finally:
-            if self._emulator is not None:
-                self._emulator.release()  # shutdown closes it from another thread
+            if self.views is not None:
+                self.views.release()
 
     def _act(self, event: Event, board: Board) -> None:
         h = event.hypothesis
@@ -110,51 +101,18 @@ class PoseRefiner(KnowledgeSource):
             for pos in waiting:
                 self._refine(pos, board)
         elif h.level == levels.POSITION:
-            if self._emulator is None:
+            if self.views is None:
                 self._waiting.append(h)
             else:
                 self._refine(h, board)
 
     def _open(self, mp: levels.Map) -> None:
-        from models.viewframe_cache import entry_field
-        from models.world import World
-
-        self._world = World.from_scenario(mp.path)
-        self._emulator = self._world.emulator
-        self._map = mp
-        if mp.entry is not None and self._world.renders_entry(mp.entry):  # the chosen viewframe's view is read
-            depths = entry_field(mp.entry, "depth", count=mp.viewframes)
-            if depths is not None and depths.ndim == 3:
-                self._depths = depths
-
-    def _start_view(self, viewframe: int, start: Pose) -> View | None:
-        """The view of the chosen ``viewframe`` at ``start`` (its pose) from the map's cache entry,
-        when that entry holds what this refiner's emulator renders (:meth:`models.world.World.renders_entry`):
-        copies, the entry's pages given back; None otherwise (rendered)."""
-        import mmap
-
-        from models.camera_emulator import View
-        from models.viewframe_cache import read_pixels, release_pages
-
-        if self._depths is None or self._map is None or self._map.entry is None:
-            return None
-        pixels = read_pixels(self._map.entry, viewframe, count=self._map.viewframes)
-        depth = np.array(self._depths[viewframe], dtype=np.float32)
-        release_pages([self._depths[viewframe]], advice=mmap.MADV_DONTNEED)
-        return View(image=pixels.image, depth=depth, mask=pixels.mask.astype(np.int32), pose=start)
-
-    def _profile(self, frame: int, board: Board) -> np.ndarray | None:
-        """The camera frame's skyline profile as the skyline ranker extracted it (its ranking of
-        the frame carries it), or None (no skyline ranker: the refiner extracts it)."""
-        from knowledge_sources.skyline import SKYLINE_SOURCE
-
-        got = board.get(levels.ranking_id(frame, 0, SKYLINE_SOURCE))
-        return None if got is None else levels.Ranking.from_hypothesis(got).profile
+        self.views = MapViews(mp)
 
     def _refine(self, hypothesis: Hypothesis, board: Board) -> None:
         from models.refine import refine_pose
 
-        assert self._emulator is not None and self._map is not None
+        assert self.views is not None
         position = levels.Position.from_hypothesis(hypothesis)
         if position.viewframe is None:
             return
@@ -163,14 +121,13 @@ class PoseRefiner(KnowledgeSource):
             log.warning("%s: frame %d: camera frame not on the blackboard: not refined", self.name, position.frame)
             return
         image = levels.SensorFrame.from_hypothesis(got).image
-        x, y, _, heading, pitch = self._map.pose(position.viewframe)
-        start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
+        start = self.views.start_pose(position.viewframe)
         r = refine_pose(
             image,
-            self._emulator,
+            self.views.emulator,
             start,
-            query_skyline=self._profile(position.frame, board),
-            start_view=self._start_view(position.viewframe, start),
+            query_skyline=skyline_profile(board, position.frame),
+            start_view=self.views.own_view(position.viewframe, start),
             **self.search,
         )
         levels.post(
@@ -189,14 +146,14 @@ class PoseRefiner(KnowledgeSource):
                 score=r.score,
                 start_score=r.start_score,
                 renders=r.renders,
-                route_position=[float(x), float(y)],
-                route_heading_deg=float(heading),
+                route_position=[start.x, start.y],
+                route_heading_deg=start.heading_deg,
             ),
             links=(hypothesis.id, got.id),
             credibility=hypothesis.credibility,
         )
 
     def shutdown(self) -> None:
-        if self._world is not None:
-            self._world.close()
-            self._world, self._emulator = None, None
+        if self.views is not None:
+            self.views.close()
+            self.views = None

@@ -3,17 +3,12 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING, Any, ClassVar
-
-import numpy as np
+from typing import Any, ClassVar
 
 from blackboard.hypothesis import Hypothesis
 from blackboard.knowledge_source import Board, Event, EventKind, KnowledgeSource
 from knowledge_sources import levels
-
-if TYPE_CHECKING:
-    from models.camera_emulator import CameraEmulator, View
-    from models.world import World
+from knowledge_sources.map_views import MapViews, skyline_profile
 
 __all__ = ["Verifier"]
 
@@ -61,10 +56,8 @@ class Verifier(KnowledgeSource):
             "max_pitch_deg": float(max_pitch_deg),
             "truncate_deg": float(truncate_deg),
         }
-        self._world: World | None = None
-        self._emulator: CameraEmulator | None = None
-        self._map: levels.Map | None = None
-        self._depths: np.ndarray | None = None
+        #: the map's world, emulator and cache entry, once the map is posted
+        self.views: MapViews | None = None
         self._waiting: list[Hypothesis] = []
 
     def precondition(self, event: Event) -> float | None:
@@ -83,64 +76,38 @@ class Verifier(KnowledgeSource):
                 waiting, self._waiting = self._waiting, []
                 for q in waiting:
                     self._verify(q, board)
-            elif self._emulator is None:
+            elif self.views is None:
                 self._waiting.append(h)
             else:
                 self._verify(h, board)
         finally:
-            if self._emulator is not None:
-                self._emulator.release()
+            if self.views is not None:
+                self.views.release()
 
     def _open(self, mp: levels.Map) -> None:
-        from models.viewframe_cache import entry_field
-        from models.world import World
-
-        self._world = World.from_scenario(mp.path)
-        self._emulator = self._world.emulator
-        self._map = mp
-        if mp.entry is not None and self._world.renders_entry(mp.entry):
-            depths = entry_field(mp.entry, "depth", count=mp.viewframes)
-            if depths is not None and depths.ndim == 3:
-                self._depths = depths
-
-    def _own_view(self, viewframe: int, start: Any) -> View | None:
-        """The candidate ``viewframe``'s own view from the map's cache entry, or None (rendered)."""
-        import mmap
-
-        from models.camera_emulator import View
-        from models.viewframe_cache import read_pixels, release_pages
-
-        if self._depths is None or self._map is None or self._map.entry is None:
-            return None
-        pixels = read_pixels(self._map.entry, viewframe, count=self._map.viewframes)
-        depth = np.array(self._depths[viewframe], dtype=np.float32)
-        release_pages([self._depths[viewframe]], advice=mmap.MADV_DONTNEED)
-        return View(image=pixels.image, depth=depth, mask=pixels.mask.astype(np.int32), pose=start)
+        self.views = MapViews(mp)
 
     def _verify(self, hypothesis: Hypothesis, board: Board) -> None:
-        from knowledge_sources.skyline import SKYLINE_SOURCE
         from models.preprocess import preprocess
         from models.verify import verify_candidates
 
-        assert self._emulator is not None and self._map is not None and self._world is not None
+        assert self.views is not None
         query = levels.VerifyQuery.from_hypothesis(hypothesis)
         got = board.get(levels.frame_id(query.frame))
         if got is None:
             log.warning("%s: frame %d: camera frame not on the blackboard: not verified", self.name, query.frame)
             return
         image = levels.SensorFrame.from_hypothesis(got).image
-        sky = board.get(levels.ranking_id(query.frame, 0, SKYLINE_SOURCE))
-        profile = None if sky is None else levels.Ranking.from_hypothesis(sky).profile
-        mem = self._world.scenario.memory
+        profile = skyline_profile(board, query.frame)
+        mem = self.views.world.scenario.memory
         starts, views = [], []
         for vf in query.viewframes:
-            x, y, _, heading, pitch = self._map.pose(int(vf))
-            start = self._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
+            start = self.views.start_pose(int(vf))
             starts.append(start)
-            views.append(self._own_view(int(vf), start))
+            views.append(self.views.own_view(int(vf), start))
         r = verify_candidates(
             image,
-            self._emulator,
+            self.views.emulator,
             starts,
             pattern=lambda im: preprocess(
                 im, size=mem.size, edge=mem.edge, blur_sigma=mem.blur_sigma, whiten=mem.whiten
@@ -168,6 +135,6 @@ class Verifier(KnowledgeSource):
         )
 
     def shutdown(self) -> None:
-        if self._world is not None:
-            self._world.close()
-            self._world, self._emulator = None, None
+        if self.views is not None:
+            self.views.close()
+            self.views = None

@@ -77,15 +77,14 @@ def test_the_chosen_viewframes_view_comes_from_the_cache_entry_with_the_same_pos
     read = _refiner(position=position)
     got = _poses(small_rendered, read, chosen)
     rendering = _refiner(position=position)
-    rendering._open = lambda mp, plain=rendering._open: (plain(mp), setattr(rendering, "_depths", None))  # type: ignore[method-assign]
+    rendering._open = lambda mp, plain=rendering._open: (plain(mp), setattr(rendering.views, "depths", None))  # type: ignore[method-assign]
     want = _poses(small_rendered, rendering, chosen)
-    assert read._depths is not None and rendering._depths is None
+    assert read.views is not None and rendering.views is not None
+    assert read.views.depths is not None and rendering.views.depths is None
     assert sorted(got) == sorted(want) == sorted(chosen)
-    assert read._emulator is not None and read._map is not None
     for k in set(chosen.values()):  # the view read is the view rendered, pixel for pixel
-        x, y, _, heading, pitch = read._map.pose(k)
-        start = read._emulator.pose_at(float(x), float(y), float(heading), pitch_deg=float(pitch))
-        view, rendered = read._start_view(k, start), read._emulator.render(start)
+        start = read.views.start_pose(k)
+        view, rendered = read.views.own_view(k, start), read.views.emulator.render(start)
         assert view is not None
         np.testing.assert_array_equal(view.image, rendered.image)
         np.testing.assert_array_equal(view.depth, rendered.depth)
@@ -107,5 +106,7 @@ def test_an_entry_of_another_rendering_is_not_read(small_rendered: dict, monkeyp
     monkeypatch.setattr(World, "_cache_key", lambda self: "0" * 64)
     refiner = _refiner()
     poses = _poses(small_rendered, refiner, {0: 2})
-    assert refiner._depths is None and poses[0].renders == 1  # the start view, rendered
+    assert (
+        refiner.views is not None and refiner.views.depths is None and poses[0].renders == 1
+    )  # the start view, rendered
     assert np.isfinite(poses[0].heading_deg)
