@@ -87,41 +87,6 @@ class Terrain:
         self.world.close()
 
 
-def _scorer_class():
-    """models.refine's scorer, recording the two parts of each score it returns."""
-    from models.refine import _ncc_shifted, _Scorer, _shifted, _subbin, edge_image
-    from models.skyline import match_skylines, skyline_from_depth
-
-    class Parts(_Scorer):
-        def score(self, x, y, heading, pitch, *, max_heading=None, view=None):  # type: ignore[override]
-            if view is None:
-                view = self.emulator.render(self.emulator.pose_at(x, y, heading, pitch_deg=pitch))
-                self.renders += 1
-            ref = skyline_from_depth(view.depth, fov_y_deg=self.fov, step_deg=self.step)
-            mh = self.max_heading if max_heading is None else max_heading
-            m = match_skylines(self.query, ref[None], max_heading_deg=mh, **self.kw)
-            dh, dp = float(m.heading_deg[0]), float(m.pitch_deg[0])
-            around = [
-                match_skylines(
-                    self.query, _shifted(ref, int(round(dh / self.step)) + k)[None], max_heading_deg=0.0, **self.kw
-                ).error[0]
-                for k in (-1, 0, 1)
-            ]
-            off, sig = _subbin(m, np.array(around), self.step)
-            dh += off
-            sky = float(m.error[0])
-            shift = int(round(dh * self.px_per_deg))
-            lift = int(round(dp * self.px_per_deg))
-            ncc = _ncc_shifted(
-                self.edges, edge_image(view.image), range(lift - 2, lift + 3), range(shift - 1, shift + 2)
-            )
-            self.parts = (sky if math.isfinite(sky) else 99.0, ncc)
-            self.view = view
-            return sky + self.edge_weight * (1.0 - ncc), heading + dh, pitch + dp, sig
-
-    return Parts
-
-
 def memory_correlation(a: np.ndarray, b: np.ndarray, max_shift: tuple[int, int]) -> float:
     """Best circular correlation of two memory patterns (zero mean, unit energy, (N, N)) over
     row and column shifts up to ``max_shift``: the memory's own similarity (its error variance
@@ -131,6 +96,12 @@ def memory_correlation(a: np.ndarray, b: np.ndarray, max_shift: tuple[int, int])
     rows = np.r_[0 : r + 1, -r:0] if r else np.array([0])
     cols = np.r_[0 : q + 1, -q:0] if q else np.array([0])
     return float(c[np.ix_(rows % c.shape[0], cols % c.shape[1])].max())
+
+
+def _parts(scorer: Any) -> tuple[float, float]:
+    """The refiner's scorer's last score in its parts (skyline error, 99 for none; edge correlation)."""
+    sky, ncc = scorer.parts
+    return (sky if math.isfinite(sky) else 99.0, ncc)
 
 
 def candidate_features(
@@ -148,12 +119,12 @@ def candidate_features(
 ) -> dict[str, Any]:
     """The refiner's scores of one candidate ``viewframe`` against the camera ``image`` (module docstring)."""
     from models.camera_emulator import View
+    from models.refine import _Scorer
     from models.route_views import view_route
     from models.scenario import RefineSpec
 
     spec, sky = RefineSpec(), scenario.skyline
-    Parts = _scorer_class()
-    sc = Parts(
+    sc = _Scorer(
         image,
         terrain.emulator,
         step_deg=sky.step_deg,
@@ -170,17 +141,17 @@ def candidate_features(
     t0 = time.perf_counter()
     view = View(image=np.asarray(v.image), depth=np.asarray(v.depth), mask=np.asarray(v.mask), pose=start)
     s0, h, p, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=view)
-    out["s0"], (out["s0_sky"], out["s0_ncc"]) = float(s0), sc.parts
+    out["s0"], (out["s0_sky"], out["s0_ncc"]) = float(s0), _parts(sc)
     shift = tuple(int(m) for m in scenario.memory.max_shift)
     out["s0_mem"] = memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), shift)
     out["s0_ms"] = 1e3 * (time.perf_counter() - t0)
     s1, h, p, _ = sc.score(start.x, start.y, h, p, max_heading=2 * sky.step_deg)
-    out["s1"], (out["s1_sky"], out["s1_ncc"]) = float(s1), sc.parts
+    out["s1"], (out["s1_sky"], out["s1_ncc"]) = float(s1), _parts(sc)
     out["s1_mem"] = memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), (2, 2))
     out["s1_ms"] = 1e3 * (time.perf_counter() - t0)
     th = math.radians(start.heading_deg)
     fwd, side = np.array([math.cos(th), math.sin(th)]), np.array([math.sin(th), -math.cos(th)])
-    best = (float(s1), sc.parts, (start.x, start.y))
+    best = (float(s1), _parts(sc), (start.x, start.y))
     mems = [out["s1_mem"]]
     ticks = np.linspace(-1.0, 1.0, grid)
     for a in ticks:
@@ -191,7 +162,7 @@ def candidate_features(
             got = sc.score(float(x), float(y), h, p, max_heading=4 * sky.step_deg)
             mems.append(memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), (2, 2)))
             if got[0] < best[0]:
-                best = (float(got[0]), sc.parts, (float(x), float(y)))
+                best = (float(got[0]), _parts(sc), (float(x), float(y)))
     out["sp"], (out["sp_sky"], out["sp_ncc"]) = best[0], best[1]
     out["sp_xy"] = list(best[2])
     out["sp_mem"] = float(max(mems))  # the best memory correlation over the pattern's views

@@ -194,6 +194,9 @@ class _Scorer:
         self.edge_weight = edge_weight
         self.px_per_deg = emulator.intrinsics[0] * math.radians(1.0)
         self.renders = 0
+        #: the last score's parts (skyline error, edge correlation) and the view it scored
+        self.parts: tuple[float, float] = (math.inf, 0.0)
+        self.view: View | None = None
 
     def score(
         self,
@@ -229,6 +232,7 @@ class _Scorer:
         shift = int(round(dh * self.px_per_deg))
         lift = int(round(dp * self.px_per_deg))  # pitched up: the scene moves down the image
         ncc = _ncc_shifted(self.edges, edge_image(view.image), range(lift - 2, lift + 3), range(shift - 1, shift + 2))
+        self.parts, self.view = (sky_err, ncc), view
         return sky_err + self.edge_weight * (1.0 - ncc), heading + dh, pitch + dp, sig
 
 
