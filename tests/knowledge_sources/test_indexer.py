@@ -258,13 +258,44 @@ def test_a_stored_index_leaves_none_of_its_rows_resident_after_a_ranking(small_r
     assert all(r.viewframes == want[k].viewframes for k, r in got.items())
 
 
+def _most_at_once(group: list, call, monkeypatch) -> tuple[int, dict[int, object]]:
+    """``call(ix)`` for every shard ``ix`` of ``group``, each in its own thread started at once, each
+    shard's index ranking slowed by 0.2 s (long enough for every thread to try at once): the most
+    rankings under way at once, and each shard's result."""
+    import threading
+    import time
+
+    lock, inside, most = threading.Lock(), [0], [0]
+    for ix in group:
+        plain = ix._index.rank
+
+        def rank(image, *, among=None, plain=plain):
+            with lock:
+                inside[0] += 1
+                most[0] = max(most[0], inside[0])
+            time.sleep(0.2)
+            try:
+                return plain(image, among=among)
+            finally:
+                with lock:
+                    inside[0] -= 1
+
+        monkeypatch.setattr(ix._index, "rank", rank)
+    got: dict[int, object] = {}
+    threads = [threading.Thread(target=lambda ix=ix: got.update({ix.shard: call(ix)})) for ix in group]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return most[0], got
+
+
 def test_stored_shards_of_one_process_rank_a_few_at_a_time(small_rendered: dict, tmp_path: Path, monkeypatch) -> None:
     """Loaded shards map their ranking rows while they rank: at most MAPPED_RANKINGS of them rank
     at once in a process (else a camera frame ranked by every shard of a long route at once maps
     all their rows: 665 MB at 10,000 viewframes), each giving its rows back before the next
     starts; a shard built in memory is not held back. The rankings are unchanged."""
     import threading
-    import time
 
     from knowledge_sources import indexer as indexer_module
 
@@ -274,39 +305,10 @@ def test_stored_shards_of_one_process_rank_a_few_at_a_time(small_rendered: dict,
     built, _ = _run_shards(small_rendered, _entry_copy(small_rendered, tmp_path / "other"), 3, viewframes=True)
     assert all(ix.loaded for ix in loaded) and not any(ix.loaded for ix in built)
     monkeypatch.setattr(indexer_module, "_MAPPED", threading.BoundedSemaphore(2))
-    lock, inside, most = threading.Lock(), [0], [0]
-
-    def counted(ix):
-        plain = ix._index.rank
-
-        def rank(image, *, among=None):
-            with lock:
-                inside[0] += 1
-                most[0] = max(most[0], inside[0])
-            time.sleep(0.2)  # long enough for every thread to try at once
-            try:
-                return plain(image, among=among)
-            finally:
-                with lock:
-                    inside[0] -= 1
-
-        monkeypatch.setattr(ix._index, "rank", rank)
-
     image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][0]).pixels(agent="test").image
     for group, bound in ((loaded, 2), (built, 3)):
-        for ix in group:
-            counted(ix)
-        got: dict[int, object] = {}
-        threads = [
-            threading.Thread(target=lambda ix=ix, got=got: got.update({ix.shard: ix._ranked(image, None)}))
-            for ix in group
-        ]
-        inside[0] = most[0] = 0
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-        assert most[0] == bound and len(got) == 3
+        most, got = _most_at_once(group, lambda ix: ix._ranked(image, None), monkeypatch)
+        assert most == bound and len(got) == 3
         assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
 
 
@@ -318,7 +320,6 @@ def test_shards_of_one_process_rank_through_the_coarse_stage_a_few_at_a_time(
     turned queries' products and inverse FFTs: 20 shards at once held 440 MB at 10,000
     viewframes). The rankings are unchanged."""
     import threading
-    import time
 
     from knowledge_sources import indexer as indexer_module
 
@@ -329,39 +330,10 @@ def test_shards_of_one_process_rank_through_the_coarse_stage_a_few_at_a_time(
     built, _ = _run_shards(small_rendered, other, 3, viewframes=True, coarse_candidates=1)
     assert all(ix.loaded and ix._coarse is not None for ix in loaded) and not any(ix.loaded for ix in built)
     monkeypatch.setattr(indexer_module, "_MAPPED", threading.BoundedSemaphore(2))
-    lock, inside, most = threading.Lock(), [0], [0]
-
-    def counted(ix):
-        plain = ix._index.rank
-
-        def rank(image, *, among=None):
-            with lock:
-                inside[0] += 1
-                most[0] = max(most[0], inside[0])
-            time.sleep(0.2)  # long enough for every thread to try at once
-            try:
-                return plain(image, among=among)
-            finally:
-                with lock:
-                    inside[0] -= 1
-
-        monkeypatch.setattr(ix._index, "rank", rank)
-
     image = levels.Viewframe.from_hypothesis(small_rendered["viewframes"][0]).pixels(agent="test").image
     for group in (loaded, built):
-        for ix in group:
-            counted(ix)
-        got: dict[int, object] = {}
-        threads = [
-            threading.Thread(target=lambda ix=ix, got=got: got.update({ix.shard: ix._coarse_ranked(image)}))
-            for ix in group
-        ]
-        inside[0] = most[0] = 0
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-        assert most[0] == 2 and len(got) == 3
+        most, got = _most_at_once(group, lambda ix: ix._coarse_ranked(image), monkeypatch)
+        assert most == 2 and len(got) == 3
         assert all(list(got[ix.shard].viewframes) == want[(0, ix.shard)].viewframes for ix in group)
 
 
