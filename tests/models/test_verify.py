@@ -7,27 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from models.camera_emulator import CameraEmulator
-from models.environment import build_environment
 from models.index import ViewframeIndex
-from models.scenario import MemorySpec, SimulateSpec, SkylineSpec, scenario_from_dict
+from models.scenario import MemorySpec, SimulateSpec, SkylineSpec
 from models.sensor import degrade
 from models.verify import pattern_correlation, verified_ranking, verify_candidates
-
-
-@pytest.fixture(scope="module")
-def emulator():
-    s = scenario_from_dict(
-        {
-            "name": "verify",
-            "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
-            "landmarks": [{"id": "H1", "kind": "house", "x": 470, "y": 420, "width": 18, "depth": 12, "height": 8}],
-            "route": [[300, 300], [400, 400]],
-            "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
-        }
-    )
-    with CameraEmulator(build_environment(s), s.camera) as cam:
-        yield cam
 
 
 def _match() -> dict[str, float]:
