@@ -7,26 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from models.camera_emulator import CameraEmulator
-from models.environment import build_environment
 from models.refine import refine_pose
-from models.scenario import SimulateSpec, scenario_from_dict
+from models.scenario import SimulateSpec
 from models.sensor import degrade
-
-
-@pytest.fixture(scope="module")
-def emulator():
-    s = scenario_from_dict(
-        {
-            "name": "refine",
-            "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
-            "landmarks": [{"id": "H1", "kind": "house", "x": 470, "y": 420, "width": 18, "depth": 12, "height": 8}],
-            "route": [[300, 300], [400, 400]],
-            "camera": {"width": 160, "height": 120, "fov_y_deg": 45, "eye_height": 2.0, "near": 1.0, "far": 5000.0},
-        }
-    )
-    with CameraEmulator(build_environment(s), s.camera) as cam:
-        yield cam
 
 
 @pytest.mark.parametrize("along, across, turn, pitch", [(9.0, -3.0, 4.0, 0.0), (-12.0, 2.0, -6.0, 1.0)])
@@ -98,22 +81,26 @@ def test_a_start_view_given_is_not_rendered_again(emulator):
 def test_a_skyline_already_extracted_gives_the_same_refinement_without_extracting_again(
     emulator, monkeypatch, position
 ):
+    from dataclasses import asdict
+
     import models.refine as refine
     from models.skyline import skyline_from_image
 
     start = emulator.pose_at(420.0, 380.0, 60.0)
     image = emulator.render(emulator.pose_at(425.0, 383.0, 63.0)).image
-    # the first refinement in a fresh emulator can differ from a later one in the 7th digit of an
-    # uncertainty (seen when this test ran alone): not what this test is about, so one goes first
-    refine_pose(image, emulator, start, position=position)
-    want = refine_pose(image, emulator, start, position=position)
+    # two renderings of one pose can differ in the 8th digit of a score (llvmpipe; seen after other
+    # modules' emulators): not what this test is about, so the results are compared to 1e-6
+    want = asdict(refine_pose(image, emulator, start, position=position))
     profile = skyline_from_image(image, fov_y_deg=emulator.camera.fov_y_deg)
 
     def no_extraction(*args, **kwargs):
         raise AssertionError("the image's skyline was extracted again")
 
     monkeypatch.setattr(refine, "skyline_from_image", no_extraction)
-    assert refine_pose(image, emulator, start, position=position, query_skyline=profile) == want
+    assert asdict(refine_pose(image, emulator, start, position=position, query_skyline=profile)) == pytest.approx(
+        want, rel=1e-6
+    )
     # a profile on another grid (another step or field of view) is not used: extracted here
     monkeypatch.setattr(refine, "skyline_from_image", skyline_from_image)
-    assert refine_pose(image, emulator, start, position=position, query_skyline=profile[:-3]) == want
+    got = refine_pose(image, emulator, start, position=position, query_skyline=profile[:-3])
+    assert asdict(got) == pytest.approx(want, rel=1e-6)
