@@ -12,30 +12,13 @@ import pytest
 
 from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
-from models.scenario import SimulateSpec, scenario_from_dict
+from models.scenario import SimulateSpec
 from models.sensor import degrade
 from models.skyline import _viterbi, image_boundary
 from tests.models import skyline_reference as reference
+from tests.models.test_skyline import _scenario
 
 FOV = 45.0
-
-
-def _scenario(width: int, height: int):
-    return scenario_from_dict(
-        {
-            "name": "sky",
-            "terrain": {"cell_size": 10.0, "procedural": {"size": 128, "relief": 120.0, "seed": 4}},
-            "route": [[300, 300], [400, 400]],
-            "camera": {
-                "width": width,
-                "height": height,
-                "fov_y_deg": FOV,
-                "eye_height": 2.0,
-                "near": 1.0,
-                "far": 5000.0,
-            },
-        }
-    )
 
 
 def _same(image: np.ndarray) -> None:
