@@ -87,17 +87,6 @@ class Terrain:
         self.world.close()
 
 
-def memory_correlation(a: np.ndarray, b: np.ndarray, max_shift: tuple[int, int]) -> float:
-    """Best circular correlation of two memory patterns (zero mean, unit energy, (N, N)) over
-    row and column shifts up to ``max_shift``: the memory's own similarity (its error variance
-    is about ``2 (1 - correlation)`` for a clean recall)."""
-    c = np.real(np.fft.ifft2(np.fft.fft2(a) * np.conj(np.fft.fft2(b))))
-    r, q = max_shift
-    rows = np.r_[0 : r + 1, -r:0] if r else np.array([0])
-    cols = np.r_[0 : q + 1, -q:0] if q else np.array([0])
-    return float(c[np.ix_(rows % c.shape[0], cols % c.shape[1])].max())
-
-
 def _parts(scorer: Any) -> tuple[float, float]:
     """The refiner's scorer's last score in its parts (skyline error, 99 for none; edge correlation)."""
     sky, ncc = scorer.parts
@@ -122,6 +111,7 @@ def candidate_features(
     from models.refine import _Scorer
     from models.route_views import view_route
     from models.scenario import RefineSpec
+    from models.verify import pattern_correlation
 
     spec, sky = RefineSpec(), scenario.skyline
     sc = _Scorer(
@@ -143,11 +133,11 @@ def candidate_features(
     s0, h, p, _ = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=view)
     out["s0"], (out["s0_sky"], out["s0_ncc"]) = float(s0), _parts(sc)
     shift = tuple(int(m) for m in scenario.memory.max_shift)
-    out["s0_mem"] = memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), shift)
+    out["s0_mem"] = pattern_correlation(camera_pattern, terrain.index.pattern(sc.view.image), max_shift=shift)
     out["s0_ms"] = 1e3 * (time.perf_counter() - t0)
     s1, h, p, _ = sc.score(start.x, start.y, h, p, max_heading=2 * sky.step_deg)
     out["s1"], (out["s1_sky"], out["s1_ncc"]) = float(s1), _parts(sc)
-    out["s1_mem"] = memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), (2, 2))
+    out["s1_mem"] = pattern_correlation(camera_pattern, terrain.index.pattern(sc.view.image), max_shift=(2, 2))
     out["s1_ms"] = 1e3 * (time.perf_counter() - t0)
     th = math.radians(start.heading_deg)
     fwd, side = np.array([math.cos(th), math.sin(th)]), np.array([math.sin(th), -math.cos(th)])
@@ -160,7 +150,7 @@ def candidate_features(
                 continue
             x, y = np.array([start.x, start.y]) + a * along * spacing_m * fwd + c * across_m * side
             got = sc.score(float(x), float(y), h, p, max_heading=4 * sky.step_deg)
-            mems.append(memory_correlation(camera_pattern, terrain.index.pattern(sc.view.image), (2, 2)))
+            mems.append(pattern_correlation(camera_pattern, terrain.index.pattern(sc.view.image), max_shift=(2, 2)))
             if got[0] < best[0]:
                 best = (float(got[0]), _parts(sc), (float(x), float(y)))
     out["sp"], (out["sp_sky"], out["sp_ncc"]) = best[0], best[1]
