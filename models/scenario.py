@@ -112,6 +112,9 @@ MAX_ROUTE_POINTS = 1_000_000
 MAX_SHIFT = 64
 #: the most roll angles the memory's match searches (MemorySpec.roll_search_deg): each is one more ranking
 MAX_ROLL_SEARCH = 9
+#: the rolls (degrees) the camera image is matched turned by, in the memory's ranking and the
+#: verification alike (MemorySpec.roll_search_deg, VerifySpec.roll_search_deg)
+ROLL_SEARCH_DEG: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
 MAX_FRAMES = 1_000_000
 MAX_TIME_S = 1e11  # frame times: seconds from any origin (epoch seconds fit)
 MAX_SPEED_MPS = 1000.0
@@ -436,7 +439,7 @@ class MemorySpec(_Spec):
     window_margin: int = Field(default=16, ge=0, le=MAX_ROUTE_POINTS)
     window_full_every: int = Field(default=10, ge=1, le=1_000_000)
     coarse_candidates: int | None = Field(default=32, ge=1, le=MAX_ROUTE_POINTS)
-    roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
+    roll_search_deg: tuple[float, ...] = ROLL_SEARCH_DEG
     roll_shortlist: int | None = Field(default=None, ge=1, le=MAX_ROUTE_POINTS)
 
     @field_validator("roll_search_deg")
@@ -736,7 +739,7 @@ class VerifySpec(_Spec):
     margin: float = Field(default=0.5, ge=0, le=1e3)
     weight: float = Field(default=2.8, ge=0, le=1e3)
     timeout_s: float = Field(default=10.0, gt=0, le=3600)
-    roll_search_deg: tuple[float, ...] = (-3.0, -1.5, 0.0, 1.5, 3.0)
+    roll_search_deg: tuple[float, ...] = ROLL_SEARCH_DEG
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
 
     @field_validator("roll_search_deg")
