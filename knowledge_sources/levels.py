@@ -993,6 +993,9 @@ class Position(Message):
     steps: list = field(metadata=_doc("the scene analysis's steps: [{...}, ...]"))
     strategy: str = field(metadata=_doc('"associative" or "prior"'))
     track_prior: bool = field(default=False, metadata=_doc("the candidates were conditioned on the track"))
+    verified: bool = field(
+        default=False, metadata=_doc("the ranking was re-scored by the frame's verification (render and compare)")
+    )
 
     def id(self) -> str:
         return position_id(self.frame)

@@ -217,6 +217,7 @@ def agent_plan(
                     "min_pixels": sched.min_pixels,
                     "sources": sources,
                     "await_query": True,
+                    "verify_weight": ver.weight if ver.enabled else 0.0,
                 },
             )
         )

@@ -25,11 +25,13 @@ a track arriving after that is not used for that frame.
 
 Render-and-compare verification (option ``verify_candidates`` >= 2, the scenario's ``verify``
 block, :class:`models.scenario.VerifySpec`): when the fused ranking's second route point is
-within ``verify_margin`` nats of the first, the scheduler posts a ``verify_query`` of the first
-``verify_candidates`` route points (their best viewframes) addressed to the verifier with a
-deadline (``verify_timeout_s``); the ``verification`` raises each candidate's fused score by
-``verify_weight`` times its correlation's shortfall from the best
-(:func:`models.verify.verified_ranking`) and the scene analysis starts from that ranking. A
+within ``verify_margin`` nats of the first, the scheduler posts a ``verify_query`` of the fused
+ranking's first ``verify_candidates`` viewframes (every viewframe, not only each route point's
+best: a place between two route points is often the second view of its point) addressed to the
+verifier with a deadline (``verify_timeout_s``); the ``verification`` raises each candidate's
+fused score by ``verify_weight`` times its correlation's shortfall from the best
+(:func:`models.verify.verified_ranking`), and the scene analysis starts from that ranking (each
+route point at its best viewframe again). A
 verification that does not come leaves the ranking as it is, and the position says so in
 ``degraded``.
 """
@@ -78,7 +80,8 @@ class _Frame:
     queries_posted: int = 0
     links: list[str] = field(default_factory=list)
     degraded: list[str] = field(default_factory=list)
-    ranking: list[tuple[int, float]] = field(default_factory=list)
+    ranking: list[tuple[int, float]] = field(default_factory=list)  # fused, the best viewframe of each route point
+    fused: list[tuple[int, float]] = field(default_factory=list)  # fused, every viewframe
     track_prior: bool = False
     done: bool = False
     verify_id: str | None = None  # the verify query under way
@@ -314,12 +317,13 @@ class Scheduler(KnowledgeSource):
 
         mp = self._ensure_map(board)
         shards = {src: [st.rankings[(src, b)].ranking() for b in range(st.shards[src])] for src in self.sources}
-        st.ranking = _best_view_per_point(fuse_shards(shards, weights=self.sources), mp)
+        st.fused = fuse_shards(shards, weights=self.sources)
+        st.ranking = _best_view_per_point(st.fused, mp)
         r = st.ranking
         if self.verify_candidates >= 2 and len(r) >= 2 and r[1][1] - r[0][1] < self.verify_margin:
             q = levels.post(
                 board,
-                levels.VerifyQuery(frame=st.frame, viewframes=[int(k) for k, _ in r[: self.verify_candidates]]),
+                levels.VerifyQuery(frame=st.frame, viewframes=[int(k) for k, _ in st.fused[: self.verify_candidates]]),
                 links=(levels.frame_id(st.frame),),
                 addressed_to=self.verifier,
                 deadline_s=self.verify_timeout_s,
@@ -338,7 +342,8 @@ class Scheduler(KnowledgeSource):
             return  # late: the frame went on without it
         st.verify_id = None
         first = st.ranking[0][0]
-        st.ranking = verified_ranking(st.ranking, v.viewframes, v.correlations, weight=self.verify_weight)
+        st.fused = verified_ranking(st.fused, v.viewframes, v.correlations, weight=self.verify_weight)
+        st.ranking = _best_view_per_point(st.fused, self._ensure_map(board))
         st.links.append(h.id)
         st.verified = f"verified {len(v.viewframes)} candidates by render and compare" + (
             "" if st.ranking[0][0] == first else f" (first viewframe {first} -> {st.ranking[0][0]})"
@@ -447,6 +452,7 @@ class Scheduler(KnowledgeSource):
                 steps=[dict(s) for s in d.steps],
                 strategy=self.strategy,
                 track_prior=st.track_prior,
+                verified=bool(st.verified),
             ),
             links=tuple(dict.fromkeys([levels.frame_id(st.frame), *st.links])),
             credibility=float(min(1.0, max(0.0, d.confidence))),

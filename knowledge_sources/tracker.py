@@ -172,7 +172,14 @@ class Tracker(KnowledgeSource):
     (``{source: weight}``, the scheduler's: the ranking sources a frame waits for and their
     fusion weights; default the associative memory alone), ``await_query`` (a frame is tracked
     once the scheduler's ``track_query`` for it is in as well, and its track links it: the
-    scheduler's blind fallback waits for that answer; on when the scheduler is tracked)."""
+    scheduler's blind fallback waits for that answer; on when the scheduler is tracked),
+    ``verify_weight`` (nats per unit of correlation, the scenario's ``verify.weight``; 0: not
+    used): when the frame's candidates were verified by render and compare (the position says
+    so; its ``verification`` is on the board before the position), the tracker
+    observes them re-scored as the scheduler does (:func:`models.verify.verified_ranking`: each
+    verified viewframe's negative log posterior raised by ``verify_weight`` times its
+    correlation's shortfall from the best), so the track and the single-frame decision rest on
+    the same evidence."""
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.RANKING, levels.POSITION, levels.TRACK_QUERY)
     produces: ClassVar[tuple[str, ...]] = (levels.TRACK,)
@@ -186,9 +193,13 @@ class Tracker(KnowledgeSource):
         min_pixels: int | None = None,
         sources: dict[str, float] | None = None,
         await_query: bool = False,
+        verify_weight: float = 0.0,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
+        self.verify_weight = float(verify_weight)
+        if not self.verify_weight >= 0:
+            raise ValueError(f"{name}: verify_weight must be >= 0, got {verify_weight!r}")
         from models.scenario import SchedulerSpec, TrackingSpec
 
         self.spec = TrackingSpec(**(spec or {}))
@@ -249,6 +260,20 @@ class Tracker(KnowledgeSource):
             visible = {k: frozenset(s) for k, s in points.items()}
         self._visible = visible
 
+    def _verified(
+        self, frame: int, viewframes: list[int], scores: list[float], p: _Pending, board: Board
+    ) -> tuple[list[int], list[float]]:
+        """The frame's fused scores re-scored by its verification, when there is one (class docstring)."""
+        from models.verify import verified_ranking
+
+        got = board.get(levels.verification_id(frame))
+        if got is None:
+            return viewframes, scores
+        v = levels.Verification.from_hypothesis(got)
+        p.links.append(got.id)
+        out = verified_ranking(list(zip(viewframes, scores)), v.viewframes, v.correlations, weight=self.verify_weight)
+        return [int(k) for k, _ in out], [float(e) for _, e in out]
+
     def _step(self, frame: int, p: _Pending, board: Board) -> None:
         from knowledge_sources.fusion import fuse_shards, shards_log_posterior
         from models.associative import Ranking as MemoryRanking
@@ -266,6 +291,8 @@ class Tracker(KnowledgeSource):
         else:  # the scheduler's fused ranking as it is (scores standardised by the filter)
             fused = fuse_shards(shards, weights=self.sources)
             viewframes, scores = [k for k, _ in fused], [e for _, e in fused]
+        if self.verify_weight > 0 and p.position.verified:
+            viewframes, scores = self._verified(frame, viewframes, scores, p, board)
         if self._route_points is not None and not f.observes_views:
             viewframes, scores = by_route_point(viewframes, scores, self._route_points, nats=self.spec.scores == "nats")
         ll = f.route_loglik(

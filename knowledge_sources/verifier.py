@@ -18,17 +18,18 @@ log = logging.getLogger(__name__)
 class Verifier(KnowledgeSource):
     """Owns a camera emulator of the map (it loads the scenario the ``map`` names, as the pose
     refiner does) and answers each ``verify_query`` addressed to it: for each candidate
-    viewframe, the view at its place aligned with the camera image by the skyline's heading and
-    pitch, and the camera image's memory-pattern correlation with it
-    (:func:`models.verify.verify_candidates`, the patterns of the scenario's memory settings);
+    viewframe, the view at its place aligned with the camera image (by the memory's shift search
+    over the scenario's ``memory.max_shift`` and by the skyline), and the camera image's
+    memory-pattern correlation with it (:func:`models.verify.verify_candidates`, the patterns of
+    the scenario's memory settings);
     posts a ``verification`` linked to the query and the camera frame.
 
     The candidate's own view (its viewframe's image and depth) is read from the map's viewframe
     cache entry when that entry holds what this verifier's emulator renders (as the refiner
     does), otherwise rendered. The camera frame's skyline profile is the skyline ranker's when
     it posted one. Options: the skyline matching settings ``step_deg``, ``max_heading_deg``,
-    ``max_pitch_deg``, ``truncate_deg``; ``rolls_deg``, the rolls the camera image is also compared
-    at, and ``max_roll_deg``, the skyline match's roll bound (:func:`models.verify.verify_candidates`). Queries that arrive before the map wait.
+    ``max_pitch_deg``, ``truncate_deg``; ``rolls_deg``, the rolls of the memory's alignment, and
+    ``max_roll_deg``, the skyline alignment's roll bound (:func:`models.verify.verify_candidates`). Queries that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.VERIFY_QUERY)
@@ -118,6 +119,7 @@ class Verifier(KnowledgeSource):
             max_heading_deg=self.match["max_heading_deg"],
             max_pitch_deg=self.match["max_pitch_deg"],
             truncate_deg=self.match["truncate_deg"],
+            align_shift=mem.max_shift,
             rolls_deg=self.rolls_deg,
             max_roll_deg=self.max_roll_deg,
         )

@@ -379,6 +379,23 @@ class CameraEmulator:
             raise RenderError(f"rendering failed: {exc}") from exc
         return np.ascontiguousarray(color[..., :3], dtype=np.uint8)
 
+    def render_image(
+        self,
+        pose: Pose,
+        *,
+        light_intensity: float | None = None,
+        light_direction: tuple[float, float, float] | None = None,
+    ) -> np.ndarray:
+        """The colour image of :meth:`render` alone, uint8 (H, W, 3) RGB, landmarks included: one
+        colour pass, no segmentation pass (about half a :meth:`render`'s cost), for callers that
+        need neither depth nor mask (render-and-compare, :mod:`models.verify`)."""
+        self._prepare(pose, light_intensity, light_direction)
+        try:
+            color, _ = self._renderer.render(self.scene)
+        except Exception as exc:
+            raise RenderError(f"rendering failed: {exc}") from exc
+        return np.ascontiguousarray(color[..., :3], dtype=np.uint8)
+
     def render(
         self,
         pose: Pose,

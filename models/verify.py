@@ -1,27 +1,45 @@
-"""Render-and-compare verification of candidate places: how well a view rendered at each candidate
-matches the camera image, by the memory's own similarity.
+"""Render-and-compare verification of candidate places: how well a view rendered at each candidate,
+turned as the camera was, matches the camera image, by the memory's own similarity.
 
 For each candidate (a viewframe's pose), :func:`verify_candidates`
 
-1. finds the camera's heading and pitch against the candidate's view by the skyline shift
-   (:func:`models.refine.refine_pose` with ``position=False``: its step 1; the candidate's own
-   viewframe, when given, is that view, so no render),
-2. renders the view at the candidate's place with that heading and pitch (one render), and
-3. scores it by the correlation of the camera image's and the view's memory patterns (the
-   whitened, blurred edge images the associative memory stores and compares,
-   :meth:`models.index.ViewframeIndex.pattern`), best over circular shifts up to
-   ``max_shift`` (rows, cols) pattern pixels (:func:`pattern_correlation`): the memory's
-   similarity, without its shift search (the heading and pitch are already aligned) and without
-   the crosstalk of a holographic recall.
+1. **aligns** the candidate's view with the camera image in two independent ways, each giving a
+   heading, a pitch and a roll (:class:`Alignment`):
 
-A higher correlation: the camera more likely stands there. The correlations enter the decision
-as a likelihood (:class:`models.scenario.VerifySpec`, calibrated on the evaluation set's tuning
-split by ``bench/rerank.py``). Poses are world (x, y, z) metres, heading ccw from +x, pitch up
-(degrees); images (H, W, 3) uint8 indexed (row, col).
+   * by the memory: the camera image's memory pattern, turned by each roll of ``rolls_deg``
+     (:func:`models.derotate.rolled`), is correlated with the view's pattern over circular
+     shifts up to ``align_shift`` (rows, cols) pattern pixels; the best shift, refined to a
+     fraction of a pixel by a parabola through its neighbours, is the heading and pitch
+     (:func:`memory_alignment`: pattern columns and rows per degree from the emulator's focal
+     length);
+   * by the skyline: the camera's skyline profile matched with the view's (from its depth)
+     over heading, pitch and, up to ``max_roll_deg``, roll (:func:`skyline_alignment`);
+
+2. **renders** the view at the candidate's place with each alignment's heading and pitch (one
+   colour pass, :meth:`models.camera_emulator.CameraEmulator.render_image`; one render when the
+   two alignments agree within a quarter of a degree), and
+3. **scores** it by the correlation of the camera image's and the view's memory patterns (the
+   whitened, blurred edge images the associative memory stores and compares,
+   :meth:`models.index.ViewframeIndex.pattern`), the camera image turned by the alignment's
+   roll and ``fine_roll_deg`` either side, best over circular shifts up to ``max_shift``
+   (rows, cols) pattern pixels (:func:`pattern_correlation`). A candidate's correlation is the
+   best of its alignments': a wrong alignment only lowers a correlation, and each way fails on
+   its own frames (the skyline where the horizon was found wrongly, the memory's shift where
+   near edges dominate).
+
+A higher correlation: the camera more likely stands there. Rendering each candidate turned as
+the camera was, rather than comparing the viewframe itself over shifts (the memory's ranking),
+restores what a turn of several degrees moves out of the viewframe and the perspective of the
+true heading and pitch. The correlations enter the decision as a likelihood
+(:class:`models.scenario.VerifySpec`, calibrated on the evaluation set's tuning split).
+
+Poses are world (x, y, z) metres, heading ccw from +x, pitch up (degrees); images (H, W, 3)
+uint8 indexed (row, col); patterns (N, N) indexed (row, col).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -29,28 +47,66 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from models.refine import refine_pose
+from models.scenario import MemorySpec
+from models.skyline import match_skylines, skyline_from_depth, skyline_from_image
 
 if TYPE_CHECKING:
     from models.camera_emulator import CameraEmulator, Pose, View
 
-__all__ = ["Verified", "pattern_correlation", "verify_candidates", "verified_ranking", "DEFAULT_MAX_SHIFT"]
+__all__ = [
+    "Alignment",
+    "Verified",
+    "pattern_correlation",
+    "memory_alignment",
+    "skyline_alignment",
+    "verify_candidates",
+    "verified_ranking",
+    "DEFAULT_MAX_SHIFT",
+    "DEFAULT_FINE_ROLL_DEG",
+]
 
 #: (rows, cols) pattern pixels of the correlation's shift search (the view is aligned already)
 DEFAULT_MAX_SHIFT = (2, 2)
+#: the camera image is also compared turned this many degrees either side of an alignment's roll
+DEFAULT_FINE_ROLL_DEG = 0.75
+#: two alignments closer than this in heading and pitch (degrees), and in roll than the fine
+#: roll step, are one: a single view is rendered
+_SAME_DEG = 0.25
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """How the camera is turned against a candidate's view: ``heading_deg`` (ccw) and
+    ``pitch_deg`` (up) to add to the view's pose, and ``roll_deg``, the turn of the camera image
+    (:func:`models.derotate.rolled`'s convention) that levels it against the view."""
+
+    heading_deg: float
+    pitch_deg: float
+    roll_deg: float
 
 
 @dataclass(frozen=True)
 class Verified:
     """The verification of candidates, in the order given: ``correlations`` (memory-pattern
     correlation of the camera image with each candidate's aligned view, in [-1, 1]),
-    ``headings_deg`` and ``pitches_deg`` (the aligned views' heading and pitch), ``renders``
-    (views rendered in all)."""
+    ``headings_deg``, ``pitches_deg`` and ``rolls_deg`` (the best-matching aligned view's heading
+    and pitch, and the camera image's roll against it), ``renders`` (views rendered in all)."""
 
     correlations: list[float]
     headings_deg: list[float]
     pitches_deg: list[float]
     renders: int
+    rolls_deg: list[float] | None = None
+
+
+def _correlation_map(a: NDArray, b: NDArray) -> NDArray[np.float64]:
+    """Circular cross-correlation ``c[dr, dc] = sum a(r, c) b(r - dr, c - dc)`` of two (N, N) patterns."""
+    return np.real(np.fft.ifft2(np.fft.fft2(a) * np.conj(np.fft.fft2(b))))
+
+
+def _window(c: NDArray[np.float64], max_shift: tuple[int, int]) -> tuple[NDArray, NDArray]:
+    r, q = (int(max_shift[0]), int(max_shift[1]))
+    return np.r_[0 : r + 1, -r:0] % c.shape[0], np.r_[0 : q + 1, -q:0] % c.shape[1]
 
 
 def pattern_correlation(a: NDArray, b: NDArray, *, max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT) -> float:
@@ -63,11 +119,90 @@ def pattern_correlation(a: NDArray, b: NDArray, *, max_shift: tuple[int, int] = 
         raise ValueError(f"patterns must be two (N, N) arrays of one shape, got {a.shape} and {b.shape}")
     if not (np.any(a) and np.any(b)):
         return 0.0
-    c = np.real(np.fft.ifft2(np.fft.fft2(a) * np.conj(np.fft.fft2(b))))
-    r, q = (int(max_shift[0]), int(max_shift[1]))
-    rows = np.r_[0 : r + 1, -r:0] % c.shape[0]
-    cols = np.r_[0 : q + 1, -q:0] % c.shape[1]
+    c = _correlation_map(a, b)
+    rows, cols = _window(c, max_shift)
     return float(c[np.ix_(rows, cols)].max())
+
+
+def _peak_offset(minus: float, centre: float, plus: float) -> float:
+    """Sub-pixel offset in [-0.5, 0.5] of a maximum at ``centre`` from its neighbours (parabola)."""
+    den = minus - 2.0 * centre + plus
+    return float(np.clip(0.5 * (minus - plus) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
+def memory_alignment(
+    camera: dict[float, NDArray],
+    view_pattern: NDArray,
+    *,
+    max_shift: tuple[int, int],
+    rows_per_deg: float,
+    cols_per_deg: float,
+) -> tuple[Alignment, float]:
+    """The memory's alignment of a view with the camera image (module docstring, step 1) and its
+    correlation: ``camera`` maps a roll (degrees) to the camera image's pattern turned by it,
+    ``view_pattern`` is the view's (N, N); the best circular shift over ``max_shift`` (rows, cols)
+    pattern pixels and the rolls, refined to a fraction of a pixel, as degrees of heading (camera
+    content moved right: the camera looks further left, ccw) and pitch (moved down: pitched up).
+    A featureless view or camera: no turn, correlation 0."""
+    b = np.asarray(view_pattern, dtype=np.float64)
+    best: tuple[float, float, float, float] = (-math.inf, 0.0, 0.0, 0.0)
+    for roll, a in camera.items():
+        if not (np.any(a) and np.any(b)):
+            continue
+        c = _correlation_map(np.asarray(a, dtype=np.float64), b)
+        rows, cols = _window(c, max_shift)
+        sub = c[np.ix_(rows, cols)]
+        i, j = np.unravel_index(int(np.argmax(sub)), sub.shape)
+        if sub[i, j] <= best[0]:
+            continue
+        n_r, n_c = c.shape
+        r0, c0 = int(rows[i]), int(cols[j])
+        dr = (r0 if r0 <= n_r // 2 else r0 - n_r) + _peak_offset(
+            c[(r0 - 1) % n_r, c0], c[r0, c0], c[(r0 + 1) % n_r, c0]
+        )
+        dc = (c0 if c0 <= n_c // 2 else c0 - n_c) + _peak_offset(
+            c[r0, (c0 - 1) % n_c], c[r0, c0], c[r0, (c0 + 1) % n_c]
+        )
+        best = (float(sub[i, j]), float(dr), float(dc), float(roll))
+    if not math.isfinite(best[0]):
+        return Alignment(0.0, 0.0, 0.0), 0.0
+    score, dr, dc, roll = best
+    return Alignment(dc / cols_per_deg, dr / rows_per_deg, roll), score
+
+
+def skyline_alignment(
+    query_skyline: NDArray,
+    depth: NDArray,
+    *,
+    fov_y_deg: float,
+    step_deg: float,
+    max_heading_deg: float,
+    max_pitch_deg: float,
+    truncate_deg: float,
+    max_roll_deg: float,
+) -> Alignment | None:
+    """The skyline's alignment of a view (its ``depth``, (H, W) metres, 0 for sky) with the camera
+    image's skyline profile ``query_skyline`` (module docstring, step 1); None when the camera
+    profile holds no horizon or the match finds no overlap (no alignment to offer)."""
+    q = np.asarray(query_skyline, dtype=np.float32).ravel()
+    if not np.isfinite(q).any():
+        return None
+    ref = skyline_from_depth(depth, fov_y_deg=fov_y_deg, step_deg=step_deg)
+    if ref.size != q.size:
+        raise ValueError(f"the camera's skyline has {q.size} bins, the view's {ref.size}: not one grid")
+    m = match_skylines(
+        q,
+        ref[None],
+        step_deg=step_deg,
+        max_heading_deg=max_heading_deg,
+        max_pitch_deg=max_pitch_deg,
+        truncate_deg=truncate_deg,
+        max_roll_deg=max_roll_deg,
+    )
+    if not m.overlap[0] > 0:
+        return None
+    roll = 0.0 if m.roll_deg is None else float(m.roll_deg[0])
+    return Alignment(float(m.heading_deg[0]), float(m.pitch_deg[0]), roll)
 
 
 def verify_candidates(
@@ -83,47 +218,91 @@ def verify_candidates(
     max_pitch_deg: float,
     truncate_deg: float,
     max_shift: tuple[int, int] = DEFAULT_MAX_SHIFT,
+    align_shift: tuple[int, int] | None = None,
     rolls_deg: Sequence[float] = (0.0,),
     max_roll_deg: float = 0.0,
+    fine_roll_deg: float = DEFAULT_FINE_ROLL_DEG,
 ) -> Verified:
     """Verify each candidate pose of ``starts`` against the camera ``image`` (H, W, 3) (module
     docstring). ``pattern``: the memory's pattern of an image (the index's
     :meth:`~models.index.ViewframeIndex.pattern`); ``start_views``: each candidate's own view
     (its viewframe's image and depth) when at hand, else None (rendered); ``query_skyline``: the
-    image's skyline profile when already extracted; the skyline matching options are the
-    refiner's (:func:`models.refine.refine_pose`). ``rolls_deg``: the camera image is also
-    compared turned by each of these rolls about its centre (:func:`models.derotate.rolled`, as
-    the memory's roll search does), each candidate keeping its best correlation; ``max_roll_deg``
-    the skyline match's roll bound when it finds the heading and pitch (0: no roll fitted)."""
+    image's skyline profile when already extracted (else extracted here); ``step_deg``,
+    ``max_heading_deg``, ``max_pitch_deg``, ``truncate_deg`` and ``max_roll_deg``: the skyline
+    alignment's match (:func:`skyline_alignment`); ``align_shift``: the memory alignment's shift
+    window (rows, cols) pattern pixels (default: the memory's, :class:`models.scenario.MemorySpec`'s
+    ``max_shift``), ``rolls_deg`` its rolls (the memory's roll search);
+    ``max_shift`` and ``fine_roll_deg``: the aligned view's correlation (step 3)."""
     from models.derotate import rolled
 
+    if fine_roll_deg < 0:
+        raise ValueError(f"fine_roll_deg must be >= 0, got {fine_roll_deg!r}")
     views = list(start_views) if start_views is not None else [None] * len(starts)
     if len(views) != len(starts):
         raise ValueError(f"{len(views)} start views for {len(starts)} candidates")
-    cameras = [pattern(rolled(np.asarray(image), float(a))) for a in (rolls_deg or (0.0,))]
-    out_c, out_h, out_p, renders = [], [], [], 0
+    img = np.asarray(image)
+    turned: dict[float, NDArray] = {}
+
+    def camera_pattern(roll: float) -> NDArray:
+        key = round(float(roll) * 64.0) / 64.0
+        if key not in turned:
+            turned[key] = pattern(rolled(img, key))
+        return turned[key]
+
+    coarse = {float(a): camera_pattern(a) for a in (rolls_deg or (0.0,))}
+    n = int(next(iter(coarse.values())).shape[0])
+    window = (int(align_shift[0]), int(align_shift[1])) if align_shift is not None else MemorySpec().max_shift
+    fov = float(emulator.camera.fov_y_deg)
+    per_rad = emulator.intrinsics[0]  # pixels per radian at the image centre (square pixels)
+    rows_per_deg = per_rad * math.radians(1.0) * n / emulator.height
+    cols_per_deg = per_rad * math.radians(1.0) * n / emulator.width
+    sky = query_skyline
+    if sky is None or not np.asarray(sky).size:
+        sky = skyline_from_image(img, fov_y_deg=fov, step_deg=step_deg)
+    out_c: list[float] = []
+    out_h: list[float] = []
+    out_p: list[float] = []
+    out_r: list[float] = []
+    renders = 0
     for start, view in zip(starts, views):
-        r = refine_pose(
-            image,
-            emulator,
-            start,
-            position=False,
-            recheck=False,
-            query_skyline=query_skyline,
-            start_view=view,
+        if view is None:
+            view = emulator.render(start)
+            renders += 1
+        found, _ = memory_alignment(
+            coarse, pattern(view.image), max_shift=window, rows_per_deg=rows_per_deg, cols_per_deg=cols_per_deg
+        )
+        aligns = [found]
+        by_sky = skyline_alignment(
+            sky,
+            view.depth,
+            fov_y_deg=fov,
             step_deg=step_deg,
             max_heading_deg=max_heading_deg,
             max_pitch_deg=max_pitch_deg,
             truncate_deg=truncate_deg,
             max_roll_deg=max_roll_deg,
         )
-        aligned = emulator.render(emulator.pose_at(start.x, start.y, r.heading_deg, pitch_deg=r.pitch_deg))
-        renders += r.renders + 1
-        view_pattern = pattern(aligned.image)
-        out_c.append(max(pattern_correlation(c, view_pattern, max_shift=max_shift) for c in cameras))
-        out_h.append(float(r.heading_deg))
-        out_p.append(float(r.pitch_deg))
-    return Verified(out_c, out_h, out_p, renders)
+        if by_sky is not None and not (
+            abs(by_sky.heading_deg - found.heading_deg) < _SAME_DEG
+            and abs(by_sky.pitch_deg - found.pitch_deg) < _SAME_DEG
+            and abs(by_sky.roll_deg - found.roll_deg) <= fine_roll_deg
+        ):
+            aligns.append(by_sky)
+        best = (-math.inf, start.heading_deg, start.pitch_deg, 0.0)
+        for al in aligns:
+            heading, pitch = start.heading_deg + al.heading_deg, start.pitch_deg + al.pitch_deg
+            aligned = pattern(emulator.render_image(emulator.pose_at(start.x, start.y, heading, pitch_deg=pitch)))
+            renders += 1
+            rolls = {al.roll_deg - fine_roll_deg, al.roll_deg, al.roll_deg + fine_roll_deg}
+            for roll in sorted(rolls):
+                c = pattern_correlation(camera_pattern(roll), aligned, max_shift=max_shift)
+                if c > best[0]:
+                    best = (c, heading, pitch, roll)
+        out_c.append(float(best[0]))
+        out_h.append(float(best[1]))
+        out_p.append(float(best[2]))
+        out_r.append(float(best[3]))
+    return Verified(out_c, out_h, out_p, renders, out_r)
 
 
 def verified_ranking(

@@ -62,3 +62,26 @@ def test_verification_off_is_todays_pipeline(small_data, tmp_path):
         assert [k for k, _ in fa["ranking"]] == [k for k, _ in fb["ranking"]]
         assert fa["confidence"] == pytest.approx(fb["confidence"], rel=1e-5)
         assert [v for _, v in fa["ranking"]] == pytest.approx([v for _, v in fb["ranking"]], rel=1e-5, abs=1e-6)
+
+
+def test_the_track_observes_the_verified_ranking(small_data, tmp_path):
+    """With the tracker on, every frame whose position was verified is tracked from the verified
+    ranking: the track links the frame's verification (the tracker re-scores its observation as
+    the scheduler did), and the tracker's plan carries the verification's weight."""
+    small_data["verify"] = {"enabled": True, "candidates": 3, "margin": 1000.0, "weight": 23.0}
+    path = _write(small_data, tmp_path / "verify-track.yaml")
+    plan = {name: opts for _, name, opts in agent_plan(load_scenario(path))}
+    assert plan["tracker"]["verify_weight"] == 23.0
+    trace = tmp_path / "run.trace"
+    results = run_mission(path, trace_path=trace, track=True)
+    posts = [r for r in read_trace(trace) if r["kind"] == "post"]
+    verified = {r["body"]["frame"]: r["id"] for r in posts if r.get("level") == "verification"}
+    positions = {r["body"]["frame"]: r["body"] for r in posts if r.get("level") == "position"}
+    tracks = {r["body"]["frame"]: r for r in posts if r.get("level") == "track"}
+    assert len(tracks) == len(results["frames"]) > 0
+    assert verified and all(positions[f]["verified"] for f in verified)
+    for frame, vid in verified.items():
+        assert vid in tracks[frame]["links"], (frame, tracks[frame]["links"])
+    small_data["verify"] = {"enabled": False}
+    off = _write(small_data, tmp_path / "off.yaml")
+    assert {name: opts for _, name, opts in agent_plan(load_scenario(off))}["tracker"]["verify_weight"] == 0.0
