@@ -879,6 +879,8 @@ _SCALED_DRIVES = "drive steps scaled to the bounds"
 def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None, errors: str = "standard") -> str:
     entry = {k: v for k, v in asdict(t).items() if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
     spec: list[Any] = [GENERATOR_VERSION, entry, kind, max_frames, CAMERA, ERROR_PROFILES[errors]]
+    if t.renderer == "raster":  # its cases are rebuilt when the rasteriser draws otherwise
+        spec.append(f"raster {raster.VERSION}")
     if errors != "standard":
         spec.append(_SCALED_DRIVES)
     blob = json.dumps(spec, sort_keys=True, default=str)

@@ -56,6 +56,7 @@ import numpy as np
 from bench.evalset import raycast
 
 __all__ = [
+    "VERSION",
     "Look",
     "Block",
     "Sensor",
@@ -95,6 +96,9 @@ KIND_COLOURS: dict[str, tuple[tuple[float, float, float], tuple[float, float, fl
     "silo": ((0.80, 0.82, 0.84), (0.62, 0.64, 0.66)),
     "barn": ((0.47, 0.34, 0.24), (0.52, 0.52, 0.48)),
 }
+
+#: bump when what this renderer draws changes (its cases' cache keys include it)
+VERSION = "1"
 
 _SNOW = np.array([0.92, 0.93, 0.96])
 _WATER = np.array([0.09, 0.19, 0.26])
