@@ -566,3 +566,19 @@ def test_fresh_cases_build_within_their_bounds_and_load(tmp_path, errors):
     cell = lakes.scenario_dict()["terrain"]["cell_size"]
     on_route = [heights[int(round(y / cell)), int(round(x / cell))] for x, y in lakes.route]
     assert min(on_route) > 0.0
+
+
+@pytest.mark.parametrize("name", [t.name for t in TERRAINS if t.route_floor is not None])
+def test_a_route_floor_keeps_the_route_and_its_landmarks_above_it(name):
+    from bench.evalset.cases import _heights, _landmarks, _route
+
+    (t,) = [t for t in TERRAINS if t.name == name]
+    heights = _heights(t)
+    route = _route(t, heights)
+    world = World(heights, t.cell)
+    assert len(route) == t.points
+    assert min(world.height_at(x, y) for x, y in route) >= t.route_floor
+    lms = _landmarks(t, route, heights)
+    assert len(lms) >= 4 and min(world.height_at(lm["x"], lm["y"]) for lm in lms) >= t.route_floor
+    # a floor that matters: some of the map's ground lies below it (water, a canyon)
+    assert np.mean(heights < t.route_floor) > 0.05
