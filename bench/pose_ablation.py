@@ -14,7 +14,7 @@ the scene analysis's candidates). Reports top-1 / top-5 per source and profile, 
 overall, the frames per second of the ranking, and, per profile, top-1 of each source in bins
 of each pose-error component's size (which component the misses go with).
 
-    python bench/pose_ablation.py [--split tuning] [--profiles standard large large-roll ...]
+    python bench/pose_ablation.py [--split tuning|heldout|fresh] [--profiles standard large large-roll ...]
         [--kinds sweep drive kidnap] [--memory '{"max_shift": [8, 24]}'] [--skyline '{...}']
         [--derotate '{...}'] [--rolls '[-3, 0, 3]'] [--extra] [--json-only]
 
@@ -285,7 +285,7 @@ def tables(summary: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", default="tuning", choices=("tuning", "heldout"))
+    ap.add_argument("--split", default="tuning", choices=("tuning", "heldout", "fresh"))
     ap.add_argument("--profiles", nargs="*", default=list(DEFAULT_PROFILES), choices=sorted(ERROR_PROFILES))
     ap.add_argument("--kinds", nargs="*", default=None, help="sweep, drive, kidnap (default all)")
     ap.add_argument("--names", nargs="*", default=None, help="cases or terrains (default all)")

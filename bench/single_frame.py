@@ -1,6 +1,7 @@
 """Single-frame benchmark (issue 10): every camera frame of the evaluation set localized alone.
 
-Each case of :mod:`bench.evalset` (held-out by default) runs through the real pipeline,
+Each case of :mod:`bench.evalset` (held-out by default; ``--split fresh``: the split kept for one
+final measurement) runs through the real pipeline,
 :func:`knowledge_sources.mission.run_mission` (all agents on the blackboard, in one process), with
 the scenario's defaults unless ``--memory``/``--scheduler``/``--skyline``/``--render``/``--refine``/``--verify`` override blocks of it,
 and without the tracker (every frame decided alone; ``--track``: with it, as a mission runs by
@@ -16,7 +17,7 @@ over all frames it reports:
 Prints JSON, then a table. Columns are entries of :data:`COLUMNS` (name, format, function of a
 list of frame records): add one there (e.g. a ranking source's own top-1 once results carry it).
 
-    python bench/single_frame.py [--split heldout|tuning] [--names h-mesas ...] [--kinds sweep]
+    python bench/single_frame.py [--split heldout|tuning|fresh] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
         [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large] [--json-only]
 
@@ -161,7 +162,7 @@ def _fmt(value: Any, fmt: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--split", choices=("heldout", "tuning"), default="heldout")
+    parser.add_argument("--split", choices=("heldout", "tuning", "fresh"), default="heldout")
     parser.add_argument("--names", nargs="*", default=None, help="cases or terrains (default all)")
     parser.add_argument("--kinds", nargs="*", default=None, help="sweep, drive, kidnap (default all)")
     parser.add_argument("--memory", type=json.loads, default=None, help="JSON memory block replacing the default")

@@ -3,7 +3,8 @@
 Drives: the cases of the evaluation set (bench/evalset: sweeps with a frame at every route
 point, drives with stops and gaps of several route points, drives with a kidnapping; camera
 frames from another renderer than the viewframes', at other sizes, with larger pose errors),
-split ``heldout`` (the default: for reporting, never used to choose a parameter) or ``tuning``;
+split ``heldout`` (the default: for reporting, never used to choose a parameter), ``tuning`` or
+``fresh`` (kept for one final measurement: other terrains, renderer, frame sizes);
 ``--split tuning-drives``: more drives and kidnaps on the tuning terrains, at tuning seeds
 (:func:`extra_tuning_drives`; the tuning split has one drive and two kidnaps), ``tuning-drives-more``
 two more instances of each tuning terrain with both (:func:`more_tuning_drives`); or ``--split sim``:
@@ -35,7 +36,7 @@ again), the tracker's cost per frame on a route of 10,000 cells, and (``--runs``
 frames/s through the blackboard with and without the tracker on one drive (``mapinterp run`` and
 ``--no-track``).
 
-    python bench/tracking.py [--split heldout|tuning|tuning-drives|tuning-drives-more|sim]
+    python bench/tracking.py [--split heldout|tuning|fresh|tuning-drives|tuning-drives-more|sim]
                              [--observe associative fused-robust fused]
                              [--set temperature=1.0 ...] [--runs] [--frames FILE] [--json-only]
 
@@ -453,7 +454,9 @@ def ranked_cases(
             "(tuning seeds; parameters may be chosen here)"
         )
     return out, f"evaluation set, split {split}, {errors} pose errors" + (
-        " (held out: never used to choose a parameter)" if split == "heldout" else " (parameters may be chosen here)"
+        " (held out: never used to choose a parameter)"
+        if split in ("heldout", "fresh")
+        else " (parameters may be chosen here)"
     )
 
 
@@ -461,7 +464,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--split",
-        choices=["heldout", "tuning", "tuning-drives", "tuning-drives-more", "sim"],
+        choices=["heldout", "tuning", "fresh", "tuning-drives", "tuning-drives-more", "sim"],
         default="heldout",
         help="evaluation-set split, more drives on the tuning terrains (tuning-drives: extra_tuning_drives; "
         "tuning-drives-more: more_tuning_drives), "

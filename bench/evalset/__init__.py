@@ -6,14 +6,18 @@ generated on first use, deterministically from the seeds in :data:`TERRAINS`, an
 Getting cases::
 
     from bench.evalset import cases
-    for case in cases("heldout"):                 # or "tuning"; names=["h-mesas"], kinds=["sweep"]
+    for case in cases("heldout"):                 # or "tuning", "fresh"; names=["h-mesas"], kinds=["sweep"]
         results = run_mission(case.scenario_path)  # a normal scenario file with sensor.frames
         for frame in case.frames:                  # time order
             frame.image, frame.truth, frame.route_index, frame.pitch_deg, frame.event ...
 
 **Splits.** ``"tuning"`` (seeds 1xxx) is the only split on which parameters may be chosen;
-``"heldout"`` (seeds 2xxx) is for reporting. Their terrains are disjoint (:func:`seeds`,
-:func:`case_names`; a test checks it).
+``"heldout"`` (seeds 2xxx) is for reporting, and has been reported on by many sessions;
+``"fresh"`` (seeds 3xxx) is kept for one final measurement: terrains, a renderer, frame sizes
+and sensors that neither other split has (below). The three share no seed, no terrain and no
+window of a real DEM (:func:`seeds`, :func:`case_names`; tests check it). Nothing may be
+chosen on ``heldout`` or ``fresh``; do not run or look at localization on ``fresh`` before
+the measurement it is kept for.
 
 **A case** (:class:`Case`): ``name`` ("h-mesas/sweep"), ``split``, ``terrain``, ``kind``
 ("sweep": one frame per route point in route order; "drive": time order with varying speed,
@@ -46,6 +50,21 @@ of what is generated bumps :data:`GENERATOR_VERSION`.
   ray caster with its own palette, world-space texture, cast shadows, sky gradient, fog, sun),
   sensor effects (vignetting, gain, gamma, blur, motion blur, noise, JPEG), and other
   resolutions (200x150, 320x240, 640x480) than the viewframes' 160x120.
+* The ``fresh`` split's terrains: five procedural families the others lack (transverse dunes
+  with slip faces, 6 m cells; a plateau with an escarpment and a cliffed canyon; rolling hills
+  with flat lakes; a volcanic cone with a crater and radial gullies, given as contours every
+  20 m; an alpine valley of 1100 m relief whose frames see 20 km, past the viewframes' 5 km),
+  a topobathy window north of the held-out one (a coast and flat sea) and two Jacksboro windows
+  clear of every other (the north-east one; the south-west one given as contours every 15 m);
+  cells of 6-25 m, route spacings of 20-50 m, routes that keep off water.
+* The ``fresh`` split's camera frames come, but for one terrain's (the ray caster's, at
+  1280x720), from a third renderer (:mod:`bench.evalset.raster`: a numpy triangle-mesh
+  rasteriser with a z-buffer, per-face Lambert shading under a sun of its own, ground
+  coloured by world-space noise in palettes of its own, flat water, snow, strata, a sky with
+  clouds, distance haze, landmark boxes in colours of its own, then a white-balance cast and
+  chromatic aberration before the ray caster's sensor effects), at sizes the others lack:
+  1280x720, 640x360 and 512x288 (16:9), 480x640 (portrait), 96x72 (tiny), and 320x240 and
+  640x480.
 * Larger pose errors (:data:`ERROR_BOUNDS`): +-30 % of the route spacing along, +-4 m across,
   +-5 degrees heading, +-2 degrees pitch and roll, +-0.2 m eye height; and a ``large`` profile
   (:data:`ERROR_PROFILES`; ``cases(split, errors="large")``, ``--errors large`` of

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 import yaml
 
-from bench.evalset import raycast, terrains
+from bench.evalset import raster, raycast, terrains
 
 __all__ = [
     "CAMERA",
@@ -46,8 +46,10 @@ log = logging.getLogger(__name__)
 #: bump when the generator changes what it writes (cached cases are then rebuilt)
 GENERATOR_VERSION = "1"
 
-#: the two splits: choose parameters on "tuning" only; "heldout" is for reporting
-SPLITS: tuple[str, ...] = ("tuning", "heldout")
+#: the splits: choose parameters on "tuning" only; "heldout" is for reporting (reported on by many
+#: sessions by now); "fresh" is for one final measurement (terrains, renderer, frame sizes and
+#: sensors unlike the other two; see the package docstring)
+SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh")
 
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
@@ -116,11 +118,17 @@ _KINDS = {  # width, depth, height (m); wall and roof colours in the camera fram
 class TerrainEntry:
     """One terrain of the set with its route, camera and the drives on it.
 
-    ``source``: ``{"family": fbm|ridged|mesas|valleys, "size": cells, "relief": m, ...params}``
-    or ``{"dem": jacksboro|topobathy, "rows": (a, b), "cols": (a, b), "upsample": k,
-    "height_scale": s, "sea_level": m}``; ``contours`` > 0 gives the map as contour lines every
-    that many metres (the camera frames still see the true DEM). ``drives``: kinds of case on
-    this terrain besides the ``sweep``: ``"drive"`` and/or ``"kidnap"``.
+    ``source``: ``{"family": <a key of bench.evalset.terrains.FAMILIES>, "size": cells,
+    "relief": m, ...params}`` or ``{"dem": jacksboro|topobathy, "rows": (a, b), "cols": (a, b),
+    "upsample": k, "height_scale": s, "sea_level": m}``; ``contours`` > 0 gives the map as
+    contour lines every that many metres (the camera frames still see the true DEM).
+    ``drives``: kinds of case on this terrain besides the ``sweep``: ``"drive"`` and/or
+    ``"kidnap"``. ``renderer``: what makes the camera frames, ``"raycast"``
+    (:mod:`bench.evalset.raycast`; ``look`` and ``sensor`` are its ``Look`` and ``Sensor``) or
+    ``"raster"`` (:mod:`bench.evalset.raster`; its ``Look`` and ``Sensor``). ``route_floor``:
+    route points keep above this height (m; e.g. off flat lakes and the sea), None: anywhere.
+    ``frame_far``: how far the camera frames see (m; None: the scenario camera's ``far``, as the
+    viewframes; a real camera sees distant mountains past it).
     """
 
     name: str
@@ -136,12 +144,22 @@ class TerrainEntry:
     contours: float = 0.0
     drives: tuple[str, ...] = ()
     landmark_every: int = 5
+    renderer: str = "raycast"
+    route_floor: float | None = None
+    frame_far: float | None = None
 
 
-#: THE TABLE. Tuning seeds are 1xxx, held-out seeds 2xxx; no terrain appears in both splits
+#: fields added to :class:`TerrainEntry` after the first splits were generated, with their
+#: defaults: left out of a case's spec hash while at the default, so that the cached tuning and
+#: held-out cases (and their case.json) stay as they were
+_LATER_FIELDS: dict[str, Any] = {"renderer": "raycast", "route_floor": None, "frame_far": None}
+
+
+#: THE TABLE. Tuning seeds are 1xxx, held-out seeds 2xxx, fresh seeds 3xxx; no terrain appears in two splits
 #: (the two Jacksboro crops are disjoint windows of the DEM, and neither overlaps the bundled
-#: jacksboro scenario's route at source rows 181-194, cols 212-225). Held-out seeds must never
-#: be used to choose a parameter: tune on cases("tuning"), report on cases("heldout").
+#: jacksboro scenario's route at source rows 181-194, cols 212-225). Held-out and fresh seeds must
+#: never be used to choose a parameter: tune on cases("tuning"), report on cases("heldout"); the
+#: fresh split is kept for one final measurement.
 TERRAINS: tuple[TerrainEntry, ...] = (
     # ---------------------------------------------------------------- tuning
     TerrainEntry(
@@ -268,6 +286,161 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         (200, 150),
         {"palette": "green", "sun_azimuth_deg": 75.0},
         contours=10.0,
+    ),
+    # ---------------------------------------------------------------- fresh
+    # terrain families, DEM windows, frame sizes, sensors and (but for f-jacksboro-ne) a renderer
+    # that neither other split has; the Jacksboro windows are clear of both splits' and of the
+    # bundled scenario's (rows 181-194, cols 212-225), the topobathy one of the held-out's
+    TerrainEntry(
+        "f-dunes",
+        "fresh",
+        3101,
+        6.0,
+        {"family": "dunes", "size": 256, "relief": 40.0},
+        20.0,
+        32,
+        (1280, 720),
+        {
+            "palette": "desert",
+            "sun_azimuth_deg": 290.0,
+            "sun_elevation_deg": 18.0,
+            "cloud_cover": 0.05,
+            "haze_m": 6000.0,
+            "vegetation": 0.15,
+        },
+        {"jpeg_quality": 75, "white_balance": 0.06},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "f-canyon",
+        "fresh",
+        3202,
+        15.0,
+        {"family": "canyon", "size": 224, "relief": 200.0},
+        35.0,
+        32,
+        (480, 640),
+        {
+            "palette": "canyon",
+            "sun_azimuth_deg": 135.0,
+            "sun_elevation_deg": 50.0,
+            "cloud_cover": 0.2,
+            "haze_m": 9000.0,
+        },
+        {"jpeg_quality": None, "noise": 4.0, "aberration_px": 1.0},
+        drives=("kidnap",),
+        renderer="raster",
+        route_floor=150.0,  # on the plateau beside the canyon (its floor, walled in, shows no sky)
+    ),
+    TerrainEntry(
+        "f-lakes",
+        "fresh",
+        3303,
+        12.0,
+        {"family": "lakes", "size": 256, "relief": 70.0},
+        30.0,
+        32,
+        (320, 240),
+        {
+            "palette": "meadow",
+            "sun_azimuth_deg": 70.0,
+            "sun_elevation_deg": 40.0,
+            "cloud_cover": 0.5,
+            "haze_m": 4000.0,
+            "vegetation": 0.6,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 85, "white_balance": 0.05, "aberration_px": 0.8},
+        drives=("drive", "kidnap"),
+        renderer="raster",
+        route_floor=0.5,
+    ),
+    TerrainEntry(
+        "f-volcano-contours",
+        "fresh",
+        3404,
+        20.0,
+        {"family": "volcano", "size": 200, "relief": 450.0},
+        45.0,
+        32,
+        (96, 72),
+        {"palette": "volcanic", "sun_azimuth_deg": 160.0, "sun_elevation_deg": 25.0, "cloud_cover": 0.6},
+        {"jpeg_quality": None, "noise": 3.0, "blur": 0.4, "vignette": 0.4},
+        contours=20.0,
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "f-alpine",
+        "fresh",
+        3505,
+        25.0,
+        {"family": "alpine", "size": 256, "relief": 1100.0},
+        50.0,
+        32,
+        (512, 288),
+        {
+            "palette": "alpine",
+            "sun_azimuth_deg": 200.0,
+            "sun_elevation_deg": 45.0,
+            "cloud_cover": 0.35,
+            "haze_m": 15000.0,
+            "snow_line": 0.62,
+        },
+        {"jpeg_quality": 80, "gain": (0.6, 1.4)},
+        drives=("kidnap",),
+        renderer="raster",
+        frame_far=20000.0,
+    ),
+    TerrainEntry(
+        "f-topobathy-north",
+        "fresh",
+        3606,
+        16.0,
+        {"dem": "topobathy", "rows": (40, 91), "cols": (20, 80), "upsample": 5, "height_scale": 0.08, "sea_level": 0.0},
+        30.0,
+        32,
+        (640, 360),
+        {
+            "palette": "tundra",
+            "sun_azimuth_deg": 20.0,
+            "sun_elevation_deg": 30.0,
+            "cloud_cover": 0.7,
+            "haze_m": 3000.0,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 65, "motion_px": 1.0, "white_balance": 0.08},
+        drives=("drive",),
+        renderer="raster",
+        route_floor=1.0,
+    ),
+    TerrainEntry(
+        "f-jacksboro-ne",
+        "fresh",
+        3707,
+        20.0,
+        {"dem": "jacksboro", "rows": (205, 344), "cols": (245, 403), "upsample": 2, "height_scale": 0.4},
+        40.0,
+        32,
+        (1280, 720),
+        {"palette": "green", "sun_azimuth_deg": 45.0, "sun_elevation_deg": 20.0, "fog_m": 7000.0},
+        {"jpeg_quality": 90, "motion_px": 1.5},
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "f-jacksboro-sw-contours",
+        "fresh",
+        3808,
+        25.0,
+        {"dem": "jacksboro", "rows": (0, 180), "cols": (0, 195), "upsample": 2, "height_scale": 0.45},
+        40.0,
+        32,
+        (640, 480),
+        {"palette": "steppe", "sun_azimuth_deg": 250.0, "sun_elevation_deg": 35.0, "cloud_cover": 0.4},
+        {"jpeg_quality": 70, "blur": 1.0, "noise": 6.0},
+        contours=15.0,
+        drives=("kidnap",),
+        renderer="raster",
     ),
 )
 
@@ -438,7 +611,8 @@ def _heights(t: TerrainEntry) -> np.ndarray:
 def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
     """A smooth drive of ``t.points`` points ``t.spacing`` apart in the middle of the map that,
     as a road would, prefers gentle ground: each step takes the best of seven headings by the
-    climb to the next point plus a penalty for turning."""
+    climb to the next point plus a penalty for turning. With ``t.route_floor`` it starts and
+    stays at or above that height (an attempt that cannot is dropped)."""
     rng = np.random.default_rng([t.seed, 2])
     rows, cols = heights.shape
     ex, ey = (cols - 1) * t.cell, (rows - 1) * t.cell
@@ -446,6 +620,8 @@ def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
     for _attempt in range(200):
         h = rng.uniform(0, 2 * math.pi)
         pts = [np.array([rng.uniform(0.3, 0.7) * ex, rng.uniform(0.3, 0.7) * ey])]
+        if t.route_floor is not None and world.height_at(*pts[0]) < t.route_floor:
+            continue
         turn = 0.0
         for _ in range(1, t.points):
             options = turn + np.radians(rng.normal(0.0, 4.0) + np.array([-18, -12, -6, 0, 6, 12, 18]))
@@ -457,6 +633,8 @@ def _route(t: TerrainEntry, heights: np.ndarray) -> list[tuple[float, float]]:
                 & (nxt[:, 1] >= 0.15 * ey)
                 & (nxt[:, 1] <= 0.85 * ey)
             )
+            if t.route_floor is not None:  # e.g. off the water
+                inside &= world.height_at(nxt[:, 0], nxt[:, 1]) >= t.route_floor
             score = climb + 0.4 * np.abs(options) + np.where(inside, 0.0, 1e6)
             k = int(np.argmin(score))
             if not inside[k]:
@@ -490,7 +668,8 @@ def _route_headings(pts: np.ndarray) -> list[float]:
 
 
 def _landmarks(t: TerrainEntry, route: list[tuple[float, float]], heights: np.ndarray) -> list[dict[str, Any]]:
-    """Boxes beside the route every ``landmark_every`` points, 30-90 m ahead, 15-45 m aside."""
+    """Boxes beside the route every ``landmark_every`` points, 30-90 m ahead, 15-45 m aside (at or
+    above ``t.route_floor``, where the entry has one)."""
     rng = np.random.default_rng([t.seed, 3])
     pts = np.asarray(route)
     heads = _route_headings(pts)
@@ -508,6 +687,8 @@ def _landmarks(t: TerrainEntry, route: list[tuple[float, float]], heights: np.nd
             p = pts[i] + ahead * np.array([math.cos(th), math.sin(th)]) + side * np.array([-math.sin(th), math.cos(th)])
             clear = np.min(np.hypot(*(pts - p).T)) > 0.5 * math.hypot(w, d) + 6.0
             inside = 50 <= p[0] <= ex - 50 and 50 <= p[1] <= ey - 50
+            if inside and t.route_floor is not None:
+                inside = bool(raycast.World(heights, t.cell).height_at(p[0], p[1]) >= t.route_floor)
             if clear and inside:
                 break
         else:
@@ -553,6 +734,40 @@ def _world_boxes(lms: list[dict[str, Any]], world: raycast.World) -> list[raycas
             )
         )
     return boxes
+
+
+def _box_base(lm: dict[str, Any], world: raycast.World) -> float:
+    """The lowest ground (m) under a landmark's centre and corners."""
+    a = math.radians(lm["yaw_deg"])
+    u = np.array([math.cos(a), math.sin(a)]) * lm["width"] / 2
+    v = np.array([-math.sin(a), math.cos(a)]) * lm["depth"] / 2
+    c = np.array([lm["x"], lm["y"]])
+    pts = np.array([c, c + u + v, c + u - v, c - u + v, c - u - v])
+    return float(np.min(world.height_at(pts[:, 0], pts[:, 1])))
+
+
+def _raster_blocks(lms: list[dict[str, Any]], world: raycast.World) -> list[raster.Block]:
+    """The landmarks as :class:`bench.evalset.raster.Block` meshes in that renderer's colours
+    (reaching 3 m under the lowest ground at their corners, as the ray caster's boxes)."""
+    blocks = []
+    for lm in lms:
+        z0 = _box_base(lm, world)
+        wall, roof = raster.KIND_COLOURS[lm["kind"]]
+        blocks.append(
+            raster.Block(
+                lm["x"],
+                lm["y"],
+                lm["width"],
+                lm["depth"],
+                lm["yaw_deg"],
+                z0 - 3.0,
+                z0 + lm["height"],
+                wall,
+                roof,
+                lm["id"],
+            )
+        )
+    return blocks
 
 
 # ---------------------------------------------------------------------------------------------
@@ -670,7 +885,12 @@ _SCALED_DRIVES = "drive steps scaled to the bounds"
 
 
 def _spec_hash(t: TerrainEntry, kind: str, max_frames: int | None, errors: str = "standard") -> str:
-    spec: list[Any] = [GENERATOR_VERSION, asdict(t), kind, max_frames, CAMERA, ERROR_PROFILES[errors]]
+    entry = {k: v for k, v in asdict(t).items() if not (k in _LATER_FIELDS and v == _LATER_FIELDS[k])}
+    spec: list[Any] = [GENERATOR_VERSION, entry, kind, max_frames, CAMERA, ERROR_PROFILES[errors]]
+    if t.renderer == "raster":  # its cases are rebuilt when the rasteriser draws otherwise
+        spec.append(f"raster {raster.VERSION}")
+    if t.route_floor is not None:
+        spec.append("route and landmarks start and stay above the floor")
     if errors != "standard":
         spec.append(_SCALED_DRIVES)
     blob = json.dumps(spec, sort_keys=True, default=str)
@@ -711,9 +931,23 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None, 
         )
     if max_frames is not None:
         poses = poses[:max_frames]
-    look = raycast.Look(**t.look)
-    sensor = raycast.Sensor(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in t.sensor.items()})
-    caster = raycast.RayCaster(world, look, rng=np.random.default_rng([t.seed, 5]))
+    sensor_args: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) else v) for k, v in t.sensor.items()}
+    caster: raycast.RayCaster | raster.Rasteriser
+    sensor: raycast.Sensor
+    if t.renderer == "raster":
+        caster = raster.Rasteriser(
+            heights,
+            t.cell,
+            look=raster.Look(**t.look),
+            rng=np.random.default_rng([t.seed, 5]),
+            blocks=_raster_blocks(lms, world),
+        )
+        sensor = raster.Sensor(**sensor_args)
+    elif t.renderer == "raycast":
+        caster = raycast.RayCaster(world, raycast.Look(**t.look), rng=np.random.default_rng([t.seed, 5]))
+        sensor = raycast.Sensor(**sensor_args)
+    else:
+        raise ValueError(f"{t.name}: renderer must be raycast or raster, got {t.renderer!r}")
     rng_img = np.random.default_rng([seed, 6])
     width, height = t.frame_size
     ext = ".jpg" if sensor.jpeg_quality is not None else ".png"
@@ -734,9 +968,12 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None, 
             width=width,
             height=height,
             fov_y_deg=CAMERA["fov_y_deg"],
-            far=CAMERA["far"],
+            far=CAMERA["far"] if t.frame_far is None else t.frame_far,
         )
-        out = raycast.sensor_effects(img, sensor=sensor, rng=rng_img)
+        if isinstance(sensor, raster.Sensor):
+            out = raster.sensor_effects(img, sensor=sensor, rng=rng_img)
+        else:
+            out = raycast.sensor_effects(img, sensor=sensor, rng=rng_img)
         name = f"frames/f{j:03d}{ext}"
         params = [cv2.IMWRITE_JPEG_QUALITY, int(sensor.jpeg_quality)] if ext == ".jpg" else []
         if not cv2.imwrite(str(folder / name), cv2.cvtColor(out, cv2.COLOR_RGB2BGR), params):
@@ -788,10 +1025,11 @@ def _generate(t: TerrainEntry, kind: str, folder: Path, max_frames: int | None, 
     np.savez_compressed(folder / "labels.npz", horizons=np.asarray(horizons, np.float32))
     src = t.source.get("family") or f"{t.source['dem']} DEM crop"
     contours = f", map as contours every {t.contours:g} m" if t.contours else ""
+    rendered = "" if t.renderer == "raycast" else f" ({t.renderer})"
     desc = (
         f"{src}, {t.cell:g} m cells{contours}; "
         f"{len(route)} route points {t.spacing:g} m apart; {len(lms)} landmarks; {kind} of {len(frames)} frames "
-        f"at {width}x{height}{profile}"
+        f"at {width}x{height}{rendered}{profile}"
     )
     meta = {
         "version": GENERATOR_VERSION,
@@ -845,7 +1083,7 @@ def cases(
     terrains: Sequence[TerrainEntry] | None = None,
     errors: str = "standard",
 ) -> Iterator[Case]:
-    """Yield the cases of ``split`` ("tuning" or "heldout"), generating those not cached.
+    """Yield the cases of ``split`` ("tuning", "heldout" or "fresh"), generating those not cached.
 
     ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
     ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is
