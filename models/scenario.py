@@ -710,34 +710,34 @@ class RefineSpec(_Spec):
 class VerifySpec(_Spec):
     """Render-and-compare verification of the fused ranking's first candidates before the scene
     analysis (:mod:`models.verify`, :mod:`knowledge_sources.verifier`): ``{enabled: true,
-    candidates: 3, margin: 0.5, weight: 2.8, timeout_s: 10}``. When the fused ranking's second
+    candidates: 5, margin: 1.0, weight: 23.3, timeout_s: 10}``. When the fused ranking's second
     route point is within ``margin`` (its fused score, nats) of the first, the scheduler asks the
-    verifier about the first ``candidates``: each is rendered at its place with the heading and
-    pitch its skyline match with the camera image finds (the roll fitted up to ``max_roll_deg``),
-    and the camera image's correlation ``c`` with that view is the memory's (the whitened,
-    blurred edge patterns of :meth:`models.index.ViewframeIndex.pattern`, best over +-2 rows and
-    columns, and over the camera image turned by each roll of ``roll_search_deg``, as the
-    memory's roll search). Each candidate's fused score gains ``weight * (max_j c_j - c_k)``
-    nats, and the ranking is sorted again before the scene analysis starts. ``weight`` is
-    calibrated, not tuned for top-1: the conditional logit of the truth among the first 3
-    candidates of the evaluation set's tuning frames (standard and larger pose errors, 400
-    frames; ``bench/rerank.py``) gives the key ``1.64 F - 4.59 c``, i.e. ``4.59 / 1.64 = 2.8``
-    nats of F per unit of correlation. On the tuning split through the whole pipeline
-    (``bench/single_frame.py --split tuning``, BENCHMARKS.md) it lifted single-frame top-1
-    0.735 -> 0.765 (standard pose errors; 8 of the 53 wrong frames fixed, 2 of the 147 right ones
-    broken) and 0.640 -> 0.660 (larger ones; 6 of 72 fixed, 2 of 128 broken); twice the weight
-    fixed more and broke more (0.790, 4 broken; 0.650, 5 broken); without the roll 0.775 and 0.640
-    (5 of 128 broken). Off by default: the bar set before measuring (+3 points of top-1 on the
-    tuning split, under both pose-error profiles, breaking at most 2 % of the right frames) was
-    met under the standard errors only (+2.0 under the larger ones); held out, measured once
-    afterwards: 0.806 -> 0.802 and 0.684 -> 0.701, 8 of 232 and 6 of 197 right frames broken,
-    at about two thirds of the frames/s (BENCHMARKS.md). A verification that does not come
-    within ``timeout_s`` leaves the ranking as it is (the frame's record says so)."""
+    verifier about the fused ranking's first ``candidates`` viewframes: each is rendered at its
+    place turned as the camera was, by two alignments (the memory's shift search over its
+    ``max_shift`` and the rolls of ``roll_search_deg``, and the skyline's heading, pitch and roll
+    up to ``max_roll_deg``), and the camera image's correlation ``c`` with the better-matching
+    view is the memory's (the whitened, blurred edge patterns of
+    :meth:`models.index.ViewframeIndex.pattern`, best over +-2 rows and columns and the camera
+    image turned by the alignment's roll and 0.75 degrees either side). Each candidate's fused
+    score gains ``weight * (max_j c_j - c_k)`` nats, and the ranking is sorted again before the
+    scene analysis starts; the tracker observes the frame re-scored the same way.
 
-    enabled: bool = False
-    candidates: int = Field(default=3, ge=2, le=20)
-    margin: float = Field(default=0.5, ge=0, le=1e3)
-    weight: float = Field(default=2.8, ge=0, le=1e3)
+    ``weight`` is calibrated, not tuned for top-1: the conditional logit of the truth's route
+    point among the first 5 viewframes of 1,280 tuning frames (the evaluation set's tuning split
+    and bench/tracking.py's extra tuning drives, 640 frames each under the standard and the larger
+    pose errors; ``bench/rerank.py --extra``) gives ``0.630 F - 14.71 c``, i.e. 23.3 nats of F per
+    unit of correlation. There, at these defaults, top-1 of the fused ranking rose 0.705 -> 0.759
+    (standard pose errors; 52 of the 189 wrong frames fixed, 17 of the 451 right ones broken) and
+    0.636 -> 0.675 (larger; 55 of 233 fixed, 30 of 407 broken); 8 candidates gained about half a
+    point more, 3 (the first version's count, then route points) one to two points less; a margin
+    of 2 nats, or none, changed at most three frames (BENCHMARKS.md, "Render and compare, turned
+    as the camera was"). A verification that does not come within ``timeout_s`` leaves the
+    ranking as it is (the frame's record says so)."""
+
+    enabled: bool = True
+    candidates: int = Field(default=5, ge=2, le=20)
+    margin: float = Field(default=1.0, ge=0, le=1e3)
+    weight: float = Field(default=23.3, ge=0, le=1e3)
     timeout_s: float = Field(default=10.0, gt=0, le=3600)
     roll_search_deg: tuple[float, ...] = ROLL_SEARCH_DEG
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)

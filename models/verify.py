@@ -40,7 +40,7 @@ uint8 indexed (row, col); patterns (N, N) indexed (row, col).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -99,9 +99,15 @@ class Verified:
     rolls_deg: list[float] | None = None
 
 
-def _correlation_map(a: NDArray, b: NDArray) -> NDArray[np.float64]:
-    """Circular cross-correlation ``c[dr, dc] = sum a(r, c) b(r - dr, c - dc)`` of two (N, N) patterns."""
-    return np.real(np.fft.ifft2(np.fft.fft2(a) * np.conj(np.fft.fft2(b))))
+def _spectrum(pattern: NDArray) -> NDArray[np.complex128]:
+    """The real 2-D spectrum of an (N, N) pattern (what the correlations below multiply)."""
+    return np.fft.rfft2(np.asarray(pattern, dtype=np.float64))
+
+
+def _correlation_map(a: NDArray[np.complex128], b: NDArray[np.complex128], shape: tuple[int, int]) -> NDArray:
+    """Circular cross-correlation ``c[dr, dc] = sum a(r, c) b(r - dr, c - dc)`` of two patterns of
+    ``shape`` given by their spectra (:func:`_spectrum`)."""
+    return np.fft.irfft2(a * np.conj(b), s=shape)
 
 
 def _window(c: NDArray[np.float64], max_shift: tuple[int, int]) -> tuple[NDArray, NDArray]:
@@ -119,7 +125,10 @@ def pattern_correlation(a: NDArray, b: NDArray, *, max_shift: tuple[int, int] = 
         raise ValueError(f"patterns must be two (N, N) arrays of one shape, got {a.shape} and {b.shape}")
     if not (np.any(a) and np.any(b)):
         return 0.0
-    c = _correlation_map(a, b)
+    return _windowed_max(_correlation_map(_spectrum(a), _spectrum(b), a.shape), max_shift)
+
+
+def _windowed_max(c: NDArray[np.float64], max_shift: tuple[int, int]) -> float:
     rows, cols = _window(c, max_shift)
     return float(c[np.ix_(rows, cols)].max())
 
@@ -131,7 +140,7 @@ def _peak_offset(minus: float, centre: float, plus: float) -> float:
 
 
 def memory_alignment(
-    camera: dict[float, NDArray],
+    camera: Mapping[float, NDArray],
     view_pattern: NDArray,
     *,
     max_shift: tuple[int, int],
@@ -145,17 +154,30 @@ def memory_alignment(
     content moved right: the camera looks further left, ccw) and pitch (moved down: pitched up).
     A featureless view or camera: no turn, correlation 0."""
     b = np.asarray(view_pattern, dtype=np.float64)
+    spectra = {float(r): _spectrum(a) for r, a in camera.items() if np.any(a)}
+    return _align(spectra, _spectrum(b) if np.any(b) else None, b.shape, max_shift, rows_per_deg, cols_per_deg)
+
+
+def _align(
+    camera: Mapping[float, NDArray[np.complex128]],
+    view: NDArray[np.complex128] | None,
+    shape: tuple[int, ...],
+    max_shift: tuple[int, int],
+    rows_per_deg: float,
+    cols_per_deg: float,
+) -> tuple[Alignment, float]:
+    """:func:`memory_alignment` of spectra (featureless patterns left out of ``camera``, None for ``view``)."""
     best: tuple[float, float, float, float] = (-math.inf, 0.0, 0.0, 0.0)
+    n_r, n_c = int(shape[0]), int(shape[1])
+    if view is None:
+        return Alignment(0.0, 0.0, 0.0), 0.0
     for roll, a in camera.items():
-        if not (np.any(a) and np.any(b)):
-            continue
-        c = _correlation_map(np.asarray(a, dtype=np.float64), b)
+        c = _correlation_map(a, view, (n_r, n_c))
         rows, cols = _window(c, max_shift)
         sub = c[np.ix_(rows, cols)]
         i, j = np.unravel_index(int(np.argmax(sub)), sub.shape)
         if sub[i, j] <= best[0]:
             continue
-        n_r, n_c = c.shape
         r0, c0 = int(rows[i]), int(cols[j])
         dr = (r0 if r0 <= n_r // 2 else r0 - n_r) + _peak_offset(
             c[(r0 - 1) % n_r, c0], c[r0, c0], c[(r0 + 1) % n_r, c0]
@@ -190,19 +212,33 @@ def skyline_alignment(
     ref = skyline_from_depth(depth, fov_y_deg=fov_y_deg, step_deg=step_deg)
     if ref.size != q.size:
         raise ValueError(f"the camera's skyline has {q.size} bins, the view's {ref.size}: not one grid")
+    # the view's profile at every heading shift as rows of one match without a shift search: the
+    # same result as match_skylines over the shifts (the overlap, pitch, roll and error of each
+    # shift are those of its row; the first best in order of shift, as there), in one vectorised pass
+    n = ref.size
+    smax = min(int(round(max_heading_deg / step_deg)), n - 1)
+    shifts = np.arange(-smax, smax + 1)
+    shifted = np.full((shifts.size, n), np.nan, dtype=np.float64)
+    for row, k in enumerate(shifts.tolist()):  # shifted[row, i] = ref[i - k]
+        if k >= 0:
+            shifted[row, k:] = ref[: n - k]
+        else:
+            shifted[row, :k] = ref[-k:]
     m = match_skylines(
         q,
-        ref[None],
+        shifted,
         step_deg=step_deg,
-        max_heading_deg=max_heading_deg,
+        max_heading_deg=0.0,
         max_pitch_deg=max_pitch_deg,
         truncate_deg=truncate_deg,
         max_roll_deg=max_roll_deg,
+        roll_candidates=None,
     )
-    if not m.overlap[0] > 0:
+    best = int(np.argmin(m.error))
+    if not m.overlap[best] > 0:
         return None
-    roll = 0.0 if m.roll_deg is None else float(m.roll_deg[0])
-    return Alignment(float(m.heading_deg[0]), float(m.pitch_deg[0]), roll)
+    roll = 0.0 if m.roll_deg is None else float(m.roll_deg[best])
+    return Alignment(float(shifts[best] * step_deg), float(m.pitch_deg[best]), roll)
 
 
 def verify_candidates(
@@ -241,16 +277,21 @@ def verify_candidates(
     if len(views) != len(starts):
         raise ValueError(f"{len(views)} start views for {len(starts)} candidates")
     img = np.asarray(image)
-    turned: dict[float, NDArray] = {}
+    turned: dict[float, NDArray[np.complex128] | None] = {}
+    shape: tuple[int, int] = (0, 0)  # the patterns' (N, N), from the first one made
 
-    def camera_pattern(roll: float) -> NDArray:
+    def camera_spectrum(roll: float) -> NDArray[np.complex128] | None:
+        """The spectrum of the camera image's pattern turned by ``roll`` (None: featureless), once."""
+        nonlocal shape
         key = round(float(roll) * 64.0) / 64.0
         if key not in turned:
-            turned[key] = pattern(rolled(img, key))
+            p = np.asarray(pattern(rolled(img, key)))
+            shape = (int(p.shape[0]), int(p.shape[1]))
+            turned[key] = _spectrum(p) if np.any(p) else None
         return turned[key]
 
-    coarse = {float(a): camera_pattern(a) for a in (rolls_deg or (0.0,))}
-    n = int(next(iter(coarse.values())).shape[0])
+    coarse = {float(a): camera_spectrum(a) for a in (rolls_deg or (0.0,))}
+    n = shape[0]
     window = (int(align_shift[0]), int(align_shift[1])) if align_shift is not None else MemorySpec().max_shift
     fov = float(emulator.camera.fov_y_deg)
     per_rad = emulator.intrinsics[0]  # pixels per radian at the image centre (square pixels)
@@ -268,8 +309,14 @@ def verify_candidates(
         if view is None:
             view = emulator.render(start)
             renders += 1
-        found, _ = memory_alignment(
-            coarse, pattern(view.image), max_shift=window, rows_per_deg=rows_per_deg, cols_per_deg=cols_per_deg
+        vp = pattern(view.image)
+        found, _ = _align(
+            {r: a for r, a in coarse.items() if a is not None},
+            _spectrum(vp) if np.any(vp) else None,
+            shape,
+            window,
+            rows_per_deg,
+            cols_per_deg,
         )
         aligns = [found]
         by_sky = skyline_alignment(
@@ -293,9 +340,10 @@ def verify_candidates(
             heading, pitch = start.heading_deg + al.heading_deg, start.pitch_deg + al.pitch_deg
             aligned = pattern(emulator.render_image(emulator.pose_at(start.x, start.y, heading, pitch_deg=pitch)))
             renders += 1
-            rolls = {al.roll_deg - fine_roll_deg, al.roll_deg, al.roll_deg + fine_roll_deg}
-            for roll in sorted(rolls):
-                c = pattern_correlation(camera_pattern(roll), aligned, max_shift=max_shift)
+            spec = _spectrum(aligned) if np.any(aligned) else None
+            for roll in sorted({al.roll_deg - fine_roll_deg, al.roll_deg, al.roll_deg + fine_roll_deg}):
+                cam = camera_spectrum(roll)
+                c = 0.0 if cam is None or spec is None else _windowed_max(_correlation_map(cam, spec, shape), max_shift)
                 if c > best[0]:
                     best = (c, heading, pitch, roll)
         out_c.append(float(best[0]))

@@ -223,6 +223,7 @@ def test_no_track_equals_the_reference_results_of_the_code_before_tracking(tmp_p
     data["scheduler"] = {**data.get("scheduler", {}), "backtracking": "hard", "questions": "probability"}
     data["skyline"] = {"enabled": False}  # that code had one ranking source (the skyline merge added a second)
     data["render"] = {**data.get("render", {}), "views_per_leg": 1}  # and a viewframe per route point
+    data["verify"] = {"enabled": False}  # and no render-and-compare verification
     for f in data["sensor"]["frames"]:
         f["image"] = str(root / "scenarios" / f["image"])
     data["terrain"] = {

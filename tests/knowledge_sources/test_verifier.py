@@ -7,7 +7,7 @@ import yaml
 
 from blackboard.trace import read_trace
 from knowledge_sources.mission import agent_plan, run_mission
-from models.scenario import load_scenario
+from models.scenario import VerifySpec, load_scenario
 
 pytestmark = pytest.mark.slow
 
@@ -52,7 +52,7 @@ def test_verification_off_is_todays_pipeline(small_data, tmp_path):
     small_data["verify"] = {"enabled": True, "margin": 0.0}  # on, but no frame is uncertain enough
     never = _write(small_data, tmp_path / "never.yaml")
     plan = {name: opts for _, name, opts in agent_plan(load_scenario(never))}
-    assert plan["scheduler"]["verify_candidates"] == 3 and "verifier" in plan
+    assert plan["scheduler"]["verify_candidates"] == VerifySpec().candidates and "verifier" in plan
     a, b = run_mission(off, track=False), run_mission(never, track=False)
     keys = ("viewframe", "position", "reason")
     assert [[f.get(k) for k in keys] for f in a["frames"]] == [[f.get(k) for k in keys] for f in b["frames"]]

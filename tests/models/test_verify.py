@@ -165,3 +165,29 @@ def test_a_turned_and_rolled_camera_matches_its_place_better_than_the_places_bes
     assert r.headings_deg[1] == pytest.approx(66.0, abs=0.75)
     assert r.pitches_deg[1] == pytest.approx(1.5, abs=0.75)
     assert r.rolls_deg is not None and r.rolls_deg[1] == pytest.approx(2.0, abs=0.8)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_skyline_alignment_is_the_skyline_match_over_heading_shifts(emulator, seed):
+    """The alignment's one vectorised pass over the view's shifted profiles gives what
+    models.skyline.match_skylines gives searching the heading shifts itself (heading, pitch,
+    roll), on a camera profile of a turned, pitched view with noise and a few bins lost."""
+    from models.skyline import match_skylines, skyline_from_depth
+
+    sky = SkylineSpec()
+    rng = np.random.default_rng(seed)
+    place = emulator.pose_at(420.0, 380.0, 60.0 + 20.0 * seed)
+    view = emulator.render(place)
+    fov = emulator.camera.fov_y_deg
+    cam = emulator.render(emulator.pose_at(place.x, place.y, place.heading_deg + rng.uniform(-6, 6), pitch_deg=1.0))
+    q = skyline_from_depth(cam.depth, fov_y_deg=fov, step_deg=sky.step_deg).astype(np.float64)
+    q += rng.normal(0.0, 0.1, q.shape)
+    q[rng.integers(0, q.size, 5)] = np.nan
+    q = q.astype(np.float32)  # a camera profile's type (models.skyline.skyline_from_image)
+    ref = skyline_from_depth(view.depth, fov_y_deg=fov, step_deg=sky.step_deg)
+    m = match_skylines(q, ref[None], max_roll_deg=3.0, **_match())
+    al = skyline_alignment(q, view.depth, fov_y_deg=fov, max_roll_deg=3.0, **_match())
+    assert al is not None
+    assert al.heading_deg == pytest.approx(float(m.heading_deg[0]), abs=1e-9)
+    assert al.pitch_deg == pytest.approx(float(m.pitch_deg[0]), abs=1e-9)
+    assert m.roll_deg is not None and al.roll_deg == pytest.approx(float(m.roll_deg[0]), abs=1e-9)
