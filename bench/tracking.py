@@ -20,9 +20,11 @@ each for what the tracker observes (``--observe``, side by side in one run): ``a
 the memory's ranking alone with its own calibration (the tracker before it observed every
 source), ``fused-robust``, every ranking source fused by the scheduler's rule
 (knowledge_sources.fusion) and re-standardised per frame at the first fusion rule's calibration
-(the tracker before its refit), and ``fused``, the same fusion's calibrated negative log
+(the tracker before its refit), ``fused``, the same fusion's calibrated negative log
 posterior with the defaults of the scenario schema (``--set KEY=VALUE`` overrides them: the
-calibration's grid on the tuning split).
+calibration's grid on the tuning split), a verified frame re-scored by its render-and-compare
+verification as the tracker observes it (when the scenario's ``verify`` is on), and
+``fused-unverified``, the same without the verification.
 
 Reported per drive and pooled: top-1 after a warm-up of 3 frames and within those 3 (a frame is
 right when its route point is the one nearest the true position), how often the position is within
@@ -37,7 +39,7 @@ frames/s through the blackboard with and without the tracker on one drive (``map
 ``--no-track``).
 
     python bench/tracking.py [--split heldout|tuning|fresh|tuning-drives|tuning-drives-more|sim]
-                             [--observe associative fused-robust fused]
+                             [--observe associative fused-robust fused fused-unverified]
                              [--set temperature=1.0 ...] [--runs] [--frames FILE] [--json-only]
 
 Prints JSON, then a table.
@@ -98,7 +100,15 @@ CALIBRATIONS: dict[str, dict] = {
     "associative": ASSOCIATIVE_CALIBRATION,
     "fused-robust": dict(ASSOCIATIVE_CALIBRATION),
     "fused": {},
+    "fused-unverified": {},
 }
+
+
+def verified(observation: str) -> bool:
+    """Whether an observation of :data:`CALIBRATIONS` takes a verified frame re-scored by its
+    verification (``fused``, as the tracker does; ``fused-unverified``: the fusion alone, as before
+    the verification was on by default)."""
+    return not observation.endswith("-unverified")
 
 
 def source_of(observation: str) -> str:
@@ -527,11 +537,11 @@ def main() -> None:
             runs = {}
             per_leg = views_per_leg(d)
             for o in args.observe:
-                obs = observed(d, source_of(o))
+                obs = observed(d, source_of(o), verify=verified(o))
                 sp = TrackingSpec(**{**tracking.model_dump(), **overrides, **CALIBRATIONS[o]})
                 want = args.frames is not None
                 if per_leg > 1 and sp.evidence == "views":  # each viewframe's evidence where it stands
-                    seen = observed(d, source_of(o), point="view")
+                    seen = observed(d, source_of(o), point="view", verify=verified(o))
                     runs[o] = (obs, track_drive(d, sp, seen, views_per_leg=per_leg, priors=want))
                 else:
                     runs[o] = (obs, track_drive(d, sp, obs, priors=want))

@@ -4,8 +4,9 @@ calibration (bench/tracking_calibrate.py) and benchmark (bench/tracking.py) read
 :func:`ranked_drive` renders a scenario's viewframes, stores them in the scenario's memory,
 simulates (or reads) its camera frames and ranks each one, exactly as the agents do: the
 associative memory (models.world.World, models.index.ViewframeIndex, the indexers' call) and,
-when the scenario enables it, the skyline (models.skyline, the skyline ranker's call). It
-returns plain arrays: per frame each source's errors indexed by route point, the true position,
+when the scenario enables it, the skyline (models.skyline, the skyline ranker's call), and
+with the verification on (the scenario's ``verify``) the verifier's correlations of the frames
+the scheduler would have verified (models.verify, the verifier's call). It returns plain arrays: per frame each source's errors indexed by route point, the true position,
 the time, and the true route point (nearest to the truth, the results' criterion).
 :func:`observed` turns them into what the tracker observes: one source's errors, or the
 sources fused by the scheduler's rule (knowledge_sources.fusion).
@@ -67,23 +68,28 @@ def ranked_drive(
     with World(sc) as world:
         vfs = world.viewframes
         frames = world.sensor_frames
-    index = ViewframeIndex(sc.memory, seed=0)
-    index.add([v.image for v in vfs], list(range(len(vfs))))
-    n = len(vfs)
-    sky = sc.skyline
-    refs = np.stack([v.skyline for v in vfs]) if sky.enabled else None
-    match = sky.match_options()
-    variances, skyline, rank_ms = [], [], []
-    for i, f in enumerate(frames):
-        image = f.image if transform is None else transform(f.image, i)
-        t0 = time.perf_counter()
-        r = index.rank(image)
-        rank_ms.append((time.perf_counter() - t0) * 1e3)
-        variances.append(ranking_vector(r.viewframes, r.variances, n))
-        if refs is not None:
-            q = skyline_from_image(image, fov_y_deg=sc.camera.fov_y_deg, step_deg=sky.step_deg)
-            m = match_skylines(q, refs, **match)
-            skyline.append(ranking_vector([v.index for v in vfs], m.error, n))
+        index = ViewframeIndex(sc.memory, seed=0)
+        index.add([v.image for v in vfs], list(range(len(vfs))))
+        n = len(vfs)
+        sky = sc.skyline
+        refs = np.stack([v.skyline for v in vfs]) if sky.enabled else None
+        match = sky.match_options()
+        variances, skyline, rank_ms, verified = [], [], [], []
+        for i, f in enumerate(frames):
+            image = f.image if transform is None else transform(f.image, i)
+            t0 = time.perf_counter()
+            r = index.rank(image)
+            rank_ms.append((time.perf_counter() - t0) * 1e3)
+            variances.append(ranking_vector(r.viewframes, r.variances, n))
+            q = None
+            if refs is not None:
+                q = skyline_from_image(image, fov_y_deg=sc.camera.fov_y_deg, step_deg=sky.step_deg)
+                m = match_skylines(q, refs, **match)
+                skyline.append(ranking_vector([v.index for v in vfs], m.error, n))
+            if sc.verify.enabled:
+                verified.append(
+                    _verified(sc, world, index, image, q, variances[-1], skyline[-1] if q is not None else None)
+                )
     route = np.asarray(sc.route, dtype=np.float64)
     from models.route_views import view_route
 
@@ -103,7 +109,67 @@ def ranked_drive(
         "rank_ms": np.array(rank_ms),
         "camera_hw": (int(sc.camera.height), int(sc.camera.width)),
         "route_points": route_points,
+        "verified": np.array(verified) if sc.verify.enabled else None,
+        "verify_weight": float(sc.verify.weight),
     }
+
+
+def _verified(
+    sc: Scenario,
+    world: World,
+    index: ViewframeIndex,
+    image: np.ndarray,
+    query_skyline: np.ndarray | None,
+    variances: np.ndarray,
+    skyline: np.ndarray | None,
+) -> np.ndarray:
+    """The verifier's correlations of one frame, (V,) NaN where not verified: as the scheduler
+    asks (the fused ranking's first ``verify.candidates`` viewframes, when its second route point
+    is within ``verify.margin`` nats of the first) and the verifier answers
+    (:func:`models.verify.verify_candidates`, the viewframes' own views as its start views)."""
+    from knowledge_sources.fusion import fuse_rankings
+    from models.camera_emulator import View
+    from models.route_views import first_per_point, view_route
+    from models.verify import verify_candidates
+
+    out = np.full(len(variances), np.nan)
+    per, weights = {}, {}
+    for src, errors, w in (("associative", variances, sc.memory.weight), ("skyline", skyline, sc.skyline.weight)):
+        if errors is not None:
+            e = np.asarray(errors, dtype=np.float64)
+            ok = np.flatnonzero(np.isfinite(e))
+            per[src], weights[src] = (ok.tolist(), e[ok].tolist()), w
+    fused = fuse_rankings(per, weights=weights)
+    points = first_per_point(fused, view_route(np.asarray(sc.route, float), sc.views_per_leg)[2])
+    ver = sc.verify
+    if len(points) < 2 or points[1][1] - points[0][1] >= ver.margin:
+        return out
+    chosen = [int(k) for k, _ in fused[: ver.candidates]]
+    emu = world.emulator
+    starts, views = [], []
+    for k in chosen:
+        v = world.viewframes[k]
+        start = emu.pose_at(v.pose.x, v.pose.y, v.pose.heading_deg, pitch_deg=v.pose.pitch_deg)
+        starts.append(start)
+        views.append(View(image=np.asarray(v.image), depth=np.asarray(v.depth), mask=np.asarray(v.mask), pose=start))
+    sky = sc.skyline
+    r = verify_candidates(
+        image,
+        emu,
+        starts,
+        pattern=index.pattern,
+        start_views=views,
+        query_skyline=query_skyline,
+        step_deg=sky.step_deg,
+        max_heading_deg=sky.max_heading_deg,
+        max_pitch_deg=sky.max_pitch_deg,
+        truncate_deg=sky.truncate_deg,
+        align_shift=sc.memory.max_shift,
+        rolls_deg=ver.roll_search_deg,
+        max_roll_deg=ver.max_roll_deg,
+    )
+    out[chosen] = r.correlations
+    return out
 
 
 def views_per_leg(drive: dict[str, Any]) -> int:
@@ -133,7 +199,7 @@ def per_point(drive: dict[str, Any], scores: np.ndarray, *, nats: bool) -> np.nd
     return out
 
 
-def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np.ndarray:
+def observed(drive: dict[str, Any], observe: str, *, point: str = "total", verify: bool = True) -> np.ndarray:
     """What the tracker observes of each frame of a :func:`ranked_drive`, ``(T, N)`` indexed by
     route point (lower is better; viewframes between the route points reduced by :func:`per_point`): ``"associative"``, the memory's error variances; ``"fused"``,
     every ranking source of the drive fused by the scheduler's rule as the tracker takes it
@@ -145,9 +211,13 @@ def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np
     comes from its viewframes': ``"total"`` their total probability (the tracker's rule with
     ``tracking.evidence: points``), ``"best"`` its best viewframe's (the scene analysis's rule,
     knowledge_sources.scheduler); ``"view"``: per viewframe ``(T, V)``, not reduced (the
-    tracker's observation with ``evidence: views``, the default)."""
+    tracker's observation with ``evidence: views``, the default). A drive ranked with the
+    verification on (its ``verified`` correlations) is observed re-scored by it, as the tracker
+    observes a verified frame (:func:`models.verify.verified_ranking` at the drive's
+    ``verify_weight``); ``verify`` False: without it."""
     from knowledge_sources.fusion import fused_log_posterior
-    from models.scenario import MemorySpec, SkylineSpec
+    from models.scenario import MemorySpec, SkylineSpec, VerifySpec
+    from models.verify import verified_ranking
 
     if observe not in OBSERVE:
         raise ValueError(f"observe must be one of {OBSERVE}, not {observe!r}")
@@ -164,6 +234,8 @@ def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np
         "skyline": float(drive.get("skyline_weight", SkylineSpec().weight)),
     }
     rows = [("associative", v)] + ([] if sky is None else [("skyline", np.asarray(sky, dtype=np.float64))])
+    checked = drive.get("verified") if verify else None
+    w_ver = float(drive.get("verify_weight", VerifySpec().weight))
     out = np.full(v.shape, np.nan)
     for t in range(v.shape[0]):
         per = {}
@@ -171,5 +243,12 @@ def observed(drive: dict[str, Any], observe: str, *, point: str = "total") -> np
             ok = np.isfinite(errors[t])
             per[src] = (labels[ok].tolist(), errors[t][ok].tolist())
         lab, log_p = fused_log_posterior(per, weights={s: weights[s] for s in per})
-        out[t] = ranking_vector(lab.tolist(), (-log_p).tolist(), n)
+        scores = (-log_p).tolist()
+        if checked is not None and np.isfinite(checked[t]).any():  # re-scored as the tracker does
+            ver = np.flatnonzero(np.isfinite(checked[t]))
+            got = verified_ranking(
+                list(zip(lab.tolist(), scores)), ver.tolist(), checked[t][ver].tolist(), weight=w_ver
+            )
+            lab, scores = np.array([k for k, _ in got]), [e for _, e in got]
+        out[t] = ranking_vector(lab.tolist(), scores, n)
     return out if point == "view" else per_point(drive, out, nats=point == "total")

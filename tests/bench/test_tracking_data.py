@@ -54,3 +54,23 @@ def test_a_points_best_viewframe_is_never_above_its_viewframes_total_probability
     assert np.array_equal(observed(one, "fused", point="total"), observed(one, "fused", point="best"))
     with pytest.raises(ValueError, match="point"):
         observed(d, "fused", point="mean")
+
+
+def test_a_verified_frame_is_observed_re_scored_as_the_tracker_does():
+    """A drive ranked with the verification on carries each frame's correlations (NaN where not
+    verified): the fused observation raises each verified viewframe by the weight times its
+    shortfall from the best correlation (models.verify.verified_ranking), the other frames and
+    viewframes stay; ``verify=False`` is the fusion alone."""
+    d = _drive(3)
+    plain = observed(d, "fused", point="view")
+    d["verified"] = np.full_like(d["variances"], np.nan)
+    d["verified"][1, [0, 2, 4]] = [0.50, 0.40, 0.45]
+    d["verify_weight"] = 20.0
+    got = observed(d, "fused", point="view")
+    assert np.array_equal(got[0], plain[0])  # not verified
+    assert got[1, 0] == pytest.approx(plain[1, 0])  # the best correlation keeps its score
+    assert got[1, 2] == pytest.approx(plain[1, 2] + 20.0 * 0.10)
+    assert got[1, 4] == pytest.approx(plain[1, 4] + 20.0 * 0.05)
+    others = [k for k in range(plain.shape[1]) if k not in (0, 2, 4)]
+    assert got[1, others] == pytest.approx(plain[1, others])
+    assert np.array_equal(observed(d, "fused", point="view", verify=False), plain)
