@@ -82,33 +82,18 @@ def verify_frame(image: np.ndarray, terrain: Terrain, scenario, viewframes: list
     """The verifier's correlations of the camera ``image`` (H, W, 3) with each of ``viewframes``
     (:func:`models.verify.verify_candidates` as :class:`knowledge_sources.verifier.Verifier`
     calls it) and the milliseconds it took."""
-    from models.camera_emulator import View
     from models.skyline import skyline_from_image
-    from models.verify import verify_candidates
+    from models.verify import verify_viewframes
 
-    sky, ver = scenario.skyline, scenario.verify
     t0 = time.perf_counter()
-    starts, views = [], []
-    for vf in viewframes:
-        v = terrain.viewframes[vf]
-        start = terrain.emulator.pose_at(v.pose.x, v.pose.y, v.pose.heading_deg, pitch_deg=v.pose.pitch_deg)
-        starts.append(start)
-        views.append(View(image=np.asarray(v.image), depth=np.asarray(v.depth), mask=np.asarray(v.mask), pose=start))
-    q = skyline_from_image(image, fov_y_deg=scenario.camera.fov_y_deg, step_deg=sky.step_deg)
-    r = verify_candidates(
+    q = skyline_from_image(image, fov_y_deg=scenario.camera.fov_y_deg, step_deg=scenario.skyline.step_deg)
+    r = verify_viewframes(
         image,
         terrain.emulator,
-        starts,
+        [terrain.viewframes[vf] for vf in viewframes],
+        scenario,
         pattern=terrain.index.pattern,
-        start_views=views,
         query_skyline=q,
-        step_deg=sky.step_deg,
-        max_heading_deg=sky.max_heading_deg,
-        max_pitch_deg=sky.max_pitch_deg,
-        truncate_deg=sky.truncate_deg,
-        align_shift=scenario.memory.max_shift,
-        rolls_deg=ver.roll_search_deg,
-        max_roll_deg=ver.max_roll_deg,
     )
     return list(r.correlations), 1e3 * (time.perf_counter() - t0)
 

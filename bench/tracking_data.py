@@ -128,9 +128,8 @@ def _verified(
     is within ``verify.margin`` nats of the first) and the verifier answers
     (:func:`models.verify.verify_candidates`, the viewframes' own views as its start views)."""
     from knowledge_sources.fusion import fuse_rankings
-    from models.camera_emulator import View
     from models.route_views import first_per_point, view_route
-    from models.verify import verify_candidates
+    from models.verify import verify_viewframes
 
     out = np.full(len(variances), np.nan)
     per, weights = {}, {}
@@ -145,28 +144,13 @@ def _verified(
     if len(points) < 2 or points[1][1] - points[0][1] >= ver.margin:
         return out
     chosen = [int(k) for k, _ in fused[: ver.candidates]]
-    emu = world.emulator
-    starts, views = [], []
-    for k in chosen:
-        v = world.viewframes[k]
-        start = emu.pose_at(v.pose.x, v.pose.y, v.pose.heading_deg, pitch_deg=v.pose.pitch_deg)
-        starts.append(start)
-        views.append(View(image=np.asarray(v.image), depth=np.asarray(v.depth), mask=np.asarray(v.mask), pose=start))
-    sky = sc.skyline
-    r = verify_candidates(
+    r = verify_viewframes(
         image,
-        emu,
-        starts,
+        world.emulator,
+        [world.viewframes[k] for k in chosen],
+        sc,
         pattern=index.pattern,
-        start_views=views,
         query_skyline=query_skyline,
-        step_deg=sky.step_deg,
-        max_heading_deg=sky.max_heading_deg,
-        max_pitch_deg=sky.max_pitch_deg,
-        truncate_deg=sky.truncate_deg,
-        align_shift=sc.memory.max_shift,
-        rolls_deg=ver.roll_search_deg,
-        max_roll_deg=ver.max_roll_deg,
     )
     out[chosen] = r.correlations
     return out

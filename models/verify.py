@@ -52,6 +52,8 @@ from models.skyline import match_skylines, skyline_from_depth, skyline_from_imag
 
 if TYPE_CHECKING:
     from models.camera_emulator import CameraEmulator, Pose, View
+    from models.scenario import Scenario
+    from models.viewframes import Viewframe
 
 __all__ = [
     "Alignment",
@@ -60,6 +62,7 @@ __all__ = [
     "memory_alignment",
     "skyline_alignment",
     "verify_candidates",
+    "verify_viewframes",
     "verified_ranking",
     "DEFAULT_MAX_SHIFT",
     "DEFAULT_FINE_ROLL_DEG",
@@ -351,6 +354,44 @@ def verify_candidates(
         out_p.append(float(best[2]))
         out_r.append(float(best[3]))
     return Verified(out_c, out_h, out_p, renders, out_r)
+
+
+def verify_viewframes(
+    image: NDArray,
+    emulator: CameraEmulator,
+    viewframes: Sequence[Viewframe],
+    scenario: Scenario,
+    *,
+    pattern: Callable[[NDArray], NDArray],
+    query_skyline: NDArray | None = None,
+) -> Verified:
+    """:func:`verify_candidates` of rendered ``viewframes`` (each its own start view: no render)
+    with a ``scenario``'s settings, as the verifier agent verifies them: the skyline block's
+    match, the memory's shift window, the verification's rolls and roll bound (the offline
+    benchmarks' call, bench/rerank.py and bench/tracking_data.py)."""
+    from models.camera_emulator import View
+
+    starts, views = [], []
+    for v in viewframes:
+        start = emulator.pose_at(v.pose.x, v.pose.y, v.pose.heading_deg, pitch_deg=v.pose.pitch_deg)
+        starts.append(start)
+        views.append(View(image=np.asarray(v.image), depth=np.asarray(v.depth), mask=np.asarray(v.mask), pose=start))
+    sky, ver = scenario.skyline, scenario.verify
+    return verify_candidates(
+        image,
+        emulator,
+        starts,
+        pattern=pattern,
+        start_views=views,
+        query_skyline=query_skyline,
+        step_deg=sky.step_deg,
+        max_heading_deg=sky.max_heading_deg,
+        max_pitch_deg=sky.max_pitch_deg,
+        truncate_deg=sky.truncate_deg,
+        align_shift=scenario.memory.max_shift,
+        rolls_deg=ver.roll_search_deg,
+        max_roll_deg=ver.max_roll_deg,
+    )
 
 
 def verified_ranking(

@@ -712,12 +712,7 @@ def _landmarks(t: TerrainEntry, route: list[tuple[float, float]], heights: np.nd
 def _world_boxes(lms: list[dict[str, Any]], world: raycast.World) -> list[raycast.Box]:
     boxes = []
     for lm in lms:
-        a = math.radians(lm["yaw_deg"])
-        u = np.array([math.cos(a), math.sin(a)]) * lm["width"] / 2
-        v = np.array([-math.sin(a), math.cos(a)]) * lm["depth"] / 2
-        c = np.array([lm["x"], lm["y"]])
-        pts = np.array([c, c + u + v, c + u - v, c - u + v, c - u - v])
-        z0 = float(np.min(world.height_at(pts[:, 0], pts[:, 1])))
+        z0 = _box_base(lm, world)
         _, wall, roof = _KINDS[lm["kind"]]
         boxes.append(
             raycast.Box(
