@@ -74,6 +74,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from models.skyline import TRUST_DEG as SKYLINE_TRUST_DEG
+
 if TYPE_CHECKING:
     from models.associative import Ranking as MemoryRanking
 
@@ -96,7 +98,7 @@ _MAD_TO_STD = 1.4826
 ABSOLUTE_SOURCES: frozenset[str] = frozenset({"skyline"})
 #: an absolute source's trust (module docstring): full up to a best error of ``lo``, none from
 #: ``hi``, in the source's units (the skyline's degrees)
-ABSOLUTE_TRUST: Mapping[str, tuple[float, float]] = {"skyline": (0.5, 1.0)}
+ABSOLUTE_TRUST: Mapping[str, tuple[float, float]] = {"skyline": SKYLINE_TRUST_DEG}
 
 Rankings = Mapping[str, tuple[Sequence[int], Sequence[float]]]
 

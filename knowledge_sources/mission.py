@@ -197,6 +197,7 @@ def agent_plan(
                 {
                     "position": ref.position,
                     "recheck": ref.recheck,
+                    "memory_heading": ref.memory_heading,
                     "along_m": ref.along_m,
                     "across_m": ref.across_m,
                     "levels": ref.levels,

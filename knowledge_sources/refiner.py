@@ -33,7 +33,10 @@ class PoseRefiner(KnowledgeSource):
     ``across_m``, ``levels``, ``grid``, ``edge_weight``, ``step_deg``, ``max_heading_deg``,
     ``max_pitch_deg``, ``truncate_deg``, ``max_roll_deg``, ``position`` (search the position too,
     or refine heading and pitch only), ``recheck`` (score the heading and pitch found again in a
-    view rendered at them). Positions that arrive before the map wait.
+    view rendered at them), ``memory_heading`` (where the skyline's match is not trusted, the
+    heading and pitch from the memory's alignment of the camera image with the view, with the
+    patterns, shift window and rolls of the scenario's ``memory`` block: :func:`models.refine.refine_pose`'s
+    ``pattern``). Positions that arrive before the map wait.
     """
 
     consumes: ClassVar[tuple[str, ...]] = (levels.MAP, levels.POSITION)
@@ -56,6 +59,7 @@ class PoseRefiner(KnowledgeSource):
         max_roll_deg: float = RefineSpec().max_roll_deg,
         position: bool,
         recheck: bool = RefineSpec().recheck,
+        memory_heading: bool = RefineSpec().memory_heading,
         **options: Any,
     ) -> None:
         super().__init__(name, **options)
@@ -77,6 +81,7 @@ class PoseRefiner(KnowledgeSource):
             "position": bool(position),
             "recheck": bool(recheck),
         }
+        self.memory_heading = bool(memory_heading)
         #: the map's world, emulator and cache entry, once the map is posted
         self.views: MapViews | None = None
         self._waiting: list[Hypothesis] = []
@@ -122,6 +127,18 @@ class PoseRefiner(KnowledgeSource):
             return
         image = levels.SensorFrame.from_hypothesis(got).image
         start = self.views.start_pose(position.viewframe)
+        memory: dict[str, Any] = {}
+        if self.memory_heading:
+            from models.preprocess import preprocess
+
+            mem = self.views.world.scenario.memory
+            memory = {
+                "pattern": lambda im: preprocess(
+                    im, size=mem.size, edge=mem.edge, blur_sigma=mem.blur_sigma, whiten=mem.whiten
+                ),
+                "rolls_deg": mem.roll_search_deg,
+                "align_shift": mem.max_shift,
+            }
         r = refine_pose(
             image,
             self.views.emulator,
@@ -129,6 +146,7 @@ class PoseRefiner(KnowledgeSource):
             query_skyline=skyline_profile(board, position.frame),
             start_view=self.views.own_view(position.viewframe, start),
             **self.search,
+            **memory,
         )
         levels.post(
             board,

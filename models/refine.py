@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING
@@ -43,6 +44,7 @@ from models.skyline import (
     DEFAULT_MAX_PITCH_DEG,
     DEFAULT_STEP_DEG,
     DEFAULT_TRUNCATE_DEG,
+    TRUST_DEG,
     SkylineMatch,
     match_skylines,
     skyline_from_depth,
@@ -236,6 +238,37 @@ class _Scorer:
         return sky_err + self.edge_weight * (1.0 - ncc), heading + dh, pitch + dp, sig
 
 
+def _memory_turn(
+    image: NDArray,
+    view: View,
+    start: Pose,
+    emulator: CameraEmulator,
+    pattern: Callable[[NDArray], NDArray],
+    rolls_deg: Sequence[float],
+    align_shift: tuple[int, int] | None,
+) -> tuple[float, float, float]:
+    """(heading, pitch, heading sigma) in degrees of the camera ``image`` against the ``view`` at
+    ``start`` by the memory's alignment (:func:`refine_pose`'s ``pattern``)."""
+    from models.derotate import rolled
+    from models.scenario import MemorySpec
+    from models.verify import memory_alignment
+
+    img = np.asarray(image)
+    camera = {float(r): pattern(rolled(img, float(r))) for r in (rolls_deg or (0.0,))}
+    n = int(next(iter(camera.values())).shape[0])
+    per_deg = emulator.intrinsics[0] * math.radians(1.0) * n
+    window = MemorySpec().max_shift if align_shift is None else (int(align_shift[0]), int(align_shift[1]))
+    cols_per_deg = per_deg / emulator.width
+    al, _ = memory_alignment(
+        camera,
+        pattern(view.image),
+        max_shift=window,
+        rows_per_deg=per_deg / emulator.height,
+        cols_per_deg=cols_per_deg,
+    )
+    return start.heading_deg + al.heading_deg, start.pitch_deg + al.pitch_deg, 1.0 / cols_per_deg
+
+
 def refine_pose(
     image: NDArray,
     emulator: CameraEmulator,
@@ -255,6 +288,10 @@ def refine_pose(
     recheck: bool = DEFAULT_RECHECK,
     query_skyline: NDArray | None = None,
     start_view: View | None = None,
+    pattern: Callable[[NDArray], NDArray] | None = None,
+    rolls_deg: Sequence[float] = (0.0,),
+    align_shift: tuple[int, int] | None = None,
+    trust_deg: float = TRUST_DEG[0],
 ) -> RefinedPose:
     """Refine ``start`` (the chosen route point's pose) against the camera ``image`` (H, W, 3).
 
@@ -275,6 +312,14 @@ def refine_pose(
 
     ``recheck`` False: step 1 ends with the first match (its heading, pitch, score and heading
     uncertainty), without the second view at the heading and pitch it found.
+
+    ``pattern`` (the memory's pattern of an image, :meth:`models.index.ViewframeIndex.pattern`):
+    when given and the skyline's match at the start is no better than ``trust_deg`` degrees (the
+    horizon not found: clouds, haze, a gray or blocky image; :data:`models.skyline.TRUST_DEG`),
+    the heading and pitch of step 1 come from the memory's alignment of the camera image with the
+    start view instead (:func:`models.verify.memory_alignment`: its shift search over
+    ``align_shift`` (rows, cols) pattern pixels, default the memory's ``max_shift``, and the
+    camera image turned by each of ``rolls_deg``), their uncertainty a pattern pixel.
     """
     if levels < 1 or grid < 2:
         raise ValueError(f"levels must be >= 1 and grid >= 2, got levels={levels}, grid={grid}")
@@ -293,7 +338,9 @@ def refine_pose(
     )
     # 1. heading and pitch at the start point, then score it again at that heading
     s0, heading, pitch, sig_h = sc.score(start.x, start.y, start.heading_deg, start.pitch_deg, view=start_view)
-    if recheck:
+    if pattern is not None and not sc.parts[0] < trust_deg and sc.view is not None:
+        heading, pitch, sig_h = _memory_turn(image, sc.view, start, emulator, pattern, rolls_deg, align_shift)
+    elif recheck:
         s0, heading, pitch, sig_h = sc.score(start.x, start.y, heading, pitch, max_heading=2 * step_deg)
     th = math.radians(start.heading_deg)
     fwd, side = np.array([math.cos(th), math.sin(th)]), np.array([math.sin(th), -math.cos(th)])

@@ -694,11 +694,22 @@ class RefineSpec(_Spec):
     heading, pitch and score: one render less a frame (at 10,000 viewframes, half the refiner's
     CPU), and on the evaluation set's tuning split (200 frames, tracking on) the same top-1 and
     position errors, single-frame heading error mean 2.08 -> 2.04 deg, median 1.11 -> 1.12 deg,
-    90th percentile 3.92 -> 3.88 deg (BENCHMARKS.md)."""
+    90th percentile 3.92 -> 3.88 deg (BENCHMARKS.md). ``memory_heading: true`` (default): where
+    the skyline's match at the chosen viewframe is worse than half a degree (the skyline trust's
+    full-trust bound, :data:`models.skyline.TRUST_DEG`: a horizon found wrongly, e.g. under clouds),
+    the heading and pitch come from the memory's shift search against the viewframe instead
+    (:func:`models.refine.refine_pose`'s ``pattern``). Through the pipeline on the evaluation
+    set's tuning split the single-frame heading error went from 1.05 / 2.13 / 4.04 degrees
+    (median / mean / 90th percentile) to 1.01 / 1.77 / 3.89 (larger pose errors 1.74 / 3.44 /
+    8.59 -> 1.70 / 3.04 / 6.81), and on five tuning-seeded cases whose camera frames the
+    evaluation set's rasteriser made (clouds, other frame sizes) each case's median from 1.6-6.6
+    to 0.4-1.2 degrees, where the route's own heading is off by 1.8-3.9 (BENCHMARKS.md, "The
+    heading where the skyline fails")."""
 
     enabled: bool = True
     position: bool = False
     recheck: bool = False
+    memory_heading: bool = True
     along_m: float = Field(default=20.0, ge=0, le=MAX_SIZE_M)
     across_m: float = Field(default=8.0, ge=0, le=MAX_SIZE_M)
     levels: int = Field(default=2, ge=1, le=8)

@@ -65,6 +65,7 @@ from models.scenario import SkylineSpec
 
 __all__ = [
     "WORK_ROWS",
+    "TRUST_DEG",
     "SkylineMatch",
     "profile_bins",
     "profile_azimuths",
@@ -86,6 +87,11 @@ DEFAULT_MAX_ROLL_DEG = _DEFAULTS.max_roll_deg
 DEFAULT_ROLL_CANDIDATES = _DEFAULTS.roll_candidates
 #: images are reduced to at most this many rows before the boundary search
 WORK_ROWS = 128
+#: how far a match's best error (degrees) says the camera's horizon was found: fully trusted up to
+#: the first, not at all from the second (a horizon found wrongly: JPEG blocks, a gray image,
+#: clouds). The fusion's skyline trust (:data:`knowledge_sources.fusion.ABSOLUTE_TRUST`, chosen on
+#: the evaluation set's tuning split) and the pose refiner's heading (:func:`models.refine.refine_pose`)
+TRUST_DEG: tuple[float, float] = (0.5, 1.0)
 
 _CAP = 4.0  # nats: cap of a pixel's class cost
 _LAM_EDGE = 3.0  # nats per unit of normalised contrast at the boundary

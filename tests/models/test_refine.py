@@ -104,3 +104,36 @@ def test_a_skyline_already_extracted_gives_the_same_refinement_without_extractin
     monkeypatch.setattr(refine, "skyline_from_image", skyline_from_image)
     got = refine_pose(image, emulator, start, position=position, query_skyline=profile[:-3])
     assert asdict(got) == pytest.approx(want, rel=1e-6)
+
+
+@pytest.mark.parametrize("turn", [4.0, -5.5])
+def test_where_the_skyline_fails_the_memory_gives_the_heading(emulator, turn):
+    """A camera at the start's place turned ``turn`` degrees whose sky holds clouds of the
+    terrain's colour (the skyline's match of the start view is then poor, above the trust bound):
+    with the memory's pattern given, the heading comes from the memory's alignment and is right
+    to half a degree; without it, the skyline's is further off; a clean sky keeps the skyline's
+    heading (the memory's is not asked)."""
+    from models.index import ViewframeIndex
+    from models.scenario import MemorySpec
+    from models.skyline import TRUST_DEG, match_skylines, skyline_from_depth, skyline_from_image
+
+    start = emulator.pose_at(420.0, 380.0, 60.0)
+    view = emulator.render(emulator.pose_at(start.x, start.y, 60.0 + turn))
+    rng = np.random.default_rng(7)
+    cloudy = view.image.copy()
+    sky = view.depth <= 0
+    ground = cloudy[~sky].reshape(-1, 3)
+    blobs = rng.random(sky.shape) < 0.5
+    cloudy[sky & blobs] = ground[rng.integers(0, len(ground), int((sky & blobs).sum()))]
+    index = ViewframeIndex(MemorySpec(), seed=0)
+    kw = {"rolls_deg": (0.0,), "align_shift": MemorySpec().max_shift}
+    fov = emulator.camera.fov_y_deg
+    own = skyline_from_depth(emulator.render(start).depth, fov_y_deg=fov)
+    assert match_skylines(skyline_from_image(cloudy, fov_y_deg=fov), own[None]).error[0] >= TRUST_DEG[0]
+    plain = refine_pose(cloudy, emulator, start)
+    helped = refine_pose(cloudy, emulator, start, pattern=index.pattern, **kw)
+    assert helped.heading_deg == pytest.approx(60.0 + turn, abs=0.5)
+    assert abs(plain.heading_deg - 60.0 - turn) > abs(helped.heading_deg - 60.0 - turn)
+    clean = refine_pose(view.image, emulator, start, pattern=index.pattern, **kw)
+    assert clean.heading_deg == refine_pose(view.image, emulator, start).heading_deg  # the skyline's
+    assert clean.heading_deg == pytest.approx(60.0 + turn, abs=0.5)
