@@ -166,7 +166,13 @@ def _by_point(ranking: Sequence[Sequence[float]], route_points: Sequence[int]) -
 def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str, Any]:
     """``record`` (a single-frame :func:`frame_record`) with its decision moved to ``frame_only``
     and, when ``track`` (the tracker's estimate: ``route_point``, ``position``, ``heading_deg``,
-    ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer."""
+    ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer.
+
+    The final heading is the track's (the route's direction at its place) turned by as much as
+    the camera turned against the route in this frame: the refined heading minus its chosen
+    viewframe's heading (``heading_deg - route_heading_deg`` of ``record``, when the pose was
+    refined; none otherwise). A camera looks a few degrees off the road wherever the track puts
+    it, and the pose refinement measured by how much."""
     out = dict(record)
     out["frame_only"] = {
         k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct", "error_m")
@@ -177,11 +183,17 @@ def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str
     truth = record["truth"]
     vf = int(track["route_point"])
     pos = [float(track["position"][0]), float(track["position"][1])]
+    turn = 0.0
+    if record.get("pose") is not None and record.get("heading_deg") is not None:
+        if record.get("route_heading_deg") is not None:
+            turn = (float(record["heading_deg"]) - float(record["route_heading_deg"]) + 180.0) % 360.0 - 180.0
+    heading = (float(track["heading_deg"]) + turn) % 360.0
     out.update(
         {
             "viewframe": vf,
             "position": pos,
-            "heading_deg": float(track["heading_deg"]),
+            "heading_deg": heading,
+            "heading_error_deg": None if truth is None else abs((heading - truth[2] + 180.0) % 360.0 - 180.0),
             "confidence": float(track["confidence"]),
             "state": str(track["state"]),
             "arc_m": float(track["arc_m"]),

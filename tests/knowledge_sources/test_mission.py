@@ -133,3 +133,34 @@ def test_mission_without_camera_frames_is_refused(tmp_path, small_data, change, 
     with pytest.raises(ScenarioError, match=field) as err:
         run_mission(path)
     assert err.value.path == path
+
+
+@pytest.mark.parametrize(
+    ("refined", "route_heading", "track_heading", "expected"),
+    [
+        (93.0, 90.0, 88.0, 91.0),  # the camera 3 degrees left of its viewframe: the track's turned as much
+        (2.0, 358.0, 359.0, 3.0),  # the turn wraps across 0 degrees
+        (None, None, 88.0, 88.0),  # no refined pose: the track's heading
+    ],
+)
+def test_the_tracked_heading_is_the_routes_turned_as_the_frame_was(refined, route_heading, track_heading, expected):
+    from knowledge_sources.results import with_track
+
+    record = {
+        "viewframe": 4,
+        "position": [10.0, 0.0],
+        "heading_deg": refined,
+        "route_heading_deg": route_heading,
+        "pose": None if refined is None else {"pitch_deg": 0.0},
+        "confidence": 0.5,
+        "correct": True,
+        "error_m": 1.0,
+        "truth": [11.0, 0.0, 92.0],
+        "truth_viewframe": 4,
+    }
+    track = {"route_point": 4, "position": [11.5, 0.0], "heading_deg": track_heading, "confidence": 0.9}
+    track |= {"state": "tracking", "arc_m": 11.5, "belief": []}
+    out = with_track(record, track)
+    assert out["heading_deg"] == pytest.approx(expected % 360.0)
+    assert out["heading_error_deg"] == pytest.approx(abs((expected - 92.0 + 180.0) % 360.0 - 180.0))
+    assert out["frame_only"]["heading_deg"] == refined  # the single frame's own, kept
