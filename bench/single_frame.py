@@ -89,6 +89,12 @@ COLUMNS: list[tuple[str, str, Callable[[Sequence[Frame]], float | None]]] = [
     ("head_mean", "{:.2f}", lambda fr: float(np.mean(_headings(fr))) if _headings(fr) else None),
     ("head_median", "{:.2f}", lambda fr: _median(_headings(fr))),
     ("head_p90", "{:.2f}", lambda fr: float(np.percentile(_headings(fr), 90)) if _headings(fr) else None),
+    # the final answer's heading (the track's, turned as the frame was, when tracking): degrees off the truth
+    (
+        "final_head_median",
+        "{:.2f}",
+        lambda fr: _median([f["heading_error_deg"] for f in fr if f.get("heading_error_deg") is not None]),
+    ),
 ]
 
 
