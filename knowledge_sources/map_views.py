@@ -60,6 +60,15 @@ class MapViews:
         release_pages([self.depths[viewframe]], advice=mmap.MADV_DONTNEED)
         return View(image=pixels.image, depth=depth, mask=pixels.mask.astype(np.int32), pose=pose)
 
+    def pattern(self, image: np.ndarray) -> np.ndarray:
+        """The memory pattern of ``image`` (H, W[, 3], indexed (row, col)) with the map scenario's
+        memory settings (:func:`models.preprocess.preprocess`): what the indexers store and the
+        render-and-compare and the refiner's memory alignment correlate."""
+        from models.preprocess import preprocess
+
+        mem = self.world.scenario.memory
+        return preprocess(image, size=mem.size, edge=mem.edge, blur_sigma=mem.blur_sigma, whiten=mem.whiten)
+
     def release(self) -> None:
         """Give the emulator's rendering context back (after each activation: shutdown closes it
         from another thread)."""

@@ -129,16 +129,8 @@ class PoseRefiner(KnowledgeSource):
         start = self.views.start_pose(position.viewframe)
         memory: dict[str, Any] = {}
         if self.memory_heading:
-            from models.preprocess import preprocess
-
             mem = self.views.world.scenario.memory
-            memory = {
-                "pattern": lambda im: preprocess(
-                    im, size=mem.size, edge=mem.edge, blur_sigma=mem.blur_sigma, whiten=mem.whiten
-                ),
-                "rolls_deg": mem.roll_search_deg,
-                "align_shift": mem.max_shift,
-            }
+            memory = {"pattern": self.views.pattern, "rolls_deg": mem.roll_search_deg, "align_shift": mem.max_shift}
         r = refine_pose(
             image,
             self.views.emulator,

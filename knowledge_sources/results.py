@@ -168,11 +168,13 @@ def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str
     and, when ``track`` (the tracker's estimate: ``route_point``, ``position``, ``heading_deg``,
     ``confidence``, ``state``, ``arc_m``, ``belief``) is given, the track as the final answer.
 
-    The final heading is the track's (the route's direction at its place) turned by as much as
-    the camera turned against the route in this frame: the refined heading minus its chosen
-    viewframe's heading (``heading_deg - route_heading_deg`` of ``record``, when the pose was
-    refined; none otherwise). A camera looks a few degrees off the road wherever the track puts
-    it, and the pose refinement measured by how much."""
+    The final heading is the frame's refined heading (``heading_deg`` of ``record``, when the pose
+    was refined) when the track's route point is the frame's own or a neighbour of it: the
+    camera's own heading, measured against a view a route spacing from the camera at most, whose
+    far terrain barely moves over that distance (a camera looks a few degrees off the road, and
+    at a bend the road's direction at the track's place is not the viewframe's). Otherwise (no
+    refinement, or the frame chose another place) it is the track's, the route's direction at
+    its place."""
     out = dict(record)
     out["frame_only"] = {
         k: record[k] for k in ("viewframe", "position", "heading_deg", "confidence", "correct", "error_m")
@@ -183,11 +185,11 @@ def with_track(record: dict[str, Any], track: dict[str, Any] | None) -> dict[str
     truth = record["truth"]
     vf = int(track["route_point"])
     pos = [float(track["position"][0]), float(track["position"][1])]
-    turn = 0.0
-    if record.get("pose") is not None and record.get("heading_deg") is not None:
-        if record.get("route_heading_deg") is not None:
-            turn = (float(record["heading_deg"]) - float(record["route_heading_deg"]) + 180.0) % 360.0 - 180.0
-    heading = (float(track["heading_deg"]) + turn) % 360.0
+    heading = float(track["heading_deg"])
+    own = record.get("viewframe")
+    if record.get("pose") is not None and record.get("heading_deg") is not None and own is not None:
+        if abs(int(own) - vf) <= 1:
+            heading = float(record["heading_deg"])
     out.update(
         {
             "viewframe": vf,

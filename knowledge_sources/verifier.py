@@ -89,7 +89,6 @@ class Verifier(KnowledgeSource):
         self.views = MapViews(mp)
 
     def _verify(self, hypothesis: Hypothesis, board: Board) -> None:
-        from models.preprocess import preprocess
         from models.verify import verify_candidates
 
         assert self.views is not None
@@ -110,9 +109,7 @@ class Verifier(KnowledgeSource):
             image,
             self.views.emulator,
             starts,
-            pattern=lambda im: preprocess(
-                im, size=mem.size, edge=mem.edge, blur_sigma=mem.blur_sigma, whiten=mem.whiten
-            ),
+            pattern=self.views.pattern,
             start_views=views,
             query_skyline=profile,
             step_deg=self.match["step_deg"],

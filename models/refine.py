@@ -251,20 +251,14 @@ def _memory_turn(
     ``start`` by the memory's alignment (:func:`refine_pose`'s ``pattern``)."""
     from models.derotate import rolled
     from models.scenario import MemorySpec
-    from models.verify import memory_alignment
+    from models.verify import memory_alignment, pixels_per_degree
 
     img = np.asarray(image)
     camera = {float(r): pattern(rolled(img, float(r))) for r in (rolls_deg or (0.0,))}
-    n = int(next(iter(camera.values())).shape[0])
-    per_deg = emulator.intrinsics[0] * math.radians(1.0) * n
+    rows_per_deg, cols_per_deg = pixels_per_degree(emulator, int(next(iter(camera.values())).shape[0]))
     window = MemorySpec().max_shift if align_shift is None else (int(align_shift[0]), int(align_shift[1]))
-    cols_per_deg = per_deg / emulator.width
     al, _ = memory_alignment(
-        camera,
-        pattern(view.image),
-        max_shift=window,
-        rows_per_deg=per_deg / emulator.height,
-        cols_per_deg=cols_per_deg,
+        camera, pattern(view.image), max_shift=window, rows_per_deg=rows_per_deg, cols_per_deg=cols_per_deg
     )
     return start.heading_deg + al.heading_deg, start.pitch_deg + al.pitch_deg, 1.0 / cols_per_deg
 

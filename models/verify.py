@@ -60,6 +60,7 @@ __all__ = [
     "Verified",
     "pattern_correlation",
     "memory_alignment",
+    "pixels_per_degree",
     "skyline_alignment",
     "verify_candidates",
     "verify_viewframes",
@@ -140,6 +141,13 @@ def _peak_offset(minus: float, centre: float, plus: float) -> float:
     """Sub-pixel offset in [-0.5, 0.5] of a maximum at ``centre`` from its neighbours (parabola)."""
     den = minus - 2.0 * centre + plus
     return float(np.clip(0.5 * (minus - plus) / den, -0.5, 0.5)) if den < 0 else 0.0
+
+
+def pixels_per_degree(emulator: CameraEmulator, n: int) -> tuple[float, float]:
+    """(rows, cols) of an (n, n) memory pattern of the ``emulator``'s images per degree of pitch
+    and of heading, at the image centre (square pixels; the pattern resizes the image)."""
+    per_deg = emulator.intrinsics[0] * math.radians(1.0) * n
+    return per_deg / emulator.height, per_deg / emulator.width
 
 
 def memory_alignment(
@@ -297,9 +305,7 @@ def verify_candidates(
     n = shape[0]
     window = (int(align_shift[0]), int(align_shift[1])) if align_shift is not None else MemorySpec().max_shift
     fov = float(emulator.camera.fov_y_deg)
-    per_rad = emulator.intrinsics[0]  # pixels per radian at the image centre (square pixels)
-    rows_per_deg = per_rad * math.radians(1.0) * n / emulator.height
-    cols_per_deg = per_rad * math.radians(1.0) * n / emulator.width
+    rows_per_deg, cols_per_deg = pixels_per_degree(emulator, n)
     sky = query_skyline
     if sky is None or not np.asarray(sky).size:
         sky = skyline_from_image(img, fov_y_deg=fov, step_deg=step_deg)

@@ -136,21 +136,22 @@ def test_mission_without_camera_frames_is_refused(tmp_path, small_data, change, 
 
 
 @pytest.mark.parametrize(
-    ("refined", "route_heading", "track_heading", "expected"),
+    ("refined", "own", "point", "expected"),
     [
-        (93.0, 90.0, 88.0, 91.0),  # the camera 3 degrees left of its viewframe: the track's turned as much
-        (2.0, 358.0, 359.0, 3.0),  # the turn wraps across 0 degrees
-        (None, None, 88.0, 88.0),  # no refined pose: the track's heading
+        (93.0, 4, 4, 93.0),  # the track on the frame's own point: the camera's refined heading
+        (93.0, 4, 5, 93.0),  # on a neighbour: the same (the far terrain barely moves over a spacing)
+        (93.0, 4, 7, 88.0),  # elsewhere: the track's (the route's direction there)
+        (None, 4, 4, 88.0),  # no refined pose: the track's
     ],
 )
-def test_the_tracked_heading_is_the_routes_turned_as_the_frame_was(refined, route_heading, track_heading, expected):
+def test_the_tracked_heading_is_the_cameras_own_near_the_frames_place(refined, own, point, expected):
     from knowledge_sources.results import with_track
 
     record = {
-        "viewframe": 4,
+        "viewframe": own,
         "position": [10.0, 0.0],
         "heading_deg": refined,
-        "route_heading_deg": route_heading,
+        "route_heading_deg": 90.0,
         "pose": None if refined is None else {"pitch_deg": 0.0},
         "confidence": 0.5,
         "correct": True,
@@ -158,9 +159,9 @@ def test_the_tracked_heading_is_the_routes_turned_as_the_frame_was(refined, rout
         "truth": [11.0, 0.0, 92.0],
         "truth_viewframe": 4,
     }
-    track = {"route_point": 4, "position": [11.5, 0.0], "heading_deg": track_heading, "confidence": 0.9}
+    track = {"route_point": point, "position": [11.5, 0.0], "heading_deg": 88.0, "confidence": 0.9}
     track |= {"state": "tracking", "arc_m": 11.5, "belief": []}
     out = with_track(record, track)
-    assert out["heading_deg"] == pytest.approx(expected % 360.0)
-    assert out["heading_error_deg"] == pytest.approx(abs((expected - 92.0 + 180.0) % 360.0 - 180.0))
+    assert out["heading_deg"] == pytest.approx(expected)
+    assert out["heading_error_deg"] == pytest.approx(abs(expected - 92.0))
     assert out["frame_only"]["heading_deg"] == refined  # the single frame's own, kept
