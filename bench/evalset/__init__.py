@@ -18,6 +18,9 @@ and sensors that neither other split has (below). The three share no seed, no te
 window of a real DEM (:func:`seeds`, :func:`case_names`; tests check it). Nothing may be
 chosen on ``heldout`` or ``fresh``; do not run or look at localization on ``fresh`` before
 the measurement it is kept for.
+``"confirm"`` (seeds 4xxx, session 13) mixes the others' families, renderers and frame sizes
+with new seeds and terrain realisations (and a topobathy window none of them uses); it decides the
+verification's default by a rule written down before it was run (BENCHMARKS.md).
 
 **A case** (:class:`Case`): ``name`` ("h-mesas/sweep"), ``split``, ``terrain``, ``kind``
 ("sweep": one frame per route point in route order; "drive": time order with varying speed,

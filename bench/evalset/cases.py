@@ -48,8 +48,10 @@ GENERATOR_VERSION = "1"
 
 #: the splits: choose parameters on "tuning" only; "heldout" is for reporting (reported on by many
 #: sessions by now); "fresh" is for one final measurement (terrains, renderer, frame sizes and
-#: sensors unlike the other two; see the package docstring)
-SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh")
+#: sensors unlike the other two; see the package docstring); "confirm" (session 13) for one
+#: decision rule written down before it was run (its seeds and terrain realisations new, its
+#: families, renderers and sizes mixed from the others')
+SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh", "confirm")
 
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
@@ -441,6 +443,125 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         contours=15.0,
         drives=("kidnap",),
         renderer="raster",
+    ),
+    # ---------------------------------------------------------------- confirm (session 13)
+    # new seeds and terrain realisations; families, renderers, looks and frame sizes mixed from the
+    # other splits; the topobathy window (rows 40-91, cols 80-120) is clear of the other splits'
+    TerrainEntry(
+        "c-fbm",
+        "confirm",
+        4101,
+        18.0,
+        {"family": "fbm", "size": 224, "relief": 180.0, "hurst": 0.55},
+        35.0,
+        32,
+        (800, 600),
+        {
+            "palette": "steppe",
+            "sun_azimuth_deg": 240.0,
+            "sun_elevation_deg": 30.0,
+            "cloud_cover": 0.3,
+            "haze_m": 6000.0,
+        },
+        {"jpeg_quality": 75, "white_balance": 0.04},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c-ridged",
+        "confirm",
+        4202,
+        12.0,
+        {"family": "ridged", "size": 224, "relief": 220.0},
+        30.0,
+        32,
+        (320, 180),
+        {"palette": "alpine", "sun_azimuth_deg": 40.0, "sun_elevation_deg": 45.0, "fog_m": 4500.0},
+        {"jpeg_quality": 70, "noise": 4.0},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "c-mesas",
+        "confirm",
+        4303,
+        12.0,
+        {"family": "mesas", "size": 256, "relief": 110.0},
+        30.0,
+        32,
+        (640, 480),
+        {
+            "palette": "canyon",
+            "sun_azimuth_deg": 300.0,
+            "sun_elevation_deg": 35.0,
+            "cloud_cover": 0.1,
+            "haze_m": 8000.0,
+        },
+        {"jpeg_quality": 85, "motion_px": 1.0},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c-valleys-contours",
+        "confirm",
+        4404,
+        10.0,
+        {"family": "valleys", "size": 256, "relief": 90.0},
+        25.0,
+        32,
+        (400, 300),
+        {
+            "palette": "meadow",
+            "sun_azimuth_deg": 180.0,
+            "sun_elevation_deg": 50.0,
+            "cloud_cover": 0.4,
+            "haze_m": 3500.0,
+        },
+        {"jpeg_quality": None, "noise": 5.0, "blur": 0.8},
+        contours=10.0,
+        drives=("kidnap",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c-dunes",
+        "confirm",
+        4505,
+        8.0,
+        {"family": "dunes", "size": 256, "relief": 50.0},
+        22.0,
+        32,
+        (1024, 768),
+        {"palette": "dry", "sun_azimuth_deg": 100.0, "sun_elevation_deg": 22.0, "fog_m": 5000.0},
+        {"jpeg_quality": 80},
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "c-topobathy-east",
+        "confirm",
+        4606,
+        16.0,
+        {
+            "dem": "topobathy",
+            "rows": (40, 91),
+            "cols": (80, 120),
+            "upsample": 5,
+            "height_scale": 0.08,
+            "sea_level": 0.0,
+        },
+        30.0,
+        32,
+        (720, 480),
+        {
+            "palette": "tundra",
+            "sun_azimuth_deg": 260.0,
+            "sun_elevation_deg": 28.0,
+            "cloud_cover": 0.5,
+            "haze_m": 4000.0,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 70, "white_balance": 0.06},
+        drives=("drive",),
+        renderer="raster",
+        route_floor=1.0,
     ),
 )
 
@@ -1078,7 +1199,7 @@ def cases(
     terrains: Sequence[TerrainEntry] | None = None,
     errors: str = "standard",
 ) -> Iterator[Case]:
-    """Yield the cases of ``split`` ("tuning", "heldout" or "fresh"), generating those not cached.
+    """Yield the cases of ``split`` ("tuning", "heldout", "fresh" or "confirm"), generating those not cached.
 
     ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
     ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is

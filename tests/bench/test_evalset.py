@@ -4,6 +4,7 @@ the independent renderer at the requested sizes and in agreement with the viewfr
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 
 import cv2
@@ -63,7 +64,7 @@ def _overlap(a, b):
     return a["dem"] == b["dem"] and rows and cols
 
 
-@pytest.mark.parametrize("a, b", [("tuning", "heldout"), ("tuning", "fresh"), ("heldout", "fresh")])
+@pytest.mark.parametrize("a, b", list(itertools.combinations(SPLITS, 2)))
 def test_splits_are_disjoint(a, b):
     assert seeds(a) and seeds(b) and not seeds(a) & seeds(b)
     names = {s: {t.name for t in TERRAINS if t.split == s} for s in (a, b)}
@@ -77,7 +78,7 @@ def test_splits_are_disjoint(a, b):
 
 
 def test_the_splits_have_what_the_issues_ask_for():
-    assert SPLITS == ("tuning", "heldout", "fresh")
+    assert SPLITS == ("tuning", "heldout", "fresh", "confirm")
     # the held-out set: real DEM crops, a contour map, drives, a kidnap
     held = [t for t in TERRAINS if t.split == "heldout"]
     assert any("dem" in t.source for t in held) and any(t.contours > 0 for t in held)
@@ -92,7 +93,7 @@ def test_the_fresh_split_is_unlike_the_others():
     others = [t for t in TERRAINS if t.split != "fresh"]
     assert len(fresh) >= 6
     # terrain seeds 3xxx, case seeds 3xxxx; the other splits' below
-    assert all(3000 <= t.seed < 4000 for t in fresh) and all(t.seed < 3000 for t in others)
+    assert all(3000 <= t.seed < 4000 for t in fresh) and all(t.seed < 3000 or t.seed >= 4000 for t in others)
     assert all(30000 <= s < 40000 for s in seeds("fresh") - {t.seed for t in fresh})
     # terrain families the other splits do not have, a real DEM crop and a contour map
     assert len(_families("fresh") - _families("tuning") - _families("heldout")) >= 4
@@ -110,7 +111,19 @@ def test_the_fresh_split_is_unlike_the_others():
     # the rasteriser makes most of its frames, the ray caster at least one terrain's
     renderers = [t.renderer for t in fresh]
     assert renderers.count("raster") > len(fresh) / 2 and "raycast" in renderers
-    assert all(t.renderer == "raycast" for t in others)
+    assert all(t.renderer == "raycast" for t in others if t.split != "confirm")
+
+
+def test_the_confirm_split_mixes_the_others_with_new_seeds():
+    confirm = [t for t in TERRAINS if t.split == "confirm"]
+    assert len(confirm) >= 6
+    assert all(4000 <= t.seed < 5000 for t in confirm)
+    assert all(40000 <= s < 50000 for s in seeds("confirm") - {t.seed for t in confirm})
+    assert not any(4000 <= t.seed < 5000 for t in TERRAINS if t.split != "confirm")
+    # both renderers, a real DEM crop, a contour map, drives and a kidnap
+    assert {t.renderer for t in confirm} == {"raster", "raycast"}
+    assert any("dem" in t.source for t in confirm) and any(t.contours > 0 for t in confirm)
+    assert {"drive", "kidnap"} <= {k for t in confirm for k in t.drives}
 
 
 def _check_frame_bounds(case):
