@@ -168,7 +168,7 @@ def _fmt(value: Any, fmt: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--split", choices=("heldout", "tuning", "fresh", "confirm"), default="heldout")
+    parser.add_argument("--split", choices=("heldout", "tuning", "fresh", "confirm", "confirm2"), default="heldout")
     parser.add_argument("--names", nargs="*", default=None, help="cases or terrains (default all)")
     parser.add_argument("--kinds", nargs="*", default=None, help="sweep, drive, kidnap (default all)")
     parser.add_argument("--memory", type=json.loads, default=None, help="JSON memory block replacing the default")

@@ -465,7 +465,7 @@ def ranked_cases(
         )
     return out, f"evaluation set, split {split}, {errors} pose errors" + (
         " (held out: never used to choose a parameter)"
-        if split in ("heldout", "fresh", "confirm")
+        if split in ("heldout", "fresh", "confirm", "confirm2")
         else " (parameters may be chosen here)"
     )
 
@@ -474,7 +474,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--split",
-        choices=["heldout", "tuning", "fresh", "confirm", "tuning-drives", "tuning-drives-more", "sim"],
+        choices=["heldout", "tuning", "fresh", "confirm", "confirm2", "tuning-drives", "tuning-drives-more", "sim"],
         default="heldout",
         help="evaluation-set split, more drives on the tuning terrains (tuning-drives: extra_tuning_drives; "
         "tuning-drives-more: more_tuning_drives), "

@@ -168,6 +168,7 @@ def agent_plan(
                         "verify_margin": ver.margin,
                         "verify_weight": ver.weight,
                         "verify_timeout_s": ver.timeout_s,
+                        "verify_when": ver.when,
                         "verifier": VERIFIER,
                     }
                     if ver.enabled

@@ -31,8 +31,10 @@ best: a place between two route points is often the second view of its point) ad
 verifier with a deadline (``verify_timeout_s``); the ``verification`` raises each candidate's
 fused score by ``verify_weight`` times its correlation's shortfall from the best
 (:func:`models.verify.verified_ranking`), and the scene analysis starts from that ranking (each
-route point at its best viewframe again). A
-verification that does not come leaves the ranking as it is, and the position says so in
+route point at its best viewframe again). With ``verify_when`` "blind" (the default) only a
+frame analysed without a track prior is verified (no tracker, the first frame, or the track
+lost: the blind start, where the frame's own answer is the mission's); "always": every such
+frame. A verification that does not come leaves the ranking as it is, and the position says so in
 ``degraded``.
 """
 
@@ -106,7 +108,8 @@ class Scheduler(KnowledgeSource):
     ``tracked``: a tracker runs (the agent ``tracker``), frames are conditioned on its tracks, and
     a frame whose previous track does not come within ``track_timeout_s`` is analysed blind (see
     the module docstring). ``verify_candidates`` (0: off, the default; else >= 2),
-    ``verify_margin``, ``verify_weight``, ``verify_timeout_s``, ``verifier`` (the agent asked):
+    ``verify_margin``, ``verify_weight``, ``verify_timeout_s``, ``verify_when`` ("blind" or
+    "always"), ``verifier`` (the agent asked):
     the render-and-compare verification of the module docstring (the scenario's ``verify``
     block, :class:`models.scenario.VerifySpec`).
     """
@@ -148,6 +151,7 @@ class Scheduler(KnowledgeSource):
         verify_margin: float = _VERIFY.margin,
         verify_weight: float = _VERIFY.weight,
         verify_timeout_s: float = _VERIFY.timeout_s,
+        verify_when: str = _VERIFY.when,
         verifier: str = "verifier",
         **options: Any,
     ) -> None:
@@ -184,6 +188,9 @@ class Scheduler(KnowledgeSource):
         self.verify_margin = float(verify_margin)
         self.verify_weight = float(verify_weight)
         self.verify_timeout_s = float(verify_timeout_s)
+        if verify_when not in ("blind", "always"):
+            raise ValueError(f"verify_when must be 'blind' or 'always', not {verify_when!r}")
+        self.verify_when = str(verify_when)
         if not (self.verify_weight >= 0 and self.verify_margin >= 0 and self.verify_timeout_s > 0):
             raise ValueError(
                 f"verify_weight and verify_margin must be >= 0 and verify_timeout_s > 0, got "
@@ -320,7 +327,13 @@ class Scheduler(KnowledgeSource):
         st.fused = fuse_shards(shards, weights=self.sources)
         st.ranking = _best_view_per_point(st.fused, mp)
         r = st.ranking
-        if self.verify_candidates >= 2 and len(r) >= 2 and r[1][1] - r[0][1] < self.verify_margin:
+        blind = self._tracks.get(st.frame - 1) is None  # no track prior: no tracker, the first frame, or lost
+        if (
+            self.verify_candidates >= 2
+            and (blind or self.verify_when == "always")
+            and len(r) >= 2
+            and r[1][1] - r[0][1] < self.verify_margin
+        ):
             q = levels.post(
                 board,
                 levels.VerifyQuery(frame=st.frame, viewframes=[int(k) for k, _ in st.fused[: self.verify_candidates]]),

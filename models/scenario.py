@@ -731,7 +731,9 @@ class VerifySpec(_Spec):
     :meth:`models.index.ViewframeIndex.pattern`, best over +-2 rows and columns and the camera
     image turned by the alignment's roll and 0.75 degrees either side). Each candidate's fused
     score gains ``weight * (max_j c_j - c_k)`` nats, and the ranking is sorted again before the
-    scene analysis starts; the tracker observes the frame re-scored the same way.
+    scene analysis starts; the tracker observes the frame re-scored the same way. ``when``:
+    "blind" (default) verifies only frames analysed without a track prior (no tracker, the first
+    frame, the track lost), "always" every frame whose first two are within ``margin``.
 
     ``weight`` is calibrated, not tuned for top-1: the conditional logit of the truth's route
     point among the first 5 viewframes of 1,280 tuning frames (the evaluation set's tuning split
@@ -758,6 +760,7 @@ class VerifySpec(_Spec):
     margin: float = Field(default=1.0, ge=0, le=1e3)
     weight: float = Field(default=23.3, ge=0, le=1e3)
     timeout_s: float = Field(default=10.0, gt=0, le=3600)
+    when: Literal["blind", "always"] = "blind"
     roll_search_deg: tuple[float, ...] = ROLL_SEARCH_DEG
     max_roll_deg: float = Field(default=3.0, ge=0, lt=45)
 

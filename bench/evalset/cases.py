@@ -50,8 +50,8 @@ GENERATOR_VERSION = "1"
 #: sessions by now); "fresh" is for one final measurement (terrains, renderer, frame sizes and
 #: sensors unlike the other two; see the package docstring); "confirm" (session 13) for one
 #: decision rule written down before it was run (its seeds and terrain realisations new, its
-#: families, renderers and sizes mixed from the others')
-SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh", "confirm")
+#: families, renderers and sizes mixed from the others'), "confirm2" (session 13, seeds 5xxx) for a second one
+SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh", "confirm", "confirm2")
 
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
@@ -562,6 +562,119 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         drives=("drive",),
         renderer="raster",
         route_floor=1.0,
+    ),
+    # ---------------------------------------------------------------- confirm2 (session 13)
+    # as confirm, for a second rule written before it ran; the Jacksboro window (rows 150-205,
+    # cols 240-403) is clear of the other splits' and of the bundled scenario's
+    TerrainEntry(
+        "c2-valleys",
+        "confirm2",
+        5101,
+        10.0,
+        {"family": "valleys", "size": 256, "relief": 80.0},
+        28.0,
+        32,
+        (560, 420),
+        {
+            "palette": "meadow",
+            "sun_azimuth_deg": 320.0,
+            "sun_elevation_deg": 40.0,
+            "cloud_cover": 0.25,
+            "haze_m": 5000.0,
+        },
+        {"jpeg_quality": 80, "noise": 3.0},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c2-alpine",
+        "confirm2",
+        5202,
+        25.0,
+        {"family": "alpine", "size": 224, "relief": 900.0},
+        45.0,
+        32,
+        (640, 360),
+        {"palette": "alpine", "sun_azimuth_deg": 150.0, "sun_elevation_deg": 35.0, "fog_m": 9000.0},
+        {"jpeg_quality": 75},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "c2-canyon",
+        "confirm2",
+        5303,
+        15.0,
+        {"family": "canyon", "size": 224, "relief": 160.0},
+        35.0,
+        32,
+        (300, 400),
+        {
+            "palette": "desert",
+            "sun_azimuth_deg": 60.0,
+            "sun_elevation_deg": 30.0,
+            "cloud_cover": 0.15,
+            "haze_m": 8000.0,
+        },
+        {"jpeg_quality": 70, "white_balance": 0.05},
+        drives=("drive",),
+        renderer="raster",
+        route_floor=130.0,
+    ),
+    TerrainEntry(
+        "c2-volcano",
+        "confirm2",
+        5404,
+        20.0,
+        {"family": "volcano", "size": 200, "relief": 400.0},
+        40.0,
+        32,
+        (256, 192),
+        {"palette": "dry", "sun_azimuth_deg": 280.0, "sun_elevation_deg": 45.0, "fog_m": 6000.0},
+        {"jpeg_quality": None, "noise": 4.0, "blur": 0.8},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "c2-lakes-contours",
+        "confirm2",
+        5505,
+        12.0,
+        {"family": "lakes", "size": 256, "relief": 60.0},
+        30.0,
+        32,
+        (960, 540),
+        {
+            "palette": "tundra",
+            "sun_azimuth_deg": 200.0,
+            "sun_elevation_deg": 25.0,
+            "cloud_cover": 0.45,
+            "haze_m": 4500.0,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 85, "motion_px": 1.0},
+        contours=10.0,
+        drives=("drive",),
+        renderer="raster",
+        route_floor=0.5,
+    ),
+    TerrainEntry(
+        "c2-jacksboro-mid",
+        "confirm2",
+        5606,
+        20.0,
+        {"dem": "jacksboro", "rows": (150, 205), "cols": (240, 403), "upsample": 2, "height_scale": 0.4},
+        35.0,
+        32,
+        (480, 360),
+        {
+            "palette": "steppe",
+            "sun_azimuth_deg": 110.0,
+            "sun_elevation_deg": 40.0,
+            "cloud_cover": 0.3,
+            "haze_m": 7000.0,
+        },
+        {"jpeg_quality": 75, "white_balance": 0.04},
+        drives=("drive",),
+        renderer="raster",
     ),
 )
 
@@ -1199,7 +1312,7 @@ def cases(
     terrains: Sequence[TerrainEntry] | None = None,
     errors: str = "standard",
 ) -> Iterator[Case]:
-    """Yield the cases of ``split`` ("tuning", "heldout", "fresh" or "confirm"), generating those not cached.
+    """Yield the cases of ``split`` ("tuning", "heldout", "fresh", "confirm" or "confirm2"), generating those not cached.
 
     ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
     ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is

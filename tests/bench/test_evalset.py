@@ -78,7 +78,7 @@ def test_splits_are_disjoint(a, b):
 
 
 def test_the_splits_have_what_the_issues_ask_for():
-    assert SPLITS == ("tuning", "heldout", "fresh", "confirm")
+    assert SPLITS == ("tuning", "heldout", "fresh", "confirm", "confirm2")
     # the held-out set: real DEM crops, a contour map, drives, a kidnap
     held = [t for t in TERRAINS if t.split == "heldout"]
     assert any("dem" in t.source for t in held) and any(t.contours > 0 for t in held)
@@ -111,15 +111,17 @@ def test_the_fresh_split_is_unlike_the_others():
     # the rasteriser makes most of its frames, the ray caster at least one terrain's
     renderers = [t.renderer for t in fresh]
     assert renderers.count("raster") > len(fresh) / 2 and "raycast" in renderers
-    assert all(t.renderer == "raycast" for t in others if t.split != "confirm")
+    assert all(t.renderer == "raycast" for t in others if not t.split.startswith("confirm"))
 
 
-def test_the_confirm_split_mixes_the_others_with_new_seeds():
-    confirm = [t for t in TERRAINS if t.split == "confirm"]
+@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5)])
+def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
+    confirm = [t for t in TERRAINS if t.split == split]
+    lo, hi = thousands * 1000, (thousands + 1) * 1000
     assert len(confirm) >= 6
-    assert all(4000 <= t.seed < 5000 for t in confirm)
-    assert all(40000 <= s < 50000 for s in seeds("confirm") - {t.seed for t in confirm})
-    assert not any(4000 <= t.seed < 5000 for t in TERRAINS if t.split != "confirm")
+    assert all(lo <= t.seed < hi for t in confirm)
+    assert all(10 * lo <= s < 10 * hi for s in seeds(split) - {t.seed for t in confirm})
+    assert not any(lo <= t.seed < hi for t in TERRAINS if t.split != split)
     # both renderers, a real DEM crop, a contour map, drives and a kidnap
     assert {t.renderer for t in confirm} == {"raster", "raycast"}
     assert any("dem" in t.source for t in confirm) and any(t.contours > 0 for t in confirm)

@@ -68,7 +68,7 @@ def test_the_track_observes_the_verified_ranking(small_data, tmp_path):
     """With the tracker on, every frame whose position was verified is tracked from the verified
     ranking: the track links the frame's verification (the tracker re-scores its observation as
     the scheduler did), and the tracker's plan carries the verification's weight."""
-    small_data["verify"] = {"enabled": True, "candidates": 3, "margin": 1000.0, "weight": 23.0}
+    small_data["verify"] = {"enabled": True, "candidates": 3, "margin": 1000.0, "weight": 23.0, "when": "always"}
     path = _write(small_data, tmp_path / "verify-track.yaml")
     plan = {name: opts for _, name, opts in agent_plan(load_scenario(path))}
     assert plan["tracker"]["verify_weight"] == 23.0
@@ -85,3 +85,23 @@ def test_the_track_observes_the_verified_ranking(small_data, tmp_path):
     small_data["verify"] = {"enabled": False}
     off = _write(small_data, tmp_path / "off.yaml")
     assert {name: opts for _, name, opts in agent_plan(load_scenario(off))}["tracker"]["verify_weight"] == 0.0
+
+
+@pytest.mark.parametrize("when", ["blind", "always"])
+def test_blind_verifies_only_the_frames_without_a_track_prior(small_data, tmp_path, when):
+    """``verify.when: blind`` (the default) asks the verifier about a frame only when the
+    scheduler has no track prior for it (the first frame, a lost track); "always" about every
+    uncertain frame, tracked or not."""
+    small_data["verify"] = {"enabled": True, "candidates": 3, "margin": 1000.0, "when": when}
+    path = _write(small_data, tmp_path / f"verify-{when}.yaml")
+    assert load_scenario(path).verify.when == when
+    trace = tmp_path / "run.trace"
+    results = run_mission(path, trace_path=trace, track=True)
+    posts = [r for r in read_trace(trace) if r["kind"] == "post"]
+    asked = {r["body"]["frame"] for r in posts if r.get("level") == "verify_query"}
+    positions = {r["body"]["frame"]: r["body"] for r in posts if r.get("level") == "position"}
+    n = len(results["frames"])
+    assert len(positions) == n > 2
+    blind = {f for f, body in positions.items() if not body["track_prior"]}
+    assert 0 in blind and len(blind) < n  # the first frame is blind; the track conditions later ones
+    assert asked == (blind if when == "blind" else set(range(n)))
