@@ -752,8 +752,10 @@ class VerifySpec(_Spec):
     turned as the camera was"): on terrain whose fused ranking is already right four times in
     five, the correlations break more frames than they fix. Decided again on a split made for
     it (``confirm``, by a rule written before it ran): single frame +2.4 points, but tracked top-1
-    (a mission's answer) 0.807 -> 0.799 pooled, so it stays off. A verification that does not come
-    within ``timeout_s`` leaves the ranking as it is (the frame's record says so)."""
+    (a mission's answer) 0.807 -> 0.799 pooled, so it stays off; with ``when: blind`` on a second
+    such split (``confirm2``) single frame +0.7 points, under the +1.0 its rule asked: off. A
+    verification that does not come within ``timeout_s`` leaves the ranking as it is (the frame's
+    record says so)."""
 
     enabled: bool = False
     candidates: int = Field(default=5, ge=2, le=20)
