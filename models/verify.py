@@ -108,6 +108,11 @@ def _spectrum(pattern: NDArray) -> NDArray[np.complex128]:
     return np.fft.rfft2(np.asarray(pattern, dtype=np.float64))
 
 
+def _feature_spectrum(pattern: NDArray) -> NDArray[np.complex128] | None:
+    """:func:`_spectrum` of a pattern with features, None for a featureless (all-zero) one."""
+    return _spectrum(pattern) if np.any(pattern) else None
+
+
 def _correlation_map(a: NDArray[np.complex128], b: NDArray[np.complex128], shape: tuple[int, int]) -> NDArray:
     """Circular cross-correlation ``c[dr, dc] = sum a(r, c) b(r - dr, c - dc)`` of two patterns of
     ``shape`` given by their spectra (:func:`_spectrum`)."""
@@ -166,7 +171,7 @@ def memory_alignment(
     A featureless view or camera: no turn, correlation 0."""
     b = np.asarray(view_pattern, dtype=np.float64)
     spectra = {float(r): _spectrum(a) for r, a in camera.items() if np.any(a)}
-    return _align(spectra, _spectrum(b) if np.any(b) else None, b.shape, max_shift, rows_per_deg, cols_per_deg)
+    return _align(spectra, _feature_spectrum(b), b.shape, max_shift, rows_per_deg, cols_per_deg)
 
 
 def _align(
@@ -298,10 +303,11 @@ def verify_candidates(
         if key not in turned:
             p = np.asarray(pattern(rolled(img, key)))
             shape = (int(p.shape[0]), int(p.shape[1]))
-            turned[key] = _spectrum(p) if np.any(p) else None
+            turned[key] = _feature_spectrum(p)
         return turned[key]
 
-    coarse = {float(a): camera_spectrum(a) for a in (rolls_deg or (0.0,))}
+    # the camera's spectrum at each roll of the coarse search, those with features
+    featured = {float(r): a for r in (rolls_deg or (0.0,)) if (a := camera_spectrum(r)) is not None}
     n = shape[0]
     window = (int(align_shift[0]), int(align_shift[1])) if align_shift is not None else MemorySpec().max_shift
     fov = float(emulator.camera.fov_y_deg)
@@ -318,10 +324,9 @@ def verify_candidates(
         if view is None:
             view = emulator.render(start)
             renders += 1
-        vp = pattern(view.image)
         found, _ = _align(
-            {r: a for r, a in coarse.items() if a is not None},
-            _spectrum(vp) if np.any(vp) else None,
+            featured,
+            _feature_spectrum(pattern(view.image)),
             shape,
             window,
             rows_per_deg,
@@ -349,7 +354,7 @@ def verify_candidates(
             heading, pitch = start.heading_deg + al.heading_deg, start.pitch_deg + al.pitch_deg
             aligned = pattern(emulator.render_image(emulator.pose_at(start.x, start.y, heading, pitch_deg=pitch)))
             renders += 1
-            spec = _spectrum(aligned) if np.any(aligned) else None
+            spec = _feature_spectrum(aligned)
             for roll in sorted({al.roll_deg - fine_roll_deg, al.roll_deg, al.roll_deg + fine_roll_deg}):
                 cam = camera_spectrum(roll)
                 c = 0.0 if cam is None or spec is None else _windowed_max(_correlation_map(cam, spec, shape), max_shift)
