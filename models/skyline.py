@@ -27,8 +27,14 @@ pixels cannot decide a column. The sky is a smooth field (quadratic in the row, 
 column: a sky gradient) plus Gaussian residuals; the terrain a mixture of Gaussian clusters
 plus a uniform outlier component, so a pixel that fits neither (a hazy far ridge, a landmark)
 counts as terrain: the sky is the simple class. The models start from the top rows (mostly sky)
-and the bottom rows (always terrain for a ground camera) and are refitted from the labelling
-(``iterations`` rounds, an EM of hard labels). ``g`` is the vertical contrast across the boundary (the Lab distance between
+and the bottom rows (always terrain for a ground camera) and are refitted from the labelling,
+an EM of hard labels, until the boundary settles (at most 2 % of the columns moved by more than
+a row; at most 12 rounds). Each round the sky model reaches a little further down: under a
+gradient sky, a hazy band above the horizon or clouds, whose lower sky the first rounds' model
+(fitted on the top rows) calls terrain, the boundary comes down a few rows a round, and three
+fixed rounds (sessions 3-13) left it in the sky on most such frames (the evaluation set's
+``tuning-sky`` split: 56 % of its frames more than 1 degree off, 4 % with the rounds run out;
+about 5 rounds on average). ``g`` is the vertical contrast across the boundary (the Lab distance between
 the two rows' neighbourhoods, over its image median), which pins the boundary to the edge that
 haze leaves between far hills and sky. The truncated-linear smoothness lets silhouettes
 (towers, steep slopes) jump at a bounded price. Images are first reduced to at most
@@ -97,7 +103,10 @@ _CAP = 4.0  # nats: cap of a pixel's class cost
 _LAM_EDGE = 3.0  # nats per unit of normalised contrast at the boundary
 _LAM_SMOOTH = 0.6  # nats per row of boundary jump between neighbouring columns
 _JUMP = 8  # rows: jumps beyond cost no more
-_ITERATIONS = 2
+#: the EM of the class models runs at most this many rounds (a labelling and a refit each) ...
+_ROUNDS = 12
+#: ... and stops once no more than this share of the columns moved their boundary by more than a row
+_SETTLED = 0.02
 _MIN_OVERLAP = 0.5
 
 
@@ -368,18 +377,24 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
     sums = np.zeros((h + 1, w))  # row 0: no sky pixel
-    for _ in range(_ITERATIONS + 1):
+    for _ in range(_ROUNDS):
         cs, ct = _sky_cost(px, sky_sel), _terrain_cost(px, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
         np.cumsum(llr, axis=0, out=sums[1:])
         unary = sums - edge
-        b = _viterbi(unary, lam=_LAM_SMOOTH, jump=_JUMP)
+        before, b = b, _viterbi(unary, lam=_LAM_SMOOTH, jump=_JUMP)
         sky_sel = rows < b[None, :]
         ter_sel = ~sky_sel
-        if sky_sel.sum() < 8 or ter_sel.sum() < 8:
+        if sky_sel.sum() < 8 or ter_sel.sum() < 8 or _settled(b, before):
             break
     return b.astype(np.float64), h
+
+
+def _settled(b: NDArray[np.int64], before: NDArray[np.int64]) -> bool:
+    """The EM's boundary has settled: at most :data:`_SETTLED` of the columns moved by more than a
+    row since the round before (the first round's ``before`` is all zeros: it has moved)."""
+    return bool(np.count_nonzero(np.abs(b - before) > 1) <= _SETTLED * b.size)
 
 
 def skyline_from_image(

@@ -1,5 +1,5 @@
 """The horizon extraction of :mod:`models.skyline` as it was before it was made faster (main at
-session 11): the straightforward per-image code, kept as the reference the faster one must equal
+session 11; its EM rounds until the boundary settles since session 14): the straightforward per-image code, kept as the reference the faster one must equal
 bit for bit (tests/models/test_skyline_reference.py), and the coarse stage's comparison
 (:func:`models.skyline_coarse.coarse_errors`) as it was. Same constants, same features and block
 helpers (imported); only the arithmetic's arrangement differs."""
@@ -16,12 +16,13 @@ from models.skyline import (
     _CAP,
     _CLUSTERS,
     _FLOOR,
-    _ITERATIONS,
     _JUMP,
     _LAM_EDGE,
     _LAM_SMOOTH,
     _LOG_VOLUME,
     _OUTLIER,
+    _ROUNDS,
+    _SETTLED,
     WORK_ROWS,
     _features,
 )
@@ -166,15 +167,19 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     ter_sel = np.broadcast_to(ter_sel, (h, w))
     b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
-    for _ in range(_ITERATIONS + 1):
+    for _ in range(_ROUNDS):
         cs, ct = _sky_cost(feat, sky_sel), _terrain_cost(feat, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
         unary = np.vstack([np.zeros((1, w)), np.cumsum(llr, axis=0)]) - _LAM_EDGE * g
+        before = b
         b = _viterbi(unary, lam=_LAM_SMOOTH, jump=_JUMP)
         sky_sel = rows < b[None, :]
         ter_sel = ~sky_sel
         if sky_sel.sum() < 8 or ter_sel.sum() < 8:
+            break
+        # settled: few columns moved by more than a row since the round before
+        if (np.abs(b - before) > 1).sum() <= _SETTLED * w:
             break
     return b.astype(np.float64), h
 

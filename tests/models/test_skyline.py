@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from models import skyline
 from models.camera_emulator import CameraEmulator
 from models.environment import build_environment
 from models.scenario import SimulateSpec, scenario_from_dict
@@ -95,6 +96,52 @@ def test_known_synthetic_horizon_is_recovered(size, haze):
     assert np.isfinite(got).mean() > 0.95
     assert np.nanmedian(err) <= pixel_deg + 0.05  # within a pixel
     assert np.nanpercentile(err, 90) <= 3 * pixel_deg  # steep slopes of the small image: a few pixels
+
+
+def _pale_sky(height, width, horizon_rows, rng, *, clouds):
+    """A sky that pales towards the horizon (as the evaluation set's raster renderer draws it: the
+    haze colour at elevation 0, the sky's from 17 degrees up, a smoothstep) with ``clouds`` white
+    patches high in it, over brown textured terrain below ``horizon_rows`` (W,)."""
+    f = (height / 2) / math.tan(math.radians(FOV) / 2)
+    rows, cols = np.arange(height)[:, None], np.arange(width)[None, :]
+    x = np.clip(np.arctan((0.5 * height + 4 - rows) / f) / 0.3, 0, 1) * np.ones((1, width))
+    t = (x * x * (3 - 2 * x)) ** 0.8
+    img = np.array([0.76, 0.79, 0.83]) * (1 - t[..., None]) + np.array([0.52, 0.66, 0.86]) * t[..., None]
+    for _ in range(clouds):
+        cy, cx = rng.uniform(0.08, 0.3) * height, rng.uniform(0, width)
+        ry, rx = rng.uniform(0.03, 0.07) * height, rng.uniform(0.08, 0.2) * width
+        img[((rows - cy) / ry) ** 2 + ((cols - cx) / rx) ** 2 < 1] = np.array([0.94, 0.94, 0.96]) * rng.uniform(0.8, 1)
+    terrain = np.array([0.45, 0.38, 0.25]) * (1 + 0.25 * rng.standard_normal((height, width, 1)))
+    img = np.where((rows < horizon_rows[None, :])[..., None], img, terrain)
+    return np.clip(img * 255 + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
+
+
+def _pale_sky_errors(size, seed):
+    h, w = size
+    rng = np.random.default_rng(seed)
+    truth = (0.5 * h + 0.06 * h * np.sin(np.arange(w) / w * 2 * math.pi * 1.2 + seed)).round()
+    img = _pale_sky(h, w, truth, rng, clouds=4)
+    return np.abs(skyline_from_image(img, fov_y_deg=FOV) - boundary_to_profile(truth, h, fov_y_deg=FOV))
+
+
+PALE_SKIES = [(size, seed) for size in [(120, 160), (240, 320), (96, 128)] for seed in (1, 2, 3)]
+
+
+@pytest.mark.parametrize("size, seed", PALE_SKIES)
+def test_a_sky_paling_towards_the_horizon_under_clouds_is_sky(size, seed):
+    # the class models' EM runs until the boundary settles: each round its sky model reaches
+    # further down the pale band (and the clouds, not sky to the first rounds' model, join the sky)
+    err = _pale_sky_errors(size, seed)
+    assert np.isfinite(err).mean() > 0.95
+    assert np.nanmedian(err) <= FOV / min(size[0], 128) + 0.05  # within a pixel of the working image
+    assert np.nanmean(err > 1.0) <= 0.02
+
+
+def test_three_rounds_left_the_boundary_in_such_a_sky(monkeypatch):
+    # the rule before session 14 (three fixed rounds) on the same skies: the test above needs the change
+    monkeypatch.setattr(skyline, "_ROUNDS", 3)
+    off = [np.nanmean(_pale_sky_errors(size, seed) > 1.0) for size, seed in PALE_SKIES]
+    assert sum(share > 0.1 for share in off) >= len(PALE_SKIES) // 2
 
 
 @pytest.mark.parametrize("haze, noise, gain", [(0.0, 0.0, 0.0), (0.6, 4.0, 0.2), (0.3, 12.0, 0.4)])
