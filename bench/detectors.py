@@ -1,4 +1,4 @@
-"""Landmark detector ROC on held-out frames: python bench/detectors.py [--split heldout] [--names ...]
+"""Landmark detector ROC on held-out frames: python bench/detectors.py [--split heldout|fresh|confirm|confirm2] [--names ...]
 
 The sweeps of the evaluation set's held-out split (bench/evalset: terrains and seeds never used
 to choose a parameter; the calibration was fitted on the tuning split), camera frames from
@@ -33,6 +33,7 @@ _spec.loader.exec_module(dp)
 
 sys.path.append(str(ROOT))
 from bench.evalset import cases, one_view_a_point  # noqa: E402
+from bench.evalset.cases import SPLITS  # noqa: E402
 from models.detectors import CandidateView, align_pixels, default_registry  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 
@@ -62,7 +63,7 @@ def answers(data: dict, registry) -> list[dict]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", default="heldout", choices=["heldout", "tuning"])
+    ap.add_argument("--split", default="heldout", choices=SPLITS)
     ap.add_argument("--names", nargs="*", help="cases or terrains of the split (default: all)")
     ap.add_argument("--kinds", nargs="*", default=["sweep"], help="case kinds (default: sweep)")
     args = ap.parse_args(argv)

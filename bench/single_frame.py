@@ -19,7 +19,8 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
 
     python bench/single_frame.py [--split heldout|tuning|fresh] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
-        [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large] [--json-only]
+        [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large]
+        [--extraction-rounds 3] [--json-only]
 
 ``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
@@ -44,7 +45,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import ERROR_PROFILES, cases  # noqa: E402
+from bench.evalset import ERROR_PROFILES, SPLITS, cases  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -168,7 +169,7 @@ def _fmt(value: Any, fmt: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--split", choices=("heldout", "tuning", "fresh", "confirm", "confirm2"), default="heldout")
+    parser.add_argument("--split", choices=SPLITS, default="heldout")
     parser.add_argument("--names", nargs="*", default=None, help="cases or terrains (default all)")
     parser.add_argument("--kinds", nargs="*", default=None, help="sweep, drive, kidnap (default all)")
     parser.add_argument("--memory", type=json.loads, default=None, help="JSON memory block replacing the default")
@@ -179,8 +180,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--errors", choices=sorted(ERROR_PROFILES), default="standard", help="pose-error profile")
     parser.add_argument("--refine", type=json.loads, default=None, help='JSON refine block, e.g. {"recheck": false}')
     parser.add_argument("--verify", type=json.loads, default=None, help='JSON verify block, e.g. {"enabled": true}')
+    parser.add_argument(
+        "--extraction-rounds",
+        type=int,
+        default=None,
+        help="the horizon extraction's EM runs exactly this many rounds (3: the rule before session 14), "
+        "for a before and after in one tree (default: until the boundary settles)",
+    )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
+    if args.extraction_rounds is not None:  # every agent runs in this process (run_mission)
+        from models import skyline
+
+        skyline._ROUNDS, skyline._SETTLED = max(1, args.extraction_rounds), -1.0
     blocks = {
         k: v
         for k, v in (
@@ -196,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
     result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors)
+    result["extraction_rounds"] = args.extraction_rounds
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),

@@ -69,6 +69,7 @@ from collections.abc import Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from bench.evalset import SPLITS  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402  (before bench/ is on the path: bench/blackboard.py)
 from models.scenario import TrackingSpec, load_scenario  # noqa: E402
 from models.tracking import RouteFilter, smooth  # noqa: E402
@@ -465,7 +466,7 @@ def ranked_cases(
         )
     return out, f"evaluation set, split {split}, {errors} pose errors" + (
         " (held out: never used to choose a parameter)"
-        if split in ("heldout", "fresh", "confirm", "confirm2")
+        if split in ("heldout", "fresh", "confirm", "confirm2", "confirm3")
         else " (parameters may be chosen here)"
     )
 
@@ -474,7 +475,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
         "--split",
-        choices=["heldout", "tuning", "fresh", "confirm", "confirm2", "tuning-drives", "tuning-drives-more", "sim"],
+        choices=[*SPLITS, "tuning-drives", "tuning-drives-more", "sim"],
         default="heldout",
         help="evaluation-set split, more drives on the tuning terrains (tuning-drives: extra_tuning_drives; "
         "tuning-drives-more: more_tuning_drives), "

@@ -78,7 +78,7 @@ def test_splits_are_disjoint(a, b):
 
 
 def test_the_splits_have_what_the_issues_ask_for():
-    assert SPLITS == ("tuning", "heldout", "fresh", "confirm", "confirm2")
+    assert SPLITS == ("tuning", "heldout", "fresh", "confirm", "confirm2", "tuning-sky", "confirm3")
     # the held-out set: real DEM crops, a contour map, drives, a kidnap
     held = [t for t in TERRAINS if t.split == "heldout"]
     assert any("dem" in t.source for t in held) and any(t.contours > 0 for t in held)
@@ -111,10 +111,10 @@ def test_the_fresh_split_is_unlike_the_others():
     # the rasteriser makes most of its frames, the ray caster at least one terrain's
     renderers = [t.renderer for t in fresh]
     assert renderers.count("raster") > len(fresh) / 2 and "raycast" in renderers
-    assert all(t.renderer == "raycast" for t in others if not t.split.startswith("confirm"))
+    assert all(t.renderer == "raycast" for t in others if t.split in ("tuning", "heldout"))
 
 
-@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5)])
+@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5), ("confirm3", 6)])
 def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
     confirm = [t for t in TERRAINS if t.split == split]
     lo, hi = thousands * 1000, (thousands + 1) * 1000
@@ -126,6 +126,15 @@ def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
     assert {t.renderer for t in confirm} == {"raster", "raycast"}
     assert any("dem" in t.source for t in confirm) and any(t.contours > 0 for t in confirm)
     assert {"drive", "kidnap"} <= {k for t in confirm for k in t.drives}
+
+
+def test_the_tuning_sky_split_has_clouds_and_tuning_seeds():
+    sky = [t for t in TERRAINS if t.split == "tuning-sky"]
+    tuning = {t.seed for t in TERRAINS if t.split == "tuning"}
+    assert len(sky) >= 4 and all(1000 <= t.seed < 2000 for t in sky) and not {t.seed for t in sky} & tuning
+    # the raster renderer's cloud layer over every terrain (the tuning split's ray caster draws none)
+    assert all(t.renderer == "raster" and t.look.get("cloud_cover", 0) >= 0.2 for t in sky)
+    assert all(t.look.get("cloud_cover") is None for t in TERRAINS if t.split == "tuning")
 
 
 def _check_frame_bounds(case):
