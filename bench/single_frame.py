@@ -46,6 +46,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.evalset import ERROR_PROFILES, SPLITS, cases  # noqa: E402
+from bench.horizon import fixed_rounds  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -189,10 +190,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
-    if args.extraction_rounds is not None:  # every agent runs in this process (run_mission)
-        from models import skyline
-
-        skyline._ROUNDS, skyline._SETTLED = max(1, args.extraction_rounds), -1.0
     blocks = {
         k: v
         for k, v in (
@@ -207,7 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     }
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
-    result = run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors)
+    with fixed_rounds(args.extraction_rounds):  # every agent runs in this process (run_mission)
+        result = run(
+            args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors
+        )
     result["extraction_rounds"] = args.extraction_rounds
     result["machine"] = {
         "python": platform.python_version(),
