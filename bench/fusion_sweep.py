@@ -43,7 +43,7 @@ sys.path.insert(0, str(_HERE.parent))
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import cases, one_view_a_point  # noqa: E402
+from bench.evalset import SPLITS, cases, one_view_a_point  # noqa: E402
 from knowledge_sources.fusion import fuse_rankings, fused_log_posterior  # noqa: E402
 from models.scenario import MemorySpec, SkylineSpec  # noqa: E402
 from models.skyline import match_skylines  # noqa: E402
@@ -233,7 +233,7 @@ def evaluate(frames: list[dict[str, Any]], rules: dict[str, Rule]) -> dict[str, 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--split", default="tuning", choices=("tuning", "heldout"))
+    ap.add_argument("--split", default="tuning", choices=SPLITS)
     ap.add_argument("--dump", action="store_true", help="compute and cache the per-frame errors first")
     ap.add_argument("--out", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "mapinterp-fusion")
     ap.add_argument("--rules", nargs="*", default=None, help=f"of {', '.join(RULES)} (default all)")
