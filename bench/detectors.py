@@ -1,4 +1,4 @@
-"""Landmark detector ROC on held-out frames: python bench/detectors.py [--split heldout|fresh|confirm|confirm2] [--names ...]
+"""Landmark detector ROC on held-out frames: python bench/detectors.py [--split heldout|fresh|confirm|...] [--names ...]
 
 The sweeps of the evaluation set's held-out split (bench/evalset: terrains and seeds never used
 to choose a parameter; the calibration was fitted on the tuning split), camera frames from
@@ -32,8 +32,7 @@ dp = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(dp)
 
 sys.path.append(str(ROOT))
-from bench.evalset import cases, one_view_a_point  # noqa: E402
-from bench.evalset.cases import SPLITS  # noqa: E402
+from bench.evalset import SPLITS, cases, one_view_a_point  # noqa: E402
 from models.detectors import CandidateView, align_pixels, default_registry  # noqa: E402
 from models.scenario import load_scenario  # noqa: E402
 
