@@ -69,7 +69,7 @@ from collections.abc import Sequence  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench.evalset import SPLITS  # noqa: E402
+from bench.evalset import SPLITS, TUNING_SPLITS  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402  (before bench/ is on the path: bench/blackboard.py)
 from models.scenario import TrackingSpec, load_scenario  # noqa: E402
 from models.tracking import RouteFilter, smooth  # noqa: E402
@@ -466,7 +466,7 @@ def ranked_cases(
         )
     return out, f"evaluation set, split {split}, {errors} pose errors" + (
         " (held out: never used to choose a parameter)"
-        if split in ("heldout", "fresh", "confirm", "confirm2", "confirm3")
+        if split not in TUNING_SPLITS
         else " (parameters may be chosen here)"
     )
 

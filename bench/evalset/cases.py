@@ -26,6 +26,7 @@ from bench.evalset import raster, raycast, terrains
 __all__ = [
     "CAMERA",
     "SPLITS",
+    "TUNING_SPLITS",
     "TerrainEntry",
     "EvalFrame",
     "Case",
@@ -54,6 +55,8 @@ GENERATOR_VERSION = "1"
 #: "tuning-sky" (session 14, tuning seeds 16xx): cloudy skies, for choosing (the tuning split has
 #: none); "confirm3" (session 14, seeds 6xxx) for a third rule
 SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh", "confirm", "confirm2", "tuning-sky", "confirm3")
+#: the splits parameters may be chosen on (tuning seeds, 1xxx); every other split is held out
+TUNING_SPLITS: tuple[str, ...] = ("tuning", "tuning-sky")
 
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
@@ -1505,7 +1508,7 @@ def cases(
     terrains: Sequence[TerrainEntry] | None = None,
     errors: str = "standard",
 ) -> Iterator[Case]:
-    """Yield the cases of ``split`` ("tuning", "heldout", "fresh", "confirm" or "confirm2"), generating those not cached.
+    """Yield the cases of ``split`` (one of :data:`SPLITS`), generating those not cached.
 
     ``out_dir`` (default :func:`default_out_dir`) holds ``<split>/<terrain>/<kind>/``;
     ``names`` keeps only cases whose name (``"h-mesas/sweep"``) or terrain (``"h-mesas"``) is

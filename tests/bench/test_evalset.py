@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bench.evalset import ERROR_BOUNDS, ERROR_PROFILES, SPLITS, TERRAINS, case_names, cases, seeds
+from bench.evalset import ERROR_BOUNDS, ERROR_PROFILES, SPLITS, TERRAINS, TUNING_SPLITS, case_names, cases, seeds
 from bench.evalset.cases import _drive_poses, _polyline, _sweep_poses
 from bench.evalset.raster import KIND_COLOURS, Block, Rasteriser
 from bench.evalset.raster import Look as RasterLook
@@ -129,6 +129,9 @@ def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
 
 
 def test_the_tuning_sky_split_has_clouds_and_tuning_seeds():
+    # the splits parameters may be chosen on are the tuning-seeded ones, and only those
+    assert set(TUNING_SPLITS) < set(SPLITS)
+    assert all((1000 <= t.seed < 2000) == (t.split in TUNING_SPLITS) for t in TERRAINS)
     sky = [t for t in TERRAINS if t.split == "tuning-sky"]
     tuning = {t.seed for t in TERRAINS if t.split == "tuning"}
     assert len(sky) >= 4 and all(1000 <= t.seed < 2000 for t in sky) and not {t.seed for t in sky} & tuning
