@@ -18,6 +18,7 @@ field of view), not fitted to the scenario camera.
 
 ``--extraction-rounds N`` fixes the EM at N rounds (3: the rule before session 14), for a before and
 after in one tree; ``--both`` runs each frame both ways (the default rule, then N = 3) in one run.
+``--seed-trim-rounds 0``: the first round's sky model untrimmed (the rule before session 15).
 
     python bench/horizon.py --split tuning-sky [--errors large] [--kinds sweep] [--both]
 
@@ -62,6 +63,19 @@ def fixed_rounds(rounds: int | None) -> Iterator[None]:
         yield
     finally:
         skyline._ROUNDS, skyline._SETTLED = saved
+
+
+@contextmanager
+def seed_trim(rounds: int | None) -> Iterator[None]:
+    """Within the block the first EM round's sky model is trimmed ``rounds`` times (0: untrimmed,
+    the rule before session 15; None: the default, :data:`models.skyline._SEED_TRIM_ROUNDS`)."""
+    saved = skyline._SEED_TRIM_ROUNDS
+    if rounds is not None:
+        skyline._SEED_TRIM_ROUNDS = max(0, int(rounds))
+    try:
+        yield
+    finally:
+        skyline._SEED_TRIM_ROUNDS = saved
 
 
 def frame_errors(image: np.ndarray, horizon: np.ndarray, *, fov_y_deg: float) -> tuple[np.ndarray, int, float]:
@@ -170,21 +184,29 @@ def main(argv: list[str] | None = None) -> int:
         "--extraction-rounds", type=int, default=None, help="fixed EM rounds instead of the default rule"
     )
     parser.add_argument(
+        "--seed-trim-rounds",
+        type=int,
+        default=None,
+        help="trimmed refits of the seed's sky model (0: untrimmed, the rule before session 15)",
+    )
+    parser.add_argument(
         "--both", action="store_true", help=f"the default rule and {BEFORE_ROUNDS} fixed rounds, frame by frame"
     )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     rules: tuple[int | None, ...] = (None, BEFORE_ROUNDS) if args.both else (args.extraction_rounds,)
     t0 = time.time()
-    result = run(
-        args.split,
-        errors=args.errors,
-        kinds=args.kinds,
-        names=args.names,
-        rules=rules,
-        off=args.off,
-        max_frames=args.max_frames,
-    )
+    with seed_trim(args.seed_trim_rounds):
+        result = run(
+            args.split,
+            errors=args.errors,
+            kinds=args.kinds,
+            names=args.names,
+            rules=rules,
+            off=args.off,
+            max_frames=args.max_frames,
+        )
+    result["seed_trim_rounds"] = args.seed_trim_rounds
     result["machine"] = {
         "python": platform.python_version(),
         "load_at_end": Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None,

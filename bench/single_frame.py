@@ -20,7 +20,7 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
     python bench/single_frame.py [--split heldout|tuning|fresh] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
         [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large]
-        [--extraction-rounds 3] [--json-only]
+        [--extraction-rounds 3] [--seed-trim-rounds 0] [--json-only]
 
 ``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
@@ -46,7 +46,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.evalset import ERROR_PROFILES, SPLITS, cases  # noqa: E402
-from bench.horizon import fixed_rounds  # noqa: E402
+from bench.horizon import fixed_rounds, seed_trim  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -188,6 +188,13 @@ def main(argv: list[str] | None = None) -> int:
         help="the horizon extraction's EM runs exactly this many rounds (3: the rule before session 14), "
         "for a before and after in one tree (default: until the boundary settles)",
     )
+    parser.add_argument(
+        "--seed-trim-rounds",
+        type=int,
+        default=None,
+        help="trimmed refits of the horizon extraction's seed sky model (0: untrimmed, the rule before "
+        "session 15), for a before and after in one tree",
+    )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -204,11 +211,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
-    with fixed_rounds(args.extraction_rounds):  # every agent runs in this process (run_mission)
+    # every agent runs in this process (run_mission)
+    with fixed_rounds(args.extraction_rounds), seed_trim(args.seed_trim_rounds):
         result = run(
             args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors
         )
     result["extraction_rounds"] = args.extraction_rounds
+    result["seed_trim_rounds"] = args.seed_trim_rounds
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),

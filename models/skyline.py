@@ -107,6 +107,12 @@ _JUMP = 8  # rows: jumps beyond cost no more
 _ROUNDS = 12
 #: ... and stops once no more than this share of the columns moved their boundary by more than a row
 _SETTLED = 0.02
+#: the first round's sky model (fitted on the top rows, the seed) is fitted again this many times
+#: without the share of its pixels that fit it worst (session 15: snow or pale rock in the top
+#: rows beside the sky made the seed's model broad enough to take the snow for sky) ...
+_SEED_TRIM_ROUNDS = 2
+#: ... this share
+_SEED_TRIM_SHARE = 0.1
 _MIN_OVERLAP = 0.5
 
 
@@ -232,18 +238,32 @@ class _Pixels:
         self.design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
 
 
-def _sky_cost(px: _Pixels, sel: NDArray[np.bool_]) -> NDArray[np.float64]:
+def _sky_cost(px: _Pixels, sel: NDArray[np.bool_], *, trim_rounds: int = 0) -> NDArray[np.float64]:
     """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
-    residuals, fitted to the pixels in ``sel`` (H, W); negative log density per pixel, (H, W)."""
+    residuals, fitted to the pixels in ``sel`` (H, W); negative log density per pixel, (H, W).
+
+    ``trim_rounds``: that many times, the fit is done again without the :data:`_SEED_TRIM_SHARE`
+    of its pixels that fit it worst (Mahalanobis distance of the residual): a trimmed fit, for
+    the seed, where the top rows may hold a little snow or rock beside the sky."""
     h, w = px.shape
     x, design = px.x, px.design
     m = sel.ravel()
     if m.sum() < 16:
         m = np.zeros_like(m)
         m[: max(16, w)] = True
-    coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
-    res = x - design @ coef
-    cov = np.cov(res[m], rowvar=False) + _FLOOR
+    idx = np.flatnonzero(m)
+    for left in range(trim_rounds, -1, -1):
+        coef, *_ = np.linalg.lstsq(design[idx], x[idx], rcond=None)
+        res = x - design @ coef
+        cov = np.cov(res[idx], rowvar=False) + _FLOOR
+        if left == 0:
+            break
+        r = res[idx]
+        d2 = _row_sums((r @ np.linalg.inv(cov)) * r)
+        keep = d2 <= np.quantile(d2, 1.0 - _SEED_TRIM_SHARE)
+        if np.count_nonzero(keep) < 16:
+            break
+        idx = idx[keep]
     return _gauss_nll(res, None, cov).reshape(h, w)
 
 
@@ -377,8 +397,9 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
     sums = np.zeros((h + 1, w))  # row 0: no sky pixel
-    for _ in range(_ROUNDS):
-        cs, ct = _sky_cost(px, sky_sel), _terrain_cost(px, ter_sel, rng)
+    for k in range(_ROUNDS):
+        cs = _sky_cost(px, sky_sel, trim_rounds=_SEED_TRIM_ROUNDS if k == 0 else 0)
+        ct = _terrain_cost(px, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
         np.cumsum(llr, axis=0, out=sums[1:])

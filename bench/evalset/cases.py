@@ -53,10 +53,22 @@ GENERATOR_VERSION = "1"
 #: decision rule written down before it was run (its seeds and terrain realisations new, its
 #: families, renderers and sizes mixed from the others'), "confirm2" (session 13, seeds 5xxx) for a second one;
 #: "tuning-sky" (session 14, tuning seeds 16xx): cloudy skies, for choosing (the tuning split has
-#: none); "confirm3" (session 14, seeds 6xxx) for a third rule
-SPLITS: tuple[str, ...] = ("tuning", "heldout", "fresh", "confirm", "confirm2", "tuning-sky", "confirm3")
+#: none); "confirm3" (session 14, seeds 6xxx) for a third rule; "tuning-snow" (session 15, tuning
+#: seeds 17xx): snow and pale rock against the sky, for choosing; "confirm4" (session 15, seeds
+#: 7xxx) for a fourth rule
+SPLITS: tuple[str, ...] = (
+    "tuning",
+    "heldout",
+    "fresh",
+    "confirm",
+    "confirm2",
+    "tuning-sky",
+    "confirm3",
+    "tuning-snow",
+    "confirm4",
+)
 #: the splits parameters may be chosen on (tuning seeds, 1xxx); every other split is held out
-TUNING_SPLITS: tuple[str, ...] = ("tuning", "tuning-sky")
+TUNING_SPLITS: tuple[str, ...] = ("tuning", "tuning-sky", "tuning-snow")
 
 #: pose errors of the camera frames against the route (uniform within these bounds):
 #: along the route as a fraction of the route spacing (sweeps), across it in metres, heading,
@@ -761,6 +773,74 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         {"jpeg_quality": 70, "white_balance": 0.05},
         renderer="raster",
     ),
+    # ---------------------------------------------------------------- tuning-snow (session 15)
+    # tuning seeds (17xx) where snow or pale rock stands against the sky, up to the top of the
+    # frame: no tuning terrain had it (the horizon extraction, seeding its sky model on the top rows,
+    # took such snow for sky on confirm2's alpine sweep); parameters may be chosen here
+    TerrainEntry(
+        "tn-alpine",
+        "tuning-snow",
+        1701,
+        25.0,
+        {"family": "alpine", "size": 224, "relief": 1000.0},
+        45.0,
+        32,
+        (560, 315),
+        {"palette": "alpine", "sun_azimuth_deg": 70.0, "sun_elevation_deg": 40.0, "fog_m": 10000.0},
+        {"jpeg_quality": 80},
+    ),
+    TerrainEntry(
+        "tn-ridged",
+        "tuning-snow",
+        1702,
+        15.0,
+        {"family": "ridged", "size": 224, "relief": 450.0},
+        30.0,
+        32,
+        (480, 360),
+        {
+            "palette": "alpine",
+            "sun_azimuth_deg": 190.0,
+            "sun_elevation_deg": 35.0,
+            "cloud_cover": 0.25,
+            "haze_m": 9000.0,
+            "snow_line": 0.45,
+        },
+        {"jpeg_quality": 75, "noise": 2.0},
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "tn-alpine-raster",
+        "tuning-snow",
+        1703,
+        25.0,
+        {"family": "alpine", "size": 224, "relief": 900.0},
+        45.0,
+        32,
+        (640, 400),
+        {
+            "palette": "alpine",
+            "sun_azimuth_deg": 320.0,
+            "sun_elevation_deg": 50.0,
+            "haze_m": 14000.0,
+            "snow_line": 0.55,
+        },
+        {"jpeg_quality": 80, "gain": (0.7, 1.3)},
+        renderer="raster",
+        frame_far=20000.0,
+    ),
+    TerrainEntry(
+        "tn-fbm",
+        "tuning-snow",
+        1704,
+        20.0,
+        {"family": "fbm", "size": 224, "relief": 600.0, "hurst": 0.7},
+        40.0,
+        32,
+        (400, 300),
+        {"palette": "alpine", "sun_azimuth_deg": 240.0, "sun_elevation_deg": 30.0, "fog_m": 8000.0},
+        {"jpeg_quality": 85, "noise": 3.0},
+    ),
     # ---------------------------------------------------------------- confirm3 (session 14)
     # seeds 6xxx, new realisations of the families, both renderers (cloudy skies in four), frame
     # sizes of their own, the last Jacksboro strip no other split uses (rows 205-344, cols 200-245)
@@ -871,6 +951,114 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         contours=10.0,
         drives=("drive",),
         renderer="raster",
+    ),
+    # ---------------------------------------------------------------- confirm4 (session 15)
+    # seeds 7xxx for the rule on the sky model's trimmed fit (written before this split was
+    # generated): snow and pale rock against the sky on three terrains, the others as before; the
+    # topobathy window rows 0-40, cols 0-69 is clear of the other splits'
+    TerrainEntry(
+        "c4-alpine",
+        "confirm4",
+        7101,
+        25.0,
+        {"family": "alpine", "size": 224, "relief": 950.0},
+        45.0,
+        32,
+        (512, 384),
+        {"palette": "alpine", "sun_azimuth_deg": 20.0, "sun_elevation_deg": 45.0, "fog_m": 9000.0},
+        {"jpeg_quality": 80, "noise": 2.0},
+        drives=("kidnap",),
+    ),
+    TerrainEntry(
+        "c4-ridged-snow",
+        "confirm4",
+        7202,
+        15.0,
+        {"family": "ridged", "size": 224, "relief": 380.0},
+        30.0,
+        32,
+        (640, 360),
+        {
+            "palette": "alpine",
+            "sun_azimuth_deg": 280.0,
+            "sun_elevation_deg": 40.0,
+            "cloud_cover": 0.3,
+            "haze_m": 8000.0,
+            "snow_line": 0.5,
+        },
+        {"jpeg_quality": 75},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c4-volcano",
+        "confirm4",
+        7303,
+        20.0,
+        {"family": "volcano", "size": 200, "relief": 450.0},
+        40.0,
+        32,
+        (480, 320),
+        {
+            "palette": "volcanic",
+            "sun_azimuth_deg": 130.0,
+            "sun_elevation_deg": 35.0,
+            "cloud_cover": 0.2,
+            "haze_m": 7000.0,
+            "snow_line": 0.7,
+        },
+        {"jpeg_quality": 80, "white_balance": 0.04},
+        drives=("kidnap",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c4-topobathy-west",
+        "confirm4",
+        7404,
+        16.0,
+        {"dem": "topobathy", "rows": (0, 40), "cols": (0, 69), "upsample": 5, "height_scale": 0.08, "sea_level": 0.0},
+        30.0,
+        32,
+        (800, 600),
+        {
+            "palette": "tundra",
+            "sun_azimuth_deg": 60.0,
+            "sun_elevation_deg": 30.0,
+            "cloud_cover": 0.35,
+            "haze_m": 5000.0,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 75, "noise": 2.0},
+        drives=("drive",),
+        renderer="raster",
+        route_floor=1.0,
+    ),
+    TerrainEntry(
+        "c4-fbm-contours",
+        "confirm4",
+        7505,
+        15.0,
+        {"family": "fbm", "size": 224, "relief": 140.0, "hurst": 0.6},
+        30.0,
+        32,
+        (320, 240),
+        {"palette": "green", "sun_azimuth_deg": 300.0, "sun_elevation_deg": 40.0, "fog_m": 4000.0},
+        {"jpeg_quality": 85},
+        contours=10.0,
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "c4-mesas",
+        "confirm4",
+        7606,
+        15.0,
+        {"family": "mesas", "size": 224, "relief": 110.0},
+        32.0,
+        32,
+        (1280, 720),
+        {"palette": "dry", "sun_azimuth_deg": 200.0, "sun_elevation_deg": 30.0, "fog_m": 7000.0},
+        {"jpeg_quality": 80, "noise": 3.0},
+        drives=("kidnap",),
     ),
 )
 

@@ -78,7 +78,17 @@ def test_splits_are_disjoint(a, b):
 
 
 def test_the_splits_have_what_the_issues_ask_for():
-    assert SPLITS == ("tuning", "heldout", "fresh", "confirm", "confirm2", "tuning-sky", "confirm3")
+    assert SPLITS == (
+        "tuning",
+        "heldout",
+        "fresh",
+        "confirm",
+        "confirm2",
+        "tuning-sky",
+        "confirm3",
+        "tuning-snow",
+        "confirm4",
+    )
     # the held-out set: real DEM crops, a contour map, drives, a kidnap
     held = [t for t in TERRAINS if t.split == "heldout"]
     assert any("dem" in t.source for t in held) and any(t.contours > 0 for t in held)
@@ -114,7 +124,7 @@ def test_the_fresh_split_is_unlike_the_others():
     assert all(t.renderer == "raycast" for t in others if t.split in ("tuning", "heldout"))
 
 
-@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5), ("confirm3", 6)])
+@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5), ("confirm3", 6), ("confirm4", 7)])
 def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
     confirm = [t for t in TERRAINS if t.split == split]
     lo, hi = thousands * 1000, (thousands + 1) * 1000
@@ -138,6 +148,26 @@ def test_the_tuning_sky_split_has_clouds_and_tuning_seeds():
     # the raster renderer's cloud layer over every terrain (the tuning split's ray caster draws none)
     assert all(t.renderer == "raster" and t.look.get("cloud_cover", 0) >= 0.2 for t in sky)
     assert all(t.look.get("cloud_cover") is None for t in TERRAINS if t.split == "tuning")
+
+
+def test_the_tuning_snow_split_has_snow_against_the_sky_and_tuning_seeds():
+    snow = [t for t in TERRAINS if t.split == "tuning-snow"]
+    others = {t.seed for t in TERRAINS if t.split in TUNING_SPLITS and t.split != "tuning-snow"}
+    assert len(snow) >= 4 and all(1700 <= t.seed < 1800 for t in snow) and not {t.seed for t in snow} & others
+    # mountains high enough for the alpine palette's pale rock (ray caster) or a snow line (raster)
+    assert all(t.look["palette"] == "alpine" for t in snow)
+    assert all(t.source["relief"] >= 400 for t in snow)
+    assert {t.renderer for t in snow} == {"raster", "raycast"}
+    assert all(t.look.get("snow_line") is not None for t in snow if t.renderer == "raster")
+    # the confirm split for the rule chosen on it has snow too
+    assert (
+        sum(
+            t.look.get("palette") == "alpine" or t.look.get("snow_line") is not None
+            for t in TERRAINS
+            if t.split == "confirm4"
+        )
+        >= 3
+    )
 
 
 def _check_frame_bounds(case):

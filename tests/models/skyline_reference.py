@@ -22,6 +22,8 @@ from models.skyline import (
     _LOG_VOLUME,
     _OUTLIER,
     _ROUNDS,
+    _SEED_TRIM_ROUNDS,
+    _SEED_TRIM_SHARE,
     _SETTLED,
     WORK_ROWS,
     _features,
@@ -40,7 +42,7 @@ def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.
     return 0.5 * (((d @ inv) * d).sum(1) + logdet + x.shape[1] * math.log(2 * math.pi))
 
 
-def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.float64]:
+def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], trim_rounds: int = 0) -> NDArray[np.float64]:
     """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
     residuals, fitted to the pixels in ``sel``; negative log density per pixel, (H, W)."""
     h, w = feat.shape[:2]
@@ -55,6 +57,16 @@ def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_]) -> NDArray[np.f
     coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
     res = x - design @ coef
     cov = np.cov(res[m], rowvar=False) + _FLOOR
+    for _ in range(trim_rounds):  # fitted again without the seed's worst-fitting pixels
+        d2 = np.full(len(x), np.inf)
+        d2[m] = ((res[m] @ np.linalg.inv(cov)) * res[m]).sum(1)
+        keep = m & (d2 <= np.quantile(d2[m], 1.0 - _SEED_TRIM_SHARE))
+        if keep.sum() < 16:
+            break
+        m = keep
+        coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
+        res = x - design @ coef
+        cov = np.cov(res[m], rowvar=False) + _FLOOR
     return _gauss_nll(res, np.zeros(x.shape[1]), cov).reshape(h, w)
 
 
@@ -167,8 +179,9 @@ def image_boundary(image: NDArray) -> tuple[NDArray[np.float64], int]:
     ter_sel = np.broadcast_to(ter_sel, (h, w))
     b = np.zeros(w, dtype=np.int64)
     rng = np.random.default_rng(0)
-    for _ in range(_ROUNDS):
-        cs, ct = _sky_cost(feat, sky_sel), _terrain_cost(feat, ter_sel, rng)
+    for k in range(_ROUNDS):
+        cs = _sky_cost(feat, sky_sel, _SEED_TRIM_ROUNDS if k == 0 else 0)
+        ct = _terrain_cost(feat, ter_sel, rng)
         llr = np.clip(cs - ct, -_CAP, _CAP)  # > 0: looks like terrain
         # E(b) = sum_{r<b} llr(r) + const: cumulative sums, b = 0..h
         unary = np.vstack([np.zeros((1, w)), np.cumsum(llr, axis=0)]) - _LAM_EDGE * g
