@@ -47,3 +47,25 @@ def test_an_evaluation_case_is_measured_under_both_rules(tmp_path):
         assert m["frames"] == 2 and m["median_deg"] is not None and 0 <= m["frames_off"] <= 1
     assert got["all"]["3 rounds"]["rounds"] == 3.0
     assert "h-fbm-rough/sweep" in horizon.table(got)
+
+
+@pytest.mark.parametrize("rounds", [0, 1])
+def test_seed_trim_sets_the_rounds_and_restores_the_default(rounds):
+    before = skyline._SEED_TRIM_ROUNDS
+    with horizon.seed_trim(rounds):
+        assert skyline._SEED_TRIM_ROUNDS == rounds
+    with horizon.seed_trim(None):
+        assert skyline._SEED_TRIM_ROUNDS == before
+    assert skyline._SEED_TRIM_ROUNDS == before
+
+
+def test_snow_beside_the_sky_in_the_top_rows_is_not_taken_for_sky(tmp_path):
+    # the first frames of a tuning-snow sweep (raster renderer: ridged mountains whose snow reaches
+    # into the top rows beside a blue sky): the trimmed seed finds the horizon, the untrimmed one
+    # (the rule before session 15) took the snowfield for sky and put the horizon at the snow line
+    run = horizon.run("tuning-snow", names=["tn-ridged"], kinds=["sweep"], max_frames=3, out_dir=tmp_path)
+    with horizon.seed_trim(0):
+        before = horizon.run("tuning-snow", names=["tn-ridged"], kinds=["sweep"], max_frames=3, out_dir=tmp_path)
+    assert run["all"]["default"]["frames"] == 3
+    assert run["all"]["default"]["frames_off"] == 0.0 and run["all"]["default"]["median_deg"] < 0.5
+    assert before["all"]["default"]["frames_off"] == 1.0 and before["all"]["default"]["median_deg"] > 2.0

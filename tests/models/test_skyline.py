@@ -399,3 +399,30 @@ def test_the_coarse_errors_of_a_window_are_the_whole_routes():
     whole = coarse_errors(q, coarse)
     assert np.array_equal(coarse_errors(q, coarse.rows(30, 90)), whole[30:90])
     assert int(np.argmin(whole)) in (49, 50)  # neighbours, 3 bins apart on one panorama: the camera's 3-bin turn
+
+
+@pytest.mark.parametrize("share", [0.04, 0.08])
+def test_the_seeds_sky_model_trimmed_leaves_out_a_little_snow(share):
+    # a sky seed (top rows) of smooth blue with a few pixels of grey-white snow in it: fitted on
+    # all of them the model's covariance is broad and snow costs little more than sky; trimmed of
+    # its worst-fitting pixels the model is the blue sky's alone, and snow costs far more
+    rng = np.random.default_rng(5)
+    h, w = 96, 128
+    img = np.empty((h, w, 3), np.float32)
+    img[:] = (0.35, 0.55, 0.90)
+    snowy = rng.random((h, w)) < share
+    img[snowy] = (0.82, 0.84, 0.88)
+    img = np.clip(img + rng.normal(0, 0.01, img.shape), 0, 1).astype(np.float32)
+    px = skyline._Pixels(skyline._features(img))
+    seed = np.zeros((h, w), bool)
+    seed[: h // 12] = True
+    untrimmed = skyline._sky_cost(px, seed)
+    trimmed = skyline._sky_cost(px, seed, trim_rounds=skyline._SEED_TRIM_ROUNDS)
+    snow, blue = seed & snowy, seed & ~snowy
+    gap = {
+        k: float(np.median(c[snow]) - np.median(c[blue])) for k, c in (("untrimmed", untrimmed), ("trimmed", trimmed))
+    }
+    assert gap["trimmed"] > 3 * gap["untrimmed"] and gap["trimmed"] > 20  # nats
+    # where the seed is clean the trimmed fit is the same model
+    clean = skyline._sky_cost(px, seed & ~snowy)
+    np.testing.assert_allclose(np.median(trimmed[blue]), np.median(clean[blue]), atol=1.0)
