@@ -100,6 +100,7 @@ def _analysis(ranking, visible, s, rule: dict, **extra) -> SceneAnalysis:
         beta=s.beta,
         floor=s.floor,
         max_llr=s.max_llr,
+        neighbour_visibility=s.neighbour_visibility,
         position_spread=s.position_spread,
         position_dof=s.position_dof,
         max_position_llr=s.max_position_llr,

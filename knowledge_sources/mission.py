@@ -158,6 +158,7 @@ def agent_plan(
                 "questions": sched.questions,
                 "floor": sched.floor,
                 "max_llr": sched.max_llr,
+                "neighbour_visibility": sched.neighbour_visibility,
                 "position_evidence": sched.position_evidence,
                 "position_spread": list(sched.position_spread),
                 "position_dof": sched.position_dof,

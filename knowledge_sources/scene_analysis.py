@@ -62,6 +62,17 @@ Posterior
 
     In both, an unanswered question (detector dead or late, or undecided) changes nothing.
 
+Visibility near a viewframe (``soft`` only, ``neighbour_visibility`` = ``a`` > 0)
+    A camera frame is taken near a viewframe, not at it: a landmark that comes into view (or
+    behind a ridge) between viewframe k and its neighbour along the route may be in the frame
+    although k does not show it, or missing although k does. With ``I_j(L)`` = 1 when viewframe j
+    shows L, the probability that a frame near k shows L is taken as
+    ``v_k(L) = (1 - 2a) I_k(L) + a (I_{k-1}(L) + I_{k+1}(L))`` (a missing neighbour at the route's
+    ends counts as k itself), and an answer of ratio ``λ`` multiplies candidate k's likelihood by
+    ``v_k e**λ + (1 - v_k)`` (exactly ``e**λ`` and 1 at ``v_k`` = 1 and 0: ``a`` = 0 is the rule
+    above). ``P(L|A) = sum_k pi_k v_k(L)``. Questions are still about landmarks some surviving
+    candidate shows, asked as seen from one that shows them.
+
 Which question next
     Among landmarks visible in at least one surviving candidate and not yet asked, with
     ``p_L = P(L|A) = sum_{k ∋ L} pi_k``:
@@ -205,6 +216,9 @@ class SceneAnalysis:
         ``soft``: a candidate whose posterior falls below it is discarded.
     max_llr : float
         ``soft``: answers' log-likelihood ratios are clipped to ``[-max_llr, max_llr]``.
+    neighbour_visibility : float
+        ``soft``: a neighbouring viewframe's share of a viewframe's landmark visibility, in
+        [0, 0.5] (module docstring, "Visibility near a viewframe"); 0: the visible sets exactly.
     beta : float
         Sharpness of the ranking weights (:func:`ranking_weights`).
     track_prior : mapping viewframe -> probability, or array (N,) of each route point's, optional
@@ -243,6 +257,7 @@ class SceneAnalysis:
     questions: QuestionOrder = _DEFAULTS.questions
     floor: float = _DEFAULTS.floor
     max_llr: float = _DEFAULTS.max_llr
+    neighbour_visibility: float = _DEFAULTS.neighbour_visibility
     placements: Mapping[int, Mapping[str, Sequence[float]]] | None = None
     turns: Mapping[int, Sequence[float]] | None = None
     position_evidence: bool = _DEFAULTS.position_evidence
@@ -279,6 +294,8 @@ class SceneAnalysis:
             raise ValueError("floor must be in [0, 1)")
         if not self.max_llr > 0:
             raise ValueError("max_llr must be > 0")
+        if not 0.0 <= self.neighbour_visibility <= 0.5:
+            raise ValueError(f"neighbour_visibility must be in [0, 0.5], not {self.neighbour_visibility}")
         if len(self.position_spread) != 3 or not all(float(v) > 0 for v in self.position_spread):
             raise ValueError("position_spread must be three values > 0: (elevation_deg, azimuth_deg, log_size)")
         if not self.position_dof > 0:
@@ -343,6 +360,19 @@ class SceneAnalysis:
             return {}
         return {k: p / total for k, p in raw.items()}
 
+    def _blurred(self) -> bool:
+        return self.backtracking == "soft" and self.neighbour_visibility > 0
+
+    def visibility(self, k: int, landmark: str) -> float:
+        """``v_k(L)``: how likely a camera frame near viewframe ``k`` shows ``landmark`` (module
+        docstring, "Visibility near a viewframe"); 0 or 1 without ``neighbour_visibility``."""
+        here = float(landmark in self._landmarks(k))
+        if not self._blurred():
+            return here
+        a = self.neighbour_visibility
+        near = sum(float(landmark in self._landmarks(j)) if j in self.visible else here for j in (k - 1, k + 1))
+        return (1.0 - 2.0 * a) * here + a * near
+
     def landmark_probabilities(self) -> dict[str, float]:
         """``P(L|A)`` of every landmark visible in a surviving candidate (answered ones included)."""
         post = self.posterior()
@@ -350,6 +380,8 @@ class SceneAnalysis:
         for k, p in post.items():
             for lm in self._landmarks(k):
                 probs[lm] = probs.get(lm, 0.0) + p
+        if self._blurred():
+            probs = {lm: sum(p * self.visibility(k, lm) for k, p in post.items()) for lm in probs}
         return probs
 
     def _best(self, post: Mapping[int, float]) -> int:
@@ -465,8 +497,18 @@ class SceneAnalysis:
         llr = max(-self.max_llr, min(self.max_llr, float(llr)))
         step["llr"] = round(llr, 4)
         holders = [k for k in self._weights if question.landmark in self._landmarks(k)]
-        for k in holders:
-            self._likelihood[k] += llr
+        near = 0
+        if self._blurred():
+            for k in self._weights:
+                v = self.visibility(k, question.landmark)
+                if v >= 1.0:
+                    self._likelihood[k] += llr
+                elif v > 0.0:  # log(v e**llr + 1 - v)
+                    self._likelihood[k] += float(np.logaddexp(math.log(v) + llr, math.log1p(-v)))
+                    near += k not in holders
+        else:
+            for k in holders:
+                self._likelihood[k] += llr
         if llr > 0:
             self._present.add(question.landmark)
             if self.position_evidence and where is not None:
@@ -483,7 +525,11 @@ class SceneAnalysis:
             del self._likelihood[k]
         if low:
             self._backtracks += 1
-        step["effect"] = f"llr {llr:+.2f} on {len(holders)}" + (f", discarded {low}" if low else "")
+        step["effect"] = (
+            f"llr {llr:+.2f} on {len(holders)}"
+            + (f" (+{near} near)" if near else "")
+            + (f", discarded {low}" if low else "")
+        )
 
     def position_llr(self, landmark: str, where: Sequence[float], holders: Sequence[int]) -> dict[int, float]:
         """The position evidence of ``where`` (the observed placement of ``landmark``) for each of

@@ -96,7 +96,7 @@ class Scheduler(KnowledgeSource):
     ``min_pixels`` (a landmark is asked about only where it covers at least this many pixels of
     the viewframe: smaller ones cannot be verified reliably), ``query_timeout_s``,
     ``backtracking`` ("hard" or "soft"), ``questions`` ("information" or "probability"),
-    ``floor``, ``max_llr``, ``position_evidence``, ``position_spread``, ``position_dof``,
+    ``floor``, ``max_llr``, ``neighbour_visibility``, ``position_evidence``, ``position_spread``, ``position_dof``,
     ``max_position_llr`` (the scene-analysis rule's, :mod:`knowledge_sources.scene_analysis`; the
     position evidence's predictions are the map's ``placements``, the camera's turn against each
     viewframe the ``shifts`` of a ranking source that posts them, the skyline);
@@ -143,6 +143,7 @@ class Scheduler(KnowledgeSource):
         questions: str = _DEFAULTS.questions,
         floor: float = _DEFAULTS.floor,
         max_llr: float = _DEFAULTS.max_llr,
+        neighbour_visibility: float = _DEFAULTS.neighbour_visibility,
         position_evidence: bool = _DEFAULTS.position_evidence,
         position_spread: tuple[float, float, float] | list[float] = _DEFAULTS.position_spread,
         position_dof: float = _DEFAULTS.position_dof,
@@ -176,6 +177,7 @@ class Scheduler(KnowledgeSource):
         self.questions: QuestionOrder = questions  # type: ignore[assignment]  # checked just above
         self.floor = float(floor)
         self.max_llr = float(max_llr)
+        self.neighbour_visibility = float(neighbour_visibility)
         self.position_evidence = bool(position_evidence)
         if len(position_spread) != 3:
             raise ValueError(f"position_spread must be three values, got {position_spread!r}")
@@ -385,6 +387,7 @@ class Scheduler(KnowledgeSource):
             questions=self.questions,
             floor=self.floor,
             max_llr=self.max_llr,
+            neighbour_visibility=self.neighbour_visibility,
             placements=self._placements or None,
             turns=st.turns or None,
             position_evidence=self.position_evidence,

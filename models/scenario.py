@@ -516,6 +516,12 @@ class SchedulerSpec(_Spec):
     #: soft: no single answer moves a candidate's log-odds by more than this (natural log; 20 is
     #: a likelihood ratio of about 5e8, beyond which one answer would decide alone)
     max_llr: float = Field(default=3.0, gt=0, le=MAX_LLR)
+    #: soft: how likely a camera frame taken near a viewframe shows a landmark that the viewframe
+    #: does not show but a neighbouring viewframe along the route does (one neighbour's share: the
+    #: viewframe's own visibility blurred along the route by (a, 1 - 2a, a), so a landmark shown by
+    #: this viewframe alone counts 1 - 2a); 0: the symbolic descriptions' visible sets exactly, the
+    #: rule before session 15 (knowledge_sources.scene_analysis, "Visibility near a viewframe")
+    neighbour_visibility: float = Field(default=0.0, ge=0, le=0.5)
     #: soft: answers say where the landmark was found, and that place enters the posterior of every
     #: candidate showing it by how well it fits where the candidate puts it (position evidence,
     #: knowledge_sources.scene_analysis); false (default): presence only. Off because on the

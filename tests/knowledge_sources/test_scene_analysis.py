@@ -141,6 +141,8 @@ def test_answer_must_match_pending_question():
         ({"questions": "random"}, "questions"),
         ({"floor": 1.0}, "floor"),
         ({"max_llr": 0.0}, "max_llr"),
+        ({"neighbour_visibility": -0.1}, "neighbour_visibility"),
+        ({"neighbour_visibility": 0.6}, "neighbour_visibility"),
     ],
 )
 def test_invalid_parameters(kwargs, message):
@@ -299,6 +301,66 @@ def test_soft_llr_is_clipped_and_never_discards_the_best():
     q = sa2.next_question()
     sa2.answer(q, False, llr=-50.0)
     assert list(sa2.posterior()) == [0]  # the only candidate is kept: the best is never discarded
+
+
+# -- visibility near a viewframe ----------------------------------------------------------------
+
+# a route of five viewframes: landmark L comes into view at viewframe 2, M is seen from 1 only
+ROUTE_VISIBLE = {0: set(), 1: {"M"}, 2: {"L"}, 3: {"L"}, 4: {"L"}}
+
+
+@pytest.mark.parametrize("a", [0.1, 0.25, 0.5])
+def test_visibility_is_the_visible_sets_blurred_along_the_route(a):
+    sa = SceneAnalysis(_ranking(1, n=5), ROUTE_VISIBLE, neighbour_visibility=a)
+    assert [sa.visibility(k, "L") for k in range(5)] == pytest.approx([0.0, a, 1 - a, 1.0, 1.0])  # 4: its end
+    assert [sa.visibility(k, "M") for k in range(5)] == pytest.approx([a, 1 - 2 * a, a, 0.0, 0.0])
+    # without the blur, or under the hard rule, the visible sets exactly
+    for kwargs in ({"neighbour_visibility": 0.0}, {"neighbour_visibility": a, **HARD}):
+        sharp = SceneAnalysis(_ranking(1, n=5), ROUTE_VISIBLE, **kwargs)
+        assert [sharp.visibility(k, "L") for k in range(5)] == [0.0, 0.0, 1.0, 1.0, 1.0]
+
+
+@pytest.mark.parametrize("llr", [2.5, -2.5])
+def test_an_answer_moves_each_candidate_by_its_visibility(llr):
+    a = 0.25
+    ranking = [(k, 1.0) for k in range(5)]  # uniform weights
+    sa = SceneAnalysis(ranking, ROUTE_VISIBLE, neighbour_visibility=a, max_llr=10.0, floor=0.0)
+    prior = sa.posterior()
+    sa._pending = q = Question("L", 2, 0.5)
+    sa.answer(q, llr > 0, llr=llr)
+    post = sa.posterior()
+    for k in range(5):
+        v = sa.visibility(k, "L")
+        want = v * np.exp(llr) + 1 - v  # the likelihood ratio against viewframe 0 (v = 0)
+        assert (post[k] / post[0]) / (prior[k] / prior[0]) == pytest.approx(want)
+
+
+def test_probability_of_a_landmark_counts_the_neighbours_share():
+    a = 0.25
+    ranking = [(k, 1.0) for k in range(5)]
+    sa = SceneAnalysis(ranking, ROUTE_VISIBLE, neighbour_visibility=a)
+    probs = sa.landmark_probabilities()
+    assert probs["L"] == pytest.approx((a + (1 - a) + 1 + 1) / 5)
+    assert probs["M"] == pytest.approx((a + (1 - 2 * a) + a) / 5)
+    sharp = SceneAnalysis(ranking, ROUTE_VISIBLE, neighbour_visibility=0.0).landmark_probabilities()
+    assert sharp["L"] == pytest.approx(3 / 5) and sharp["M"] == pytest.approx(1 / 5)
+
+
+def test_a_landmark_coming_into_view_next_does_not_move_the_answer_to_the_neighbour():
+    # the camera frame near viewframe 1 (ranked first) already sees L, which viewframe 1 does not
+    # show and viewframes 2-4 do: with the visible sets exactly, "L present" moves the answer to 2;
+    # with the neighbours' share, viewframe 1 keeps it
+    visible = {0: set(), 1: set(), 2: {"L"}, 3: {"L"}, 4: {"L"}}
+    ranking = [(1, 1.0), (2, 1.2), (0, 1.5), (3, 1.6), (4, 1.7)]  # weights of 1 and 2 about 7.6 : 1
+
+    def decide(a):
+        sa = SceneAnalysis(ranking, visible, neighbour_visibility=a, questions="probability", accept=0.95)
+        while (q := sa.next_question()) is not None:
+            sa.answer(q, True, llr=3.0)
+        return sa.decision.viewframe
+
+    assert decide(0.0) == 2
+    assert decide(0.3) == 1
 
 
 # -- question choice -----------------------------------------------------------------------------

@@ -408,3 +408,19 @@ def test_a_certain_ranking_is_not_verified() -> None:
     assert not bb.hypotheses(levels.VERIFY_QUERY) and len(bb.hypotheses(levels.POSITION)) == 1
     with pytest.raises(ValueError, match="verify_candidates"):
         Scheduler("scheduler", verify_candidates=1)
+
+
+@pytest.mark.parametrize("a", [0.0, 0.3])
+def test_the_neighbours_visibility_reaches_the_scene_analysis(a: float) -> None:
+    """Viewframe 1 does not show H1, its neighbours 0 and 2 do: with ``neighbour_visibility`` the
+    answer "H1 present" also lifts 1 (the step says so), without it only the viewframes showing H1."""
+    bb = MemoryBlackboard()
+    bb.add(Scheduler("scheduler", query_timeout_s=5.0, neighbour_visibility=a))
+    levels.post(bb.user, MAP)
+    _rank(bb, 0, {0: [(1, 1.0e-5), (2, 1.05e-5), (0, 1.1e-5), (3, 1.2e-5)]})
+    bb.run(timeouts=False)
+    _answer_each(bb, lambda q: {"present": True, "llr": 2.0} if q.landmark == "H1" else {"present": False, "llr": -2.0})
+    (ph,) = bb.hypotheses(levels.POSITION)
+    steps = levels.Position.from_hypothesis(ph).steps
+    h1 = next(s for s in steps if s["landmark"] == "H1")
+    assert ("near" in h1["effect"]) is (a > 0), h1

@@ -115,6 +115,7 @@ MALFORMED = [
     ("scheduler", {"questions": "any"}, "scheduler.questions: must be one of 'information' or 'probability'"),
     ("scheduler", {"floor": 1.0}, "scheduler.floor: must be < 1"),
     ("scheduler", {"max_llr": 0}, "scheduler.max_llr: must be > 0"),
+    ("scheduler", {"neighbour_visibility": 0.7}, "scheduler.neighbour_visibility: must be <= 0.5"),
     ("scheduler", {"align_deg": [2.0, 60.0]}, "scheduler.align_deg: must be two angles in [0, 45) degrees"),
     ("scheduler", {"calibration": {"house": [1.0, 2.0]}}, "scheduler.calibration: house: a calibration is 6 numbers"),
     ("scheduler", {"detector_scales": [1.0, 8.0]}, "scheduler.detector_scales: every scale must be within [0.25, 4]"),
