@@ -18,7 +18,9 @@ field of view), not fitted to the scenario camera.
 
 ``--extraction-rounds N`` fixes the EM at N rounds (3: the rule before session 14), for a before and
 after in one tree; ``--both`` runs each frame both ways (the default rule, then N = 3) in one run.
-``--seed-trim-rounds 0``: the first round's sky model untrimmed (the rule before session 15).
+``--seed-trim-rounds 0``: the first round's sky model untrimmed (the rule before session 15);
+``--sky-field quadratic``: the sky model's field quadratic in the row (the rule before session 15's
+spline).
 
     python bench/horizon.py --split tuning-sky [--errors large] [--kinds sweep] [--both]
 
@@ -76,6 +78,21 @@ def seed_trim(rounds: int | None) -> Iterator[None]:
         yield
     finally:
         skyline._SEED_TRIM_ROUNDS = saved
+
+
+@contextmanager
+def sky_field(kind: str | None) -> Iterator[None]:
+    """Within the block the sky model's field along the rows is ``kind`` ("quadratic": the rule
+    before session 15; "spline"; None: the default, :data:`models.skyline._SKY_FIELD`)."""
+    saved = skyline._SKY_FIELD
+    if kind is not None:
+        if kind not in ("spline", "quadratic"):
+            raise ValueError(f"sky field must be 'spline' or 'quadratic', not {kind!r}")
+        skyline._SKY_FIELD = kind
+    try:
+        yield
+    finally:
+        skyline._SKY_FIELD = saved
 
 
 def frame_errors(image: np.ndarray, horizon: np.ndarray, *, fov_y_deg: float) -> tuple[np.ndarray, int, float]:
@@ -190,13 +207,19 @@ def main(argv: list[str] | None = None) -> int:
         help="trimmed refits of the seed's sky model (0: untrimmed, the rule before session 15)",
     )
     parser.add_argument(
+        "--sky-field",
+        choices=("spline", "quadratic"),
+        default=None,
+        help="the sky model's field along the rows (quadratic: the rule before session 15)",
+    )
+    parser.add_argument(
         "--both", action="store_true", help=f"the default rule and {BEFORE_ROUNDS} fixed rounds, frame by frame"
     )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     rules: tuple[int | None, ...] = (None, BEFORE_ROUNDS) if args.both else (args.extraction_rounds,)
     t0 = time.time()
-    with seed_trim(args.seed_trim_rounds):
+    with seed_trim(args.seed_trim_rounds), sky_field(args.sky_field):
         result = run(
             args.split,
             errors=args.errors,
@@ -207,6 +230,7 @@ def main(argv: list[str] | None = None) -> int:
             max_frames=args.max_frames,
         )
     result["seed_trim_rounds"] = args.seed_trim_rounds
+    result["sky_field"] = args.sky_field
     result["machine"] = {
         "python": platform.python_version(),
         "load_at_end": Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None,

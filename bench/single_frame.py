@@ -20,7 +20,7 @@ list of frame records): add one there (e.g. a ranking source's own top-1 once re
     python bench/single_frame.py [--split heldout|tuning|fresh] [--names h-mesas ...] [--kinds sweep]
         [--memory '{"bank_size": 1}'] [--scheduler '{...}'] [--skyline '{...}'] [--render '{...}']
         [--refine '{"recheck": false}'] [--verify '{"enabled": true}'] [--track] [--errors standard|large]
-        [--extraction-rounds 3] [--seed-trim-rounds 0] [--json-only]
+        [--extraction-rounds 3] [--seed-trim-rounds 0] [--sky-field quadratic] [--json-only]
 
 ``--errors large``: the evaluation set's larger pose errors (:data:`bench.evalset.ERROR_PROFILES`).
 """
@@ -46,7 +46,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.evalset import ERROR_PROFILES, SPLITS, cases  # noqa: E402
-from bench.horizon import fixed_rounds, seed_trim  # noqa: E402
+from bench.horizon import fixed_rounds, seed_trim, sky_field  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -195,6 +195,12 @@ def main(argv: list[str] | None = None) -> int:
         help="trimmed refits of the horizon extraction's seed sky model (0: untrimmed, the rule before "
         "session 15), for a before and after in one tree",
     )
+    parser.add_argument(
+        "--sky-field",
+        choices=("spline", "quadratic"),
+        default=None,
+        help="the horizon extraction's sky field along the rows (quadratic: the rule before session 15)",
+    )
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -212,12 +218,13 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
     # every agent runs in this process (run_mission)
-    with fixed_rounds(args.extraction_rounds), seed_trim(args.seed_trim_rounds):
+    with fixed_rounds(args.extraction_rounds), seed_trim(args.seed_trim_rounds), sky_field(args.sky_field):
         result = run(
             args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors
         )
     result["extraction_rounds"] = args.extraction_rounds
     result["seed_trim_rounds"] = args.seed_trim_rounds
+    result["sky_field"] = args.sky_field
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),

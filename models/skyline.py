@@ -113,6 +113,13 @@ _SETTLED = 0.02
 _SEED_TRIM_ROUNDS = 2
 #: ... this share
 _SEED_TRIM_SHARE = 0.1
+#: the sky field along the rows: "spline" (session 15: a smoothing spline, :func:`_sky_design`) or
+#: "quadratic" (sessions 3-14: it could not follow a sky that pales steeply towards the horizon)
+_SKY_FIELD = "spline"
+#: the spline's knots over the working image's rows ...
+_SKY_KNOTS = 8
+#: ... and the weight of its second differences (per knot, against the fitted pixels)
+_SKY_SMOOTH = 1.0
 _MIN_OVERLAP = 0.5
 
 
@@ -227,20 +234,41 @@ def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64] | None, cov: NDAr
 
 class _Pixels:
     """One working image's per-pixel quantities that every EM round uses: the features as (H*W, 4)
-    float64 and the sky field's design matrix (1, row, row**2, col), computed once per image."""
+    float64 and the sky field's design matrix (a row per pixel, :func:`_sky_design`) with its
+    penalty rows, computed once per image."""
 
     def __init__(self, feat: NDArray[np.float32]) -> None:
         h, w = feat.shape[:2]
         self.shape = (h, w)
         self.x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
-        r, c = np.mgrid[0:h, 0:w]
-        rr, cc = (r / h).ravel(), (c / w).ravel() - 0.5
-        self.design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
+        self.design, self.penalty = _sky_design(h, w)
+
+
+def _sky_design(h: int, w: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The sky field's design, (H*W, K + 1), and its roughness penalty, (P, K + 1), of an (h, w)
+    working image (pixel (r, c) is row ``r * w + c``).
+
+    :data:`_SKY_FIELD` ``"spline"``: piecewise linear in the row between :data:`_SKY_KNOTS` knots
+    spread evenly over the rows (hat functions), linear in the column; the penalty is the knots'
+    second differences, so that the field is a smoothing spline that goes on linearly below the
+    rows it was fitted on. ``"quadratic"`` (sessions 3-14): (1, row, row**2, column), no penalty."""
+    r, c = np.mgrid[0:h, 0:w]
+    cc = (c / w).ravel() - 0.5
+    if _SKY_FIELD == "quadratic":
+        rr = (r / h).ravel()
+        return np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1), np.zeros((0, 4))
+    knots = np.linspace(0.0, 1.0, _SKY_KNOTS)
+    step = knots[1] - knots[0]
+    rows = ((r + 0.5) / h).ravel()
+    hats = np.maximum(0.0, 1.0 - np.abs(rows[:, None] - knots[None, :]) / step)
+    second = np.diff(np.eye(_SKY_KNOTS), n=2, axis=0)
+    return np.concatenate([hats, cc[:, None]], axis=1), np.concatenate([second, np.zeros((len(second), 1))], axis=1)
 
 
 def _sky_cost(px: _Pixels, sel: NDArray[np.bool_], *, trim_rounds: int = 0) -> NDArray[np.float64]:
-    """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
-    residuals, fitted to the pixels in ``sel`` (H, W); negative log density per pixel, (H, W).
+    """Sky: a smooth field (:func:`_sky_design`: a smoothing spline in the row, linear in the
+    column: the sky's gradient) plus Gaussian residuals, fitted to the pixels in ``sel`` (H, W);
+    negative log density per pixel, (H, W).
 
     ``trim_rounds``: that many times, the fit is done again without the :data:`_SEED_TRIM_SHARE`
     of its pixels that fit it worst (Mahalanobis distance of the residual): a trimmed fit, for
@@ -253,7 +281,11 @@ def _sky_cost(px: _Pixels, sel: NDArray[np.bool_], *, trim_rounds: int = 0) -> N
         m[: max(16, w)] = True
     idx = np.flatnonzero(m)
     for left in range(trim_rounds, -1, -1):
-        coef, *_ = np.linalg.lstsq(design[idx], x[idx], rcond=None)
+        # the penalty rows weigh as much per knot as the fitted pixels do
+        pen = px.penalty * math.sqrt(_SKY_SMOOTH * len(idx) / max(1, px.design.shape[1] - 1))
+        a = np.concatenate([design[idx], pen])
+        y = np.concatenate([x[idx], np.zeros((len(pen), x.shape[1]))])
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         res = x - design @ coef
         cov = np.cov(res[idx], rowvar=False) + _FLOOR
         if left == 0:

@@ -55,7 +55,7 @@ GENERATOR_VERSION = "1"
 #: "tuning-sky" (session 14, tuning seeds 16xx): cloudy skies, for choosing (the tuning split has
 #: none); "confirm3" (session 14, seeds 6xxx) for a third rule; "tuning-snow" (session 15, tuning
 #: seeds 17xx): snow and pale rock against the sky, for choosing; "confirm4" (session 15, seeds
-#: 7xxx) for a fourth rule
+#: 7xxx) for a fourth rule; "confirm5" (session 15, seeds 8xxx) for a fifth
 SPLITS: tuple[str, ...] = (
     "tuning",
     "heldout",
@@ -66,6 +66,7 @@ SPLITS: tuple[str, ...] = (
     "confirm3",
     "tuning-snow",
     "confirm4",
+    "confirm5",
 )
 #: the splits parameters may be chosen on (tuning seeds, 1xxx); every other split is held out
 TUNING_SPLITS: tuple[str, ...] = ("tuning", "tuning-sky", "tuning-snow")
@@ -1058,6 +1059,120 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         (1280, 720),
         {"palette": "dry", "sun_azimuth_deg": 200.0, "sun_elevation_deg": 30.0, "fog_m": 7000.0},
         {"jpeg_quality": 80, "noise": 3.0},
+        drives=("kidnap",),
+    ),
+    # ---------------------------------------------------------------- confirm5 (session 15)
+    # seeds 8xxx for the rule on the sky model's spline field (written before this split was
+    # generated): cloudy and hazy skies from the raster renderer on four terrains, the ray caster's
+    # on two; the topobathy strip rows 40-91, cols 0-20 is clear of the other splits'
+    TerrainEntry(
+        "c5-fbm-clouds",
+        "confirm5",
+        8101,
+        16.0,
+        {"family": "fbm", "size": 224, "relief": 160.0, "hurst": 0.65},
+        32.0,
+        32,
+        (576, 432),
+        {
+            "palette": "meadow",
+            "sun_azimuth_deg": 250.0,
+            "sun_elevation_deg": 40.0,
+            "cloud_cover": 0.5,
+            "haze_m": 4000.0,
+        },
+        {"jpeg_quality": 80, "noise": 2.0},
+        drives=("drive",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c5-volcano-haze",
+        "confirm5",
+        8202,
+        20.0,
+        {"family": "volcano", "size": 200, "relief": 380.0},
+        40.0,
+        32,
+        (640, 400),
+        {
+            "palette": "volcanic",
+            "sun_azimuth_deg": 20.0,
+            "sun_elevation_deg": 30.0,
+            "cloud_cover": 0.15,
+            "haze_m": 3500.0,
+        },
+        {"jpeg_quality": 75, "white_balance": 0.05},
+        drives=("kidnap",),
+        renderer="raster",
+    ),
+    TerrainEntry(
+        "c5-alpine-snow",
+        "confirm5",
+        8303,
+        25.0,
+        {"family": "alpine", "size": 224, "relief": 850.0},
+        45.0,
+        32,
+        (720, 405),
+        {
+            "palette": "alpine",
+            "sun_azimuth_deg": 100.0,
+            "sun_elevation_deg": 45.0,
+            "cloud_cover": 0.25,
+            "haze_m": 12000.0,
+            "snow_line": 0.6,
+        },
+        {"jpeg_quality": 80},
+        renderer="raster",
+        frame_far=20000.0,
+    ),
+    TerrainEntry(
+        "c5-topobathy-strip",
+        "confirm5",
+        8404,
+        16.0,
+        {"dem": "topobathy", "rows": (40, 91), "cols": (0, 20), "upsample": 5, "height_scale": 0.08, "sea_level": 0.0},
+        30.0,
+        32,
+        (800, 450),
+        {
+            "palette": "tundra",
+            "sun_azimuth_deg": 300.0,
+            "sun_elevation_deg": 35.0,
+            "cloud_cover": 0.4,
+            "haze_m": 5000.0,
+            "water_level": 0.05,
+        },
+        {"jpeg_quality": 75},
+        drives=("drive",),
+        renderer="raster",
+        route_floor=1.0,
+    ),
+    TerrainEntry(
+        "c5-ridged-contours",
+        "confirm5",
+        8505,
+        12.0,
+        {"family": "ridged", "size": 224, "relief": 160.0},
+        30.0,
+        32,
+        (360, 270),
+        {"palette": "dry", "sun_azimuth_deg": 150.0, "sun_elevation_deg": 40.0, "fog_m": 5000.0},
+        {"jpeg_quality": 85},
+        contours=10.0,
+        drives=("drive",),
+    ),
+    TerrainEntry(
+        "c5-dunes",
+        "confirm5",
+        8606,
+        6.0,
+        {"family": "dunes", "size": 256, "relief": 40.0},
+        20.0,
+        32,
+        (960, 540),
+        {"palette": "dry", "sun_azimuth_deg": 60.0, "sun_elevation_deg": 25.0, "fog_m": 6000.0},
+        {"jpeg_quality": 80, "noise": 2.0},
         drives=("kidnap",),
     ),
 )

@@ -88,6 +88,7 @@ def test_the_splits_have_what_the_issues_ask_for():
         "confirm3",
         "tuning-snow",
         "confirm4",
+        "confirm5",
     )
     # the held-out set: real DEM crops, a contour map, drives, a kidnap
     held = [t for t in TERRAINS if t.split == "heldout"]
@@ -124,7 +125,9 @@ def test_the_fresh_split_is_unlike_the_others():
     assert all(t.renderer == "raycast" for t in others if t.split in ("tuning", "heldout"))
 
 
-@pytest.mark.parametrize("split, thousands", [("confirm", 4), ("confirm2", 5), ("confirm3", 6), ("confirm4", 7)])
+@pytest.mark.parametrize(
+    "split, thousands", [("confirm", 4), ("confirm2", 5), ("confirm3", 6), ("confirm4", 7), ("confirm5", 8)]
+)
 def test_the_confirm_splits_mix_the_others_with_new_seeds(split, thousands):
     confirm = [t for t in TERRAINS if t.split == split]
     lo, hi = thousands * 1000, (thousands + 1) * 1000

@@ -69,3 +69,14 @@ def test_snow_beside_the_sky_in_the_top_rows_is_not_taken_for_sky(tmp_path):
     assert run["all"]["default"]["frames"] == 3
     assert run["all"]["default"]["frames_off"] == 0.0 and run["all"]["default"]["median_deg"] < 0.5
     assert before["all"]["default"]["frames_off"] == 1.0 and before["all"]["default"]["median_deg"] > 2.0
+
+
+@pytest.mark.parametrize("kind", ["quadratic", "spline"])
+def test_sky_field_sets_the_field_and_restores_the_default(kind):
+    before = skyline._SKY_FIELD
+    with horizon.sky_field(kind):
+        assert skyline._SKY_FIELD == kind
+    assert skyline._SKY_FIELD == before
+    with pytest.raises(ValueError, match="sky field"):
+        with horizon.sky_field("cubic"):
+            pass

@@ -25,6 +25,9 @@ from models.skyline import (
     _SEED_TRIM_ROUNDS,
     _SEED_TRIM_SHARE,
     _SETTLED,
+    _SKY_FIELD,
+    _SKY_KNOTS,
+    _SKY_SMOOTH,
     WORK_ROWS,
     _features,
 )
@@ -43,20 +46,39 @@ def _gauss_nll(x: NDArray[np.float64], mu: NDArray[np.float64], cov: NDArray[np.
 
 
 def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], trim_rounds: int = 0) -> NDArray[np.float64]:
-    """Sky: a smooth field (quadratic in row, linear in column: the sky's gradient) plus Gaussian
-    residuals, fitted to the pixels in ``sel``; negative log density per pixel, (H, W)."""
+    """Sky: a smooth field (a smoothing spline in the row: hat functions at _SKY_KNOTS knots, their
+    second differences penalised; linear in column: the sky's gradient) plus Gaussian residuals,
+    fitted to the pixels in ``sel``; negative log density per pixel, (H, W)."""
     h, w = feat.shape[:2]
     r, c = np.mgrid[0:h, 0:w]
-    rr, cc = (r / h).ravel(), (c / w).ravel() - 0.5
-    design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
+    cc = (c / w).ravel() - 0.5
+    if _SKY_FIELD == "quadratic":
+        rr = (r / h).ravel()
+        design = np.stack([np.ones_like(rr), rr, rr * rr, cc], axis=1)
+        penalty = np.zeros((0, 4))
+    else:
+        knots = np.linspace(0.0, 1.0, _SKY_KNOTS)
+        rows = ((r + 0.5) / h).ravel()
+        columns = [np.maximum(0.0, 1.0 - np.abs(rows - k) / (knots[1] - knots[0])) for k in knots]
+        design = np.stack([*columns, cc], axis=1)
+        penalty = np.zeros((_SKY_KNOTS - 2, _SKY_KNOTS + 1))
+        for i in range(_SKY_KNOTS - 2):  # second differences of the knots' values
+            penalty[i, i : i + 3] = (1.0, -2.0, 1.0)
     x = feat.reshape(-1, feat.shape[-1]).astype(np.float64)
     m = sel.ravel()
     if m.sum() < 16:
         m = np.zeros_like(m)
         m[: max(16, w)] = True
-    coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
-    res = x - design @ coef
-    cov = np.cov(res[m], rowvar=False) + _FLOOR
+
+    def fit(m: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        pen = penalty * math.sqrt(_SKY_SMOOTH * m.sum() / max(1, design.shape[1] - 1))
+        coef, *_ = np.linalg.lstsq(
+            np.concatenate([design[m], pen]), np.concatenate([x[m], np.zeros((len(pen), x.shape[1]))]), rcond=None
+        )
+        res = x - design @ coef
+        return res, np.cov(res[m], rowvar=False) + _FLOOR
+
+    res, cov = fit(m)
     for _ in range(trim_rounds):  # fitted again without the seed's worst-fitting pixels
         d2 = np.full(len(x), np.inf)
         d2[m] = ((res[m] @ np.linalg.inv(cov)) * res[m]).sum(1)
@@ -64,9 +86,7 @@ def _sky_cost(feat: NDArray[np.float32], sel: NDArray[np.bool_], trim_rounds: in
         if keep.sum() < 16:
             break
         m = keep
-        coef, *_ = np.linalg.lstsq(design[m], x[m], rcond=None)
-        res = x - design @ coef
-        cov = np.cov(res[m], rowvar=False) + _FLOOR
+        res, cov = fit(m)
     return _gauss_nll(res, np.zeros(x.shape[1]), cov).reshape(h, w)
 
 

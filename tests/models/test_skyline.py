@@ -426,3 +426,33 @@ def test_the_seeds_sky_model_trimmed_leaves_out_a_little_snow(share):
     # where the seed is clean the trimmed fit is the same model
     clean = skyline._sky_cost(px, seed & ~snowy)
     np.testing.assert_allclose(np.median(trimmed[blue]), np.median(clean[blue]), atol=1.0)
+
+
+def test_the_sky_fields_spline_reproduces_a_linear_gradient_and_goes_on_below_it():
+    # the hat functions sum to one on every row; a sky whose colour changes linearly with the row
+    # is fitted exactly from its top third (the second differences of a line are zero), and its
+    # lower rows, never fitted, cost as little as the fitted ones: the spline goes on linearly
+    h, w = 96, 128
+    design, penalty = skyline._sky_design(h, w)
+    assert design.shape == (h * w, skyline._SKY_KNOTS + 1) and penalty.shape == (
+        skyline._SKY_KNOTS - 2,
+        design.shape[1],
+    )
+    np.testing.assert_allclose(design[:, :-1].sum(1), 1.0)
+    rows = np.arange(h)[:, None, None] / h
+    # features (Lab and texture) that change linearly down the rows, with a little noise
+    feat = np.broadcast_to(np.array([70.0, -2.0, -30.0, 0.5]) + rows * np.array([20.0, 1.0, 25.0, 0.0]), (h, w, 4))
+    rng = np.random.default_rng(2)
+    px = skyline._Pixels((feat + rng.normal(0, 0.5, feat.shape)).astype(np.float32))
+    fitted = np.zeros((h, w), bool)
+    fitted[: h // 3] = True
+    cost = skyline._sky_cost(px, fitted)
+    assert np.median(cost[2 * h // 3 :]) < np.median(cost[: h // 3]) + 1.0  # nats
+
+
+def test_the_quadratic_field_is_the_rule_before(monkeypatch):
+    monkeypatch.setattr(skyline, "_SKY_FIELD", "quadratic")
+    design, penalty = skyline._sky_design(4, 3)
+    assert design.shape == (12, 4) and penalty.shape == (0, 4)
+    np.testing.assert_allclose(design[:, 0], 1.0)
+    np.testing.assert_allclose(design[5], [1.0, 0.25, 0.0625, 2 / 3 - 0.5])
