@@ -1064,7 +1064,8 @@ TERRAINS: tuple[TerrainEntry, ...] = (
     # ---------------------------------------------------------------- confirm5 (session 15)
     # seeds 8xxx for the rule on the sky model's spline field (written before this split was
     # generated): cloudy and hazy skies from the raster renderer on four terrains, the ray caster's
-    # on two; the topobathy strip rows 40-91, cols 0-20 is clear of the other splits'
+    # on two; the Jacksboro corner rows 150-180, cols 195-240 is clear of the other splits' and of the
+    # bundled scenario's route
     TerrainEntry(
         "c5-fbm-clouds",
         "confirm5",
@@ -1127,12 +1128,14 @@ TERRAINS: tuple[TerrainEntry, ...] = (
         frame_far=20000.0,
     ),
     TerrainEntry(
-        "c5-topobathy-strip",
+        "c5-jacksboro-corner",
         "confirm5",
         8404,
-        16.0,
-        {"dem": "topobathy", "rows": (40, 91), "cols": (0, 20), "upsample": 5, "height_scale": 0.08, "sea_level": 0.0},
-        30.0,
+        12.0,
+        # every topobathy window with land is taken, and rows 40-91 of the source (north) are sea:
+        # this free Jacksboro corner instead (found generating the split, before anything ran on it)
+        {"dem": "jacksboro", "rows": (150, 180), "cols": (195, 240), "upsample": 3, "height_scale": 0.4},
+        20.0,
         32,
         (800, 450),
         {
@@ -1141,12 +1144,10 @@ TERRAINS: tuple[TerrainEntry, ...] = (
             "sun_elevation_deg": 35.0,
             "cloud_cover": 0.4,
             "haze_m": 5000.0,
-            "water_level": 0.05,
         },
         {"jpeg_quality": 75},
         drives=("drive",),
         renderer="raster",
-        route_floor=1.0,
     ),
     TerrainEntry(
         "c5-ridged-contours",
