@@ -23,11 +23,14 @@ one boundary per column, solved exactly by dynamic programming over the columns 
 ``b_c`` (0..H) is the number of sky pixels at the top of column c. The unaries are negative
 log-likelihoods under per-image Gaussian colour-and-texture models of the two classes (CIE Lab
 plus the log local variance of L), their difference capped at ``cap`` nats so that a few odd
-pixels cannot decide a column. The sky is a smooth field (quadratic in the row, linear in the
-column: a sky gradient) plus Gaussian residuals; the terrain a mixture of Gaussian clusters
-plus a uniform outlier component, so a pixel that fits neither (a hazy far ridge, a landmark)
-counts as terrain: the sky is the simple class. The models start from the top rows (mostly sky)
-and the bottom rows (always terrain for a ground camera) and are refitted from the labelling,
+pixels cannot decide a column. The sky is a smooth field (a smoothing spline in the row that
+goes on linearly below the rows it was fitted on, linear in the column: a sky gradient; a
+quadratic in the row until session 15) plus Gaussian residuals; the terrain a mixture of
+Gaussian clusters plus a uniform outlier component, so a pixel that fits neither (a hazy far
+ridge, a landmark) counts as terrain: the sky is the simple class. The models start from the top
+rows (mostly sky; the sky model's first fit is trimmed of the tenth of them that fit it worst,
+twice, so that a little snow or rock beside the sky does not make it broad enough to take a
+snowfield for sky) and the bottom rows (always terrain for a ground camera) and are refitted from the labelling,
 an EM of hard labels, until the boundary settles (at most 2 % of the columns moved by more than
 a row; at most 12 rounds). Each round the sky model reaches a little further down: under a
 gradient sky, a hazy band above the horizon or clouds, whose lower sky the first rounds' model
