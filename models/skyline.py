@@ -30,8 +30,8 @@ Gaussian clusters plus a uniform outlier component, so a pixel that fits neither
 ridge, a landmark) counts as terrain: the sky is the simple class. The models start from the top
 rows (mostly sky; the sky model's first fit is trimmed of the tenth of them that fit it worst,
 twice, so that a little snow or rock beside the sky does not make it broad enough to take a
-snowfield for sky) and the bottom rows (always terrain for a ground camera) and are refitted from the labelling,
-an EM of hard labels, until the boundary settles (at most 2 % of the columns moved by more than
+snowfield for sky) and the bottom rows (always terrain for a ground camera) and are refitted
+from the labelling, an EM of hard labels, until the boundary settles (at most 2 % of the columns moved by more than
 a row; at most 12 rounds). Each round the sky model reaches a little further down: under a
 gradient sky, a hazy band above the horizon or clouds, whose lower sky the first rounds' model
 (fitted on the top rows) calls terrain, the boundary comes down a few rows a round, and three
@@ -117,7 +117,8 @@ _SEED_TRIM_ROUNDS = 2
 #: ... this share
 _SEED_TRIM_SHARE = 0.1
 #: the sky field along the rows: "spline" (session 15: a smoothing spline, :func:`_sky_design`) or
-#: "quadratic" (sessions 3-14: it could not follow a sky that pales steeply towards the horizon)
+#: "quadratic" (sessions 3-14; it followed a cloudy sky's gradient less well: BENCHMARKS.md, "The
+#: sky model's field"; neither follows a sky that pales steeply to a flat haze band)
 _SKY_FIELD = "spline"
 #: the spline's knots over the working image's rows ...
 _SKY_KNOTS = 8
