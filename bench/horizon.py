@@ -42,7 +42,7 @@ import json  # noqa: E402
 import platform  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Iterator, Sequence  # noqa: E402
-from contextlib import contextmanager  # noqa: E402
+from contextlib import AbstractContextManager, contextmanager  # noqa: E402
 from typing import Any  # noqa: E402
 
 import cv2  # noqa: E402
@@ -56,43 +56,64 @@ BEFORE_ROUNDS = 3
 
 
 @contextmanager
-def fixed_rounds(rounds: int | None) -> Iterator[None]:
-    """Within the block the extraction's EM runs exactly ``rounds`` rounds (None: the default rule)."""
-    saved = skyline._ROUNDS, skyline._SETTLED
-    if rounds is not None:
-        skyline._ROUNDS, skyline._SETTLED = max(1, int(rounds)), -1.0
+def _skyline_set(**values: Any) -> Iterator[None]:
+    """Within the block the named constants of :mod:`models.skyline` have these values."""
+    saved = {name: getattr(skyline, name) for name in values}
+    for name, value in values.items():
+        setattr(skyline, name, value)
     try:
         yield
     finally:
-        skyline._ROUNDS, skyline._SETTLED = saved
+        for name, value in saved.items():
+            setattr(skyline, name, value)
 
 
-@contextmanager
-def seed_trim(rounds: int | None) -> Iterator[None]:
+def fixed_rounds(rounds: int | None) -> AbstractContextManager[None]:
+    """Within the block the extraction's EM runs exactly ``rounds`` rounds (None: the default rule)."""
+    return _skyline_set() if rounds is None else _skyline_set(_ROUNDS=max(1, int(rounds)), _SETTLED=-1.0)
+
+
+def seed_trim(rounds: int | None) -> AbstractContextManager[None]:
     """Within the block the first EM round's sky model is trimmed ``rounds`` times (0: untrimmed,
     the rule before session 15; None: the default, :data:`models.skyline._SEED_TRIM_ROUNDS`)."""
-    saved = skyline._SEED_TRIM_ROUNDS
-    if rounds is not None:
-        skyline._SEED_TRIM_ROUNDS = max(0, int(rounds))
-    try:
-        yield
-    finally:
-        skyline._SEED_TRIM_ROUNDS = saved
+    return _skyline_set() if rounds is None else _skyline_set(_SEED_TRIM_ROUNDS=max(0, int(rounds)))
+
+
+def sky_field(kind: str | None) -> AbstractContextManager[None]:
+    """Within the block the sky model's field along the rows is ``kind`` ("quadratic": the rule
+    before session 15; "spline"; None: the default, :data:`models.skyline._SKY_FIELD`)."""
+    if kind is None:
+        return _skyline_set()
+    if kind not in skyline._SKY_FIELDS:
+        raise ValueError(f"sky field must be one of {', '.join(skyline._SKY_FIELDS)}, not {kind!r}")
+    return _skyline_set(_SKY_FIELD=kind)
+
+
+def add_sky_model_options(parser: argparse.ArgumentParser) -> None:
+    """``--seed-trim-rounds`` and ``--sky-field``: the horizon extraction's sky model as before
+    session 15, for a before and after in one tree (read back by :func:`sky_model`)."""
+    parser.add_argument(
+        "--seed-trim-rounds",
+        type=int,
+        default=None,
+        help="trimmed refits of the horizon extraction's seed sky model (0: untrimmed, the rule before session 15)",
+    )
+    parser.add_argument(
+        "--sky-field",
+        choices=skyline._SKY_FIELDS,
+        default=None,
+        help="the horizon extraction's sky field along the rows (quadratic: the rule before session 15)",
+    )
 
 
 @contextmanager
-def sky_field(kind: str | None) -> Iterator[None]:
-    """Within the block the sky model's field along the rows is ``kind`` ("quadratic": the rule
-    before session 15; "spline"; None: the default, :data:`models.skyline._SKY_FIELD`)."""
-    saved = skyline._SKY_FIELD
-    if kind is not None:
-        if kind not in ("spline", "quadratic"):
-            raise ValueError(f"sky field must be 'spline' or 'quadratic', not {kind!r}")
-        skyline._SKY_FIELD = kind
-    try:
+def sky_model(args: argparse.Namespace, result: dict[str, Any]) -> Iterator[None]:
+    """Within the block the sky model of :func:`add_sky_model_options`'s ``args``; ``result``
+    records them."""
+    with seed_trim(args.seed_trim_rounds), sky_field(args.sky_field):
         yield
-    finally:
-        skyline._SKY_FIELD = saved
+    result["seed_trim_rounds"] = args.seed_trim_rounds
+    result["sky_field"] = args.sky_field
 
 
 def frame_errors(image: np.ndarray, horizon: np.ndarray, *, fov_y_deg: float) -> tuple[np.ndarray, int, float]:
@@ -200,18 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--extraction-rounds", type=int, default=None, help="fixed EM rounds instead of the default rule"
     )
-    parser.add_argument(
-        "--seed-trim-rounds",
-        type=int,
-        default=None,
-        help="trimmed refits of the seed's sky model (0: untrimmed, the rule before session 15)",
-    )
-    parser.add_argument(
-        "--sky-field",
-        choices=("spline", "quadratic"),
-        default=None,
-        help="the sky model's field along the rows (quadratic: the rule before session 15)",
-    )
+    add_sky_model_options(parser)
     parser.add_argument(
         "--both", action="store_true", help=f"the default rule and {BEFORE_ROUNDS} fixed rounds, frame by frame"
     )
@@ -219,18 +229,19 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     rules: tuple[int | None, ...] = (None, BEFORE_ROUNDS) if args.both else (args.extraction_rounds,)
     t0 = time.time()
-    with seed_trim(args.seed_trim_rounds), sky_field(args.sky_field):
-        result = run(
-            args.split,
-            errors=args.errors,
-            kinds=args.kinds,
-            names=args.names,
-            rules=rules,
-            off=args.off,
-            max_frames=args.max_frames,
+    result: dict[str, Any] = {}
+    with sky_model(args, result):
+        result.update(
+            run(
+                args.split,
+                errors=args.errors,
+                kinds=args.kinds,
+                names=args.names,
+                rules=rules,
+                off=args.off,
+                max_frames=args.max_frames,
+            )
         )
-    result["seed_trim_rounds"] = args.seed_trim_rounds
-    result["sky_field"] = args.sky_field
     result["machine"] = {
         "python": platform.python_version(),
         "load_at_end": Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None,

@@ -46,7 +46,7 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.evalset import ERROR_PROFILES, SPLITS, cases  # noqa: E402
-from bench.horizon import fixed_rounds, seed_trim, sky_field  # noqa: E402
+from bench.horizon import add_sky_model_options, fixed_rounds, sky_model  # noqa: E402
 from knowledge_sources.mission import run_mission  # noqa: E402
 
 Frame = dict[str, Any]
@@ -188,19 +188,7 @@ def main(argv: list[str] | None = None) -> int:
         help="the horizon extraction's EM runs exactly this many rounds (3: the rule before session 14), "
         "for a before and after in one tree (default: until the boundary settles)",
     )
-    parser.add_argument(
-        "--seed-trim-rounds",
-        type=int,
-        default=None,
-        help="trimmed refits of the horizon extraction's seed sky model (0: untrimmed, the rule before "
-        "session 15), for a before and after in one tree",
-    )
-    parser.add_argument(
-        "--sky-field",
-        choices=("spline", "quadratic"),
-        default=None,
-        help="the horizon extraction's sky field along the rows (quadratic: the rule before session 15)",
-    )
+    add_sky_model_options(parser)
     parser.add_argument("--json-only", action="store_true")
     args = parser.parse_args(argv)
     blocks = {
@@ -217,14 +205,13 @@ def main(argv: list[str] | None = None) -> int:
     }
     t0 = time.time()
     load = Path("/proc/loadavg").read_text().split()[:3] if Path("/proc/loadavg").exists() else None
+    result: dict[str, Any] = {}
     # every agent runs in this process (run_mission)
-    with fixed_rounds(args.extraction_rounds), seed_trim(args.seed_trim_rounds), sky_field(args.sky_field):
-        result = run(
-            args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors
+    with fixed_rounds(args.extraction_rounds), sky_model(args, result):
+        result.update(
+            run(args.split, names=args.names, kinds=args.kinds, blocks=blocks, track=args.track, errors=args.errors)
         )
     result["extraction_rounds"] = args.extraction_rounds
-    result["seed_trim_rounds"] = args.seed_trim_rounds
-    result["sky_field"] = args.sky_field
     result["machine"] = {
         "python": platform.python_version(),
         "cpus": __import__("os").cpu_count(),

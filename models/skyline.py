@@ -120,6 +120,8 @@ _SEED_TRIM_SHARE = 0.1
 #: "quadratic" (sessions 3-14; it followed a cloudy sky's gradient less well: BENCHMARKS.md, "The
 #: sky model's field"; neither follows a sky that pales steeply to a flat haze band)
 _SKY_FIELD = "spline"
+#: the fields :data:`_SKY_FIELD` may name
+_SKY_FIELDS: tuple[str, ...] = ("spline", "quadratic")
 #: the spline's knots over the working image's rows ...
 _SKY_KNOTS = 8
 #: ... and the weight of its second differences (per knot, against the fitted pixels)
